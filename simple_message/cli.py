@@ -1,0 +1,211 @@
+"""``simple-message``: decode and encode simple_message frames, like tshark for this protocol.
+
+``simple-message decode [--byte-order little|big|auto] [--float64] [--raw] [FILE]``
+    Reads hex frames, one line per frame or per TCP segment (a line may be ``NAME HEX`` as in the
+    conformance vector files, or ``time src dst HEX`` as in the capture segment files: the last
+    token is the hex, the rest becomes ``"label"``; ``#`` lines and blank lines are skipped), or
+    with ``--raw`` a binary byte stream. Prints one JSON object per message on stdout. A malformed
+    frame prints an error object on stderr; the command goes on and exits 1 at the end.
+
+``simple-message encode [--byte-order little|big] [--float64] [--raw] [FILE]``
+    Reads JSON objects, one per line, and prints each frame as a hex line (``--raw``: binary).
+
+FILE defaults to standard input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from collections.abc import Iterator
+from typing import IO, Any
+
+from .errors import FrameError, SimpleMessageError
+from .framing import FrameDecoder
+from .jsonio import message_from_json, message_to_json
+from .messages import decode, encode
+from .wire import ByteOrder, WireFormat
+
+__all__ = ["main", "add_wire_arguments", "wire_from_args"]
+
+log = logging.getLogger("simple_message.cli")
+
+
+def add_wire_arguments(parser: argparse.ArgumentParser, *, allow_auto: bool = True) -> None:
+    """The ``--byte-order`` and ``--float64`` options shared by every command of the project."""
+    choices = ["little", "big", "auto"] if allow_auto else ["little", "big"]
+    parser.add_argument(
+        "--byte-order",
+        choices=choices,
+        default="little",
+        help="wire byte order (default: little, the ROS default build; Fanuc and FS100 use big)"
+        + ("; auto detects it from the first length prefix" if allow_auto else ""),
+    )
+    parser.add_argument("--float64", action="store_true", help="reals are float64 (the FLOAT64 build)")
+
+
+def wire_from_args(args: argparse.Namespace) -> tuple[WireFormat, bool]:
+    """The wire format the options ask for, and whether the byte order is to be detected."""
+    auto = args.byte_order == "auto"
+    order = ByteOrder.LITTLE if auto else ByteOrder(args.byte_order)
+    return WireFormat(order, 8 if args.float64 else 4), auto
+
+
+def add_log_level_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--log-level",
+        default="WARNING",
+        type=str.upper,
+        choices=["DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"],
+        help="logging threshold (default: WARNING)",
+    )
+
+
+def _emit_error(kind: str, message: str, **extra: Any) -> None:
+    print(json.dumps({"error": message, "type": kind, **extra}), file=sys.stderr)
+
+
+class _Decoding:
+    def __init__(self, wire: WireFormat, auto: bool, out: IO[str]) -> None:
+        self.wire = wire
+        self.auto = auto
+        self.out = out
+        self.errors = 0
+
+    def frames(self, decoder: FrameDecoder, **where: Any) -> None:
+        """Print every message ``decoder`` holds; report a framing error and stop there."""
+        while True:
+            try:
+                frame = decoder.next_frame()
+            except FrameError as exc:
+                self.errors += 1
+                _emit_error(type(exc).__name__, str(exc), **where)
+                return
+            if frame is None:
+                return
+            wire = self.wire.with_byte_order(decoder.byte_order or self.wire.byte_order)
+            try:
+                obj = message_to_json(decode(frame, wire), wire.real_size)
+            except SimpleMessageError as exc:
+                self.errors += 1
+                _emit_error(type(exc).__name__, str(exc), hex=frame.hex(), **where)
+                continue
+            obj.update(where)
+            self.out.write(json.dumps(obj) + "\n")
+
+    def new_decoder(self) -> FrameDecoder:
+        return FrameDecoder(None if self.auto else self.wire.byte_order)
+
+    def leftover(self, decoder: FrameDecoder, **where: Any) -> None:
+        if decoder.buffered and not decoder.failed:
+            self.errors += 1
+            _emit_error("TruncatedFrame", f"{decoder.buffered} bytes at the end do not make a whole frame", **where)
+
+
+def _hex_lines(stream: IO[str]) -> Iterator[tuple[int, str | None, str]]:
+    for number, line in enumerate(stream, 1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        tokens = text.split()
+        label = " ".join(tokens[:-1]) or None
+        yield number, label, tokens[-1]
+
+
+def _decode(args: argparse.Namespace) -> int:
+    wire, auto = wire_from_args(args)
+    job = _Decoding(wire, auto, sys.stdout)
+    if args.raw:
+        stream = open(args.file, "rb") if args.file != "-" else sys.stdin.buffer  # noqa: SIM115
+        with stream:
+            decoder = job.new_decoder()
+            while chunk := stream.read(65536):
+                decoder.feed(chunk)
+                job.frames(decoder)
+                if decoder.failed:
+                    break
+            job.leftover(decoder)
+        return 1 if job.errors else 0
+    text = open(args.file, encoding="utf-8") if args.file != "-" else sys.stdin  # noqa: SIM115
+    with text:
+        for number, label, hexdata in _hex_lines(text):
+            where: dict[str, Any] = {"line": number}
+            if label is not None:
+                where["label"] = label
+            try:
+                data = bytes.fromhex(hexdata)
+            except ValueError:
+                job.errors += 1
+                _emit_error("BadHex", f"not hexadecimal: {hexdata[:40]!r}", **where)
+                continue
+            decoder = job.new_decoder()
+            decoder.feed(data)
+            job.frames(decoder, **where)
+            job.leftover(decoder, **where)
+    return 1 if job.errors else 0
+
+
+def _encode(args: argparse.Namespace) -> int:
+    wire, _ = wire_from_args(args)
+    errors = 0
+    out = sys.stdout.buffer if args.raw else None
+    text = open(args.file, encoding="utf-8") if args.file != "-" else sys.stdin  # noqa: SIM115
+    with text:
+        for number, line in enumerate(text, 1):
+            line = line.strip()
+            if not line or line.startswith("#"):
+                continue
+            try:
+                frame = encode(message_from_json(json.loads(line)), wire)
+            except (json.JSONDecodeError, SimpleMessageError) as exc:
+                errors += 1
+                _emit_error(type(exc).__name__, str(exc), line=number)
+                continue
+            if out is not None:
+                out.write(frame)
+            else:
+                sys.stdout.write(frame.hex() + "\n")
+    if out is not None:
+        out.flush()
+    return 1 if errors else 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="simple-message", description="Decode and encode ROS-Industrial simple_message frames."
+    )
+    add_log_level_argument(parser)
+    sub = parser.add_subparsers(dest="command", required=True)
+    dec = sub.add_parser("decode", help="frames (hex lines or --raw bytes) to JSON lines")
+    add_wire_arguments(dec)
+    dec.add_argument("--raw", action="store_true", help="input is a binary byte stream, not hex lines")
+    dec.add_argument("file", nargs="?", default="-", metavar="FILE", help="input file (default: stdin)")
+    dec.set_defaults(func=_decode)
+    enc = sub.add_parser("encode", help="JSON lines to frames (hex lines or --raw bytes)")
+    add_wire_arguments(enc, allow_auto=False)
+    enc.add_argument("--raw", action="store_true", help="write binary frames instead of hex lines")
+    enc.add_argument("file", nargs="?", default="-", metavar="FILE", help="input file (default: stdin)")
+    enc.set_defaults(func=_encode)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=args.log_level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    try:
+        return int(args.func(args))
+    except BrokenPipeError:
+        # The reader went away (e.g. `| head`): stop quietly, as other Unix tools do.
+        import os
+
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 0
+    except OSError as exc:
+        _emit_error("OSError", str(exc))
+        return 2
+    except KeyboardInterrupt:
+        return 130

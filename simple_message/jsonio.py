@@ -1,0 +1,145 @@
+"""Messages as JSON objects, for the ``simple-message`` command and for clients in other languages.
+
+One message is ``{"msg_type": int, "name": str, "comm_type": int, "reply_code": int, "body": {...}}``.
+Body keys are the field names of simple-message.md §2.2 and §8.1 in snake_case (``sequence``,
+``joint_data``, ``velocity``, ``duration``, ``robot_id``, ``valid_fields``, ``time``, ``positions``,
+...). Special bodies:
+
+* ``{}`` on a type that normally has a body: a header-only message (ABB acks, FAILURE replies);
+* ``{"dummy_data": [10 reals]}``: REP-I0006's alternative reply body;
+* ``{"raw": "hex"}``: an unknown type's body, kept byte for byte (also accepted for known types when
+  encoding, to write deliberately odd frames).
+
+Reals that are not finite are written as the strings ``"NaN"``, ``"Infinity"`` and ``"-Infinity"``
+(plain JSON has no such numbers) and accepted back in that form. In float32 formats each real is
+printed as the shortest decimal that reads back to the same float32, so ``0.1`` prints as ``0.1``
+and still re-encodes byte for byte.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import fields
+from typing import Any
+
+from .constants import MsgType
+from .errors import LocalProtocolError
+from .messages import (
+    DummyReply,
+    HeaderOnly,
+    JointTraj,
+    Message,
+    Ping,
+    RawMessage,
+    TrajPoint,
+    message_class,
+)
+
+__all__ = ["message_to_json", "message_from_json"]
+
+_F32 = struct.Struct("<f")
+_NONFINITE = {"NaN": math.nan, "Infinity": math.inf, "-Infinity": -math.inf}
+
+
+def _short_real(x: float, real_size: int) -> float | str:
+    if not math.isfinite(x):
+        return "NaN" if math.isnan(x) else ("Infinity" if x > 0 else "-Infinity")
+    if real_size == 8:
+        return x
+    for digits in range(6, 10):
+        candidate = float(f"{x:.{digits}g}")
+        if _F32.unpack(_F32.pack(candidate))[0] == x:
+            return candidate
+    return x  # pragma: no cover - 9 significant digits always round-trip a float32
+
+
+def _plain(value: Any, real_size: int) -> Any:
+    if isinstance(value, float):
+        return _short_real(value, real_size)
+    if isinstance(value, list):
+        return [_plain(v, real_size) for v in value]
+    if isinstance(value, dict):
+        return {k: _plain(v, real_size) for k, v in value.items()}
+    return value
+
+
+def message_to_json(msg: Message, real_size: int = 4) -> dict[str, Any]:
+    """``msg`` as a JSON-ready dict; ``real_size`` (4 or 8) only affects how reals are printed."""
+    return {
+        "msg_type": int(msg.msg_type),
+        "name": msg.name,
+        "comm_type": int(msg.comm_type),
+        "reply_code": int(msg.reply_code),
+        "body": _plain(msg.body_dict(), real_size),
+    }
+
+
+def _real(value: Any) -> Any:
+    if isinstance(value, str):
+        if value in _NONFINITE:
+            return _NONFINITE[value]
+        raise LocalProtocolError(f"{value!r} is not a number")
+    if isinstance(value, list):
+        return [_real(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _real(v) for k, v in value.items()}
+    return value
+
+
+def _int(obj: dict[str, Any], key: str, default: int | None = None) -> int:
+    value = obj.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise LocalProtocolError(f"{key!r} must be an integer, not {value!r}")
+    return value
+
+
+def message_from_json(obj: Any) -> Message:
+    """Build a message from the JSON form of :func:`message_to_json`.
+
+    ``msg_type`` may be given as an int or by ``name``; ``comm_type`` and ``reply_code`` default to
+    the class's defaults. Raises :class:`~.errors.LocalProtocolError` with a clear reason otherwise.
+    """
+    if not isinstance(obj, dict):
+        raise LocalProtocolError(f"a message must be a JSON object, not {type(obj).__name__}")
+    if "msg_type" in obj:
+        msg_type = _int(obj, "msg_type")
+    elif "name" in obj:
+        try:
+            msg_type = MsgType[str(obj["name"]).upper()]
+        except KeyError:
+            raise LocalProtocolError(f"unknown message name {obj['name']!r}") from None
+    else:
+        raise LocalProtocolError("a message needs 'msg_type' or 'name'")
+    body = obj.get("body", {})
+    if not isinstance(body, dict):
+        raise LocalProtocolError(f"'body' must be an object, not {type(body).__name__}")
+    header: dict[str, int] = {}
+    for key in ("comm_type", "reply_code"):
+        if key in obj:
+            header[key] = _int(obj, key)
+    comm = header.get("comm_type", 2)
+    try:
+        if "raw" in body:
+            if set(body) != {"raw"}:
+                raise LocalProtocolError("'raw' cannot be combined with other body fields")
+            return RawMessage(msg_type, bytes.fromhex(str(body["raw"])), **header)
+        if "dummy_data" in body:
+            return DummyReply(msg_type, _real(body["dummy_data"]), **header)
+        cls = message_class(msg_type, comm)
+        if cls is None:
+            raise LocalProtocolError(f"msg_type {msg_type} is unknown; give its body as {{\"raw\": hex}}")
+        names = [f.name for f in fields(cls) if f.name not in ("comm_type", "reply_code")]
+        if not body and names and cls is not Ping:
+            return HeaderOnly(msg_type, **header)
+        unknown = set(body) - set(names)
+        if unknown:
+            raise LocalProtocolError(f"{cls.__name__} has no field(s) {sorted(unknown)}; its fields are {names}")
+        values = {k: _real(v) for k, v in body.items()}
+        if cls is JointTraj and "points" in values:
+            values["points"] = tuple(TrajPoint(**p) if isinstance(p, dict) else p for p in values["points"])
+        return cls(**values, **header)
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, LocalProtocolError):
+            raise
+        raise LocalProtocolError(f"cannot build msg_type {msg_type} from {body!r}: {exc}") from None
