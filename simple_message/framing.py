@@ -36,7 +36,7 @@ _LE = struct.Struct("<i")
 _BE = struct.Struct(">i")
 
 
-def detect_byte_order(prefix: bytes, max_length: int = DEFAULT_MAX_LENGTH) -> ByteOrder:
+def detect_byte_order(prefix: bytes | bytearray, max_length: int = DEFAULT_MAX_LENGTH) -> ByteOrder:
     """Decide the byte order from a frame's first four bytes.
 
     Raises :class:`~.errors.FrameError` if the prefix is a plausible length in neither order. If it
@@ -65,9 +65,11 @@ class FrameDecoder:
     ``bytes`` including its length prefix, ready for :func:`~.messages.decode`.
     """
 
-    __slots__ = ("_buf", "_frames", "_error", "_order", "_prefix", "max_length", "detected", "frames_decoded")
+    __slots__ = ("_buf", "_error", "_frames", "_order", "_prefix", "detected", "frames_decoded", "max_length")
 
-    def __init__(self, byte_order: ByteOrder | None = ByteOrder.LITTLE, *, max_length: int = DEFAULT_MAX_LENGTH) -> None:
+    def __init__(
+        self, byte_order: ByteOrder | None = ByteOrder.LITTLE, *, max_length: int = DEFAULT_MAX_LENGTH
+    ) -> None:
         if max_length < HEADER_SIZE:
             raise ValueError(f"max_length must be at least {HEADER_SIZE}")
         self.max_length = max_length

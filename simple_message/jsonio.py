@@ -128,7 +128,7 @@ def message_from_json(obj: Any) -> Message:
             return DummyReply(msg_type, _real(body["dummy_data"]), **header)
         cls = message_class(msg_type, comm)
         if cls is None:
-            raise LocalProtocolError(f"msg_type {msg_type} is unknown; give its body as {{\"raw\": hex}}")
+            raise LocalProtocolError(f'msg_type {msg_type} is unknown; give its body as {{"raw": hex}}')
         names = [f.name for f in fields(cls) if f.name not in ("comm_type", "reply_code")]
         if not body and names and cls is not Ping:
             return HeaderOnly(msg_type, **header)

@@ -15,6 +15,10 @@ peers send and that do not fit a type's layout are still decoded (§3):
 
 A known type whose body fits none of its layouts raises :class:`~.errors.MalformedMessage`.
 
+One bit pattern cannot survive: a float32 *signalling* NaN comes back quieted (bit 22 set), because
+every conversion of a float32 to a Python float (a C double) quiets it. Quiet NaNs with any payload,
+infinities, subnormals and -0.0 re-encode exactly. A NaN is never a valid joint value anyway.
+
 Joint arrays are 10 wide on the wire (§1.4); constructors accept any shorter sequence (list, tuple,
 numpy array) and pad it with zeros.
 """
@@ -22,7 +26,7 @@ numpy array) and pad it with zeros.
 from __future__ import annotations
 
 import struct
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
@@ -202,7 +206,7 @@ class _Codec:
     single call; ``plan`` says how the flat tuple maps onto fields.
     """
 
-    __slots__ = ("struct", "length", "plan", "converters")
+    __slots__ = ("converters", "length", "plan", "struct")
 
     def __init__(self, cls: type[Message], wire: WireFormat) -> None:
         layout = _HEADER
@@ -220,7 +224,7 @@ class _Codec:
 
     def pack(self, msg: Message) -> bytes:
         values: list[Any] = [self.length, msg.MSG_TYPE, msg.comm_type, msg.reply_code]
-        for name, start, stop in self.plan:
+        for name, _start, stop in self.plan:
             if stop < 0:
                 values.append(getattr(msg, name))
             else:
@@ -231,14 +235,14 @@ class _Codec:
             raise LocalProtocolError(f"cannot encode {type(msg).__name__}: {exc}") from None
 
     def unpack(self, cls: type[Message], frame: bytes) -> Message:
-        values = self.struct.unpack(frame)
+        values: tuple[Any, ...] = self.struct.unpack(frame)
         obj = object.__new__(cls)
         setter = object.__setattr__
         setter(obj, "comm_type", _COMM.get(values[2], values[2]))
         setter(obj, "reply_code", _REPLY.get(values[3], values[3]))
         conv = self.converters
         for name, start, stop in self.plan:
-            value = values[start] if stop < 0 else values[start:stop]
+            value: Any = values[start] if stop < 0 else values[start:stop]
             if conv and name in conv:
                 value = conv[name].get(value, value)
             setter(obj, name, value)
@@ -732,7 +736,7 @@ class JointTrajPtFullEx(Message):
             return None
         count = (len(body) - 8) // size
         n, seq = wire.struct("ii").unpack_from(body, 0)
-        if count > MOTO_MAX_GROUPS or not (count == n or count == MOTO_MAX_GROUPS):
+        if count > MOTO_MAX_GROUPS or count not in (n, MOTO_MAX_GROUPS):
             return None
         groups = tuple(ExGroup.unpack_from(body, 8 + k * size, wire) for k in range(count))
         return cls(n, seq, groups, comm_type=comm_type, reply_code=reply_code)
@@ -817,7 +821,10 @@ class GetDhParametersReply(Message):
 
     def __post_init__(self) -> None:
         groups = tuple(
-            tuple(link if isinstance(link, DhLink) else DhLink(**link) if isinstance(link, dict) else DhLink(*link) for link in g)
+            tuple(
+                link if isinstance(link, DhLink) else DhLink(**link) if isinstance(link, dict) else DhLink(*link)
+                for link in g
+            )
             for g in self.groups
         )
         if len(groups) > MOTO_MAX_GROUPS:
@@ -1028,11 +1035,16 @@ def decode(frame: bytes, wire: WireFormat = DEFAULT_FORMAT) -> Message:
     """
     size = len(frame)
     if size < LENGTH_SIZE + HEADER_SIZE:
-        raise MalformedMessage(f"frame of {size} bytes is shorter than a header", msg_type=0, comm_type=0, frame=bytes(frame))
+        raise MalformedMessage(
+            f"frame of {size} bytes is shorter than a header", msg_type=0, comm_type=0, frame=bytes(frame)
+        )
     length, msg_type, comm, reply = wire.struct(_HEADER).unpack_from(frame, 0)
     if length != size - LENGTH_SIZE:
         raise MalformedMessage(
-            f"length prefix {length} disagrees with a frame of {size} bytes", msg_type=msg_type, comm_type=comm, frame=bytes(frame)
+            f"length prefix {length} disagrees with a frame of {size} bytes",
+            msg_type=msg_type,
+            comm_type=comm,
+            frame=bytes(frame),
         )
     pair = MESSAGE_CLASSES.get(msg_type)
     comm_e = _COMM.get(comm, comm)

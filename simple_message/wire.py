@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
-from enum import Enum
-from functools import lru_cache
+from enum import StrEnum
+from functools import cache
 
 __all__ = ["ByteOrder", "WireFormat", "LE32", "BE32", "LE64", "BE64", "DEFAULT_FORMAT"]
 
 
-class ByteOrder(str, Enum):
+class ByteOrder(StrEnum):
     """Byte order of every int, real and the length prefix on the wire."""
 
     LITTLE = "little"
@@ -40,8 +40,8 @@ class WireFormat:
     real_size: int = 4
 
     def __post_init__(self) -> None:
-        if not isinstance(self.byte_order, ByteOrder):
-            object.__setattr__(self, "byte_order", ByteOrder(self.byte_order))
+        # Accept the plain strings "little" and "big" too (e.g. from a command line).
+        object.__setattr__(self, "byte_order", ByteOrder(self.byte_order))
         if self.real_size not in (4, 8):
             raise ValueError(f"real_size must be 4 or 8 bytes, not {self.real_size!r}")
 
@@ -60,7 +60,7 @@ class WireFormat:
         return f"{self.byte_order.value}-endian float{self.real_size * 8}"
 
 
-@lru_cache(maxsize=None)
+@cache
 def _compile(order: str, real: str, layout: str) -> struct.Struct:
     return struct.Struct(order + layout.replace("r", real))
 

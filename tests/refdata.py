@@ -35,7 +35,7 @@ _FIELD_NAMES = {
 def _value(text: str) -> Any:
     if text.startswith("["):
         return [float(v) for v in text.strip("[]").split(",")]
-    text = text.split("/")[0]  # "-1/START_TRAJECTORY_DOWNLOAD"
+    text = text.split("/", maxsplit=1)[0]  # "-1/START_TRAJECTORY_DOWNLOAD"
     if text.startswith("0x"):
         return int(text, 16)
     return float(text) if any(c in text for c in ".e") else int(text)

@@ -118,20 +118,33 @@ def test_doc_vectors_v1_to_v20() -> None:
     assert v10 == JointPosition(1, comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS)
     v11 = decode(words("0000000C 0000270F 00000003 00000002"), be)
     assert isinstance(v11, RawMessage) and v11.reply_code == ReplyCode.FAILURE
-    v12 = decode(words("00000028 0000000D 00000001 00000000 00000001 FFFFFFFF 00000000 00000000 00000000 00000002 00000001"), be)
+    v12 = decode(
+        words("00000028 0000000D 00000001 00000000 00000001 FFFFFFFF 00000000 00000000 00000000 00000002 00000001"), be
+    )
     assert v12 == Status(1, -1, 0, 0, 0, 2, 1)
     v14 = decode(V14, be)
     assert isinstance(v14, JointTrajPt)
     assert v14.sequence == 1 and v14.velocity == f32(0.1) and v14.duration == 5.0
     ref = [-3.1e-15, 0.32774, -0.86570, -3.14159, 0.70510, -3.14159, 0, 0, 0, 0]
     assert v14.joint_data == pytest.approx(ref, rel=1e-5, abs=1e-14)
-    v15 = decode(words("94000000 0E000000 02000000 00000000 00000000 00000000 07000000 00000000 CDCCCC3D CDCC4C3E 9A99993E CDCCCC3E 0000003F 9A99193F") + bytes(96), LE32)
+    v15 = decode(
+        words(
+            "94000000 0E000000 02000000 00000000 00000000 00000000 07000000 00000000 "
+            "CDCCCC3D CDCC4C3E 9A99993E CDCCCC3E 0000003F 9A99193F"
+        )
+        + bytes(96),
+        LE32,
+    )
     assert isinstance(v15, JointTrajPtFull) and v15.valid_fields == 7 and len(encode(v15, LE32)) == 152
     v17 = words("40000000 D1070000 02000000 00000000 00000000 00000000 A50D0300") + bytes(40)
     assert decode(v17, LE32).command == 200101  # type: ignore[attr-defined]
-    v19 = decode(words("48000000 D2070000 03000000 01000000 00000000 05000000 0E000000 01000000 00000000") + bytes(40), LE32)
+    v19 = decode(
+        words("48000000 D2070000 03000000 01000000 00000000 05000000 0E000000 01000000 00000000") + bytes(40), LE32
+    )
     assert v19 == MotoMotionReply(0, 5, 14, 1, 0)
-    v20 = decode(words("48000000 D2070000 03000000 01000000 FFFFFFFF FFFFFFFF D2040000 03000000 BB0B0000") + bytes(40), LE32)
+    v20 = decode(
+        words("48000000 D2070000 03000000 01000000 FFFFFFFF FFFFFFFF D2040000 03000000 BB0B0000") + bytes(40), LE32
+    )
     assert v20 == MotoMotionReply(-1, -1, 1234, 3, 3003)
 
 

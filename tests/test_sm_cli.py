@@ -1,0 +1,166 @@
+"""The simple-message command: decode and encode, hex lines and raw streams, errors."""
+
+from __future__ import annotations
+
+import io
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from simple_message import BE32, LE32, JointTrajPt, Status
+from simple_message.cli import main
+
+from .refdata import DATA, load_vectors
+
+
+def run(
+    argv: list[str],
+    stdin: str | bytes = "",
+    monkeypatch: pytest.MonkeyPatch | None = None,
+    capsys: pytest.CaptureFixture[str] | None = None,
+) -> tuple[int, list[dict], list[dict]]:  # type: ignore[type-arg]
+    assert monkeypatch is not None and capsys is not None
+    if isinstance(stdin, bytes):
+        buf = io.BytesIO(stdin)
+        monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(buf))
+    else:
+        monkeypatch.setattr(sys, "stdin", io.StringIO(stdin))
+    code = main(argv)
+    out, err = capsys.readouterr()
+    return (
+        code,
+        [json.loads(line) for line in out.splitlines() if line.startswith("{")],
+        [json.loads(line) for line in err.splitlines() if line.startswith("{")],
+    )
+
+
+def test_decode_vector_file(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run(["decode", str(DATA / "vectors_le.txt")], monkeypatch=monkeypatch, capsys=capsys)
+    assert code == 0 and err == []
+    assert len(out) == 26
+    pt = next(o for o in out if o["label"] == "JOINT_TRAJ_PT_REQUEST_SEQ3")
+    assert pt["msg_type"] == 11 and pt["name"] == "JOINT_TRAJ_PT" and pt["comm_type"] == 2 and pt["reply_code"] == 0
+    assert pt["body"] == {
+        "sequence": 3,
+        "joint_data": [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.0, 0.0, 0.0, 0.0],
+        "velocity": 0.5,
+        "duration": 1.25,
+    }
+    status = next(o for o in out if o["label"] == "STATUS_TOPIC_ERROR")
+    assert status["body"] == {
+        "drives_powered": -1,
+        "e_stopped": 1,
+        "error_code": 1234,
+        "in_error": 1,
+        "in_motion": 0,
+        "mode": 1,
+        "motion_possible": 0,
+    }
+    full = next(o for o in out if o["label"] == "JOINT_TRAJ_PT_FULL_REQUEST")
+    assert set(full["body"]) == {
+        "robot_id",
+        "sequence",
+        "valid_fields",
+        "time",
+        "positions",
+        "velocities",
+        "accelerations",
+    }
+    unknown = next(o for o in out if o["label"] == "UNHANDLED_TYPE_9999_REPLY_FAILURE")
+    assert unknown["body"] == {"raw": ""} and unknown["name"] == "UNKNOWN"
+    ack = next(o for o in out if o["label"] == "JOINT_TRAJ_PT_REPLY_SUCCESS")
+    assert ack["body"] == {}
+
+
+def test_decode_then_encode_is_byte_exact(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    for fname, order in (("vectors_le.txt", "little"), ("vectors_be.txt", "big")):
+        _, out, _ = run(["decode", "--byte-order", order, str(DATA / fname)], monkeypatch=monkeypatch, capsys=capsys)
+        lines = "\n".join(json.dumps(o) for o in out)
+        monkeypatch.setattr(sys, "stdin", io.StringIO(lines))
+        assert main(["encode", "--byte-order", order]) == 0
+        hex_out = capsys.readouterr().out.split()
+        assert [bytes.fromhex(h) for h in hex_out] == [v.frame for v in load_vectors(fname)]
+
+
+def test_decode_autodetects_each_line(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = run(
+        ["decode", "--byte-order", "auto", str(DATA / "motoman_fs100_simple_move.segments.txt")],
+        monkeypatch=monkeypatch,
+        capsys=capsys,
+    )
+    assert code == 0 and len(out) == 164
+    assert out[0]["label"].split()[1:] == ["50241", "55753"]
+
+
+def test_decode_raw_stream_and_errors(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    stream = Status().encode(BE32) + JointTrajPt(1).encode(BE32)
+    good = tmp_path / "good.bin"
+    good.write_bytes(stream)
+    code, out, err = run(["decode", "--raw", "--byte-order", "big", str(good)], monkeypatch=monkeypatch, capsys=capsys)
+    assert code == 0 and [o["name"] for o in out] == ["STATUS", "JOINT_TRAJ_PT"] and err == []
+    bad = tmp_path / "bad.bin"
+    bad.write_bytes(stream + b"\xff\xff\xff\xff" + bytes(20))
+    code, out, err = run(["decode", "--raw", "--byte-order", "big", str(bad)], monkeypatch=monkeypatch, capsys=capsys)
+    assert code == 1 and len(out) == 2 and err[0]["type"] == "FrameError"
+
+
+def test_decode_reports_malformed_lines_and_goes_on(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    good = JointTrajPt(1).encode(LE32).hex()
+    text = "\n".join(
+        [
+            "# comment",
+            "zz",  # not hex
+            "0c000000",  # truncated
+            "130000000b0000000200000000000000" + "00" * 7,  # 7-byte body: malformed JOINT_TRAJ_PT
+            f"GOOD {good}",
+        ]
+    )
+    code, out, err = run(["decode"], text, monkeypatch=monkeypatch, capsys=capsys)
+    assert code == 1
+    assert [o["label"] for o in out] == ["GOOD"]
+    assert [e["type"] for e in err] == ["BadHex", "TruncatedFrame", "MalformedMessage"]
+    assert [e["line"] for e in err] == [2, 3, 4]
+
+
+def test_encode_json_lines(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    text = "\n".join(
+        [
+            json.dumps({"name": "JOINT_TRAJ_PT", "body": {"sequence": 0, "joint_data": [0.1, 0.2], "velocity": 0.5}}),
+            json.dumps({"msg_type": 11, "comm_type": 3, "reply_code": 1, "body": {}}),
+            json.dumps({"msg_type": 9999, "comm_type": 3, "reply_code": 2, "body": {"raw": ""}}),
+            json.dumps({"name": "JOINT_FEEDBACK", "body": {"positions": ["NaN", "Infinity"]}}),
+            json.dumps({"name": "NOPE"}),
+            json.dumps({"name": "PING", "body": {"bogus": 1}}),
+            "not json",
+        ]
+    )
+    monkeypatch.setattr(sys, "stdin", io.StringIO(text))
+    assert main(["encode"]) == 1
+    captured = capsys.readouterr()
+    frames = captured.out.split()
+    assert frames[0] == JointTrajPt(0, [0.1, 0.2], 0.5).encode(LE32).hex()
+    assert frames[1] == "0c0000000b0000000300000001000000"
+    assert frames[2] == "0c0000000f27000003000000020000000"[:32]
+    assert len(frames) == 4
+    errors = [json.loads(e) for e in captured.err.splitlines()]
+    assert [e["line"] for e in errors] == [5, 6, 7]
+    assert "bogus" in errors[1]["error"]
+
+
+def test_python_dash_m_entry_point(tmp_path: Path) -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "simple_message", "decode", "--byte-order", "big", str(DATA / "vectors_be.txt")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert result.returncode == 0, result.stderr
+    assert len(result.stdout.splitlines()) == 26

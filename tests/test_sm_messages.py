@@ -1,0 +1,199 @@
+"""The message API: construction, padding, typed errors, vendor reply shapes, both real sizes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from simple_message import (
+    BE32,
+    LE32,
+    LE64,
+    CommType,
+    DhLink,
+    DummyReply,
+    ExGroup,
+    GetDhParameters,
+    GetDhParametersReply,
+    GetVersion,
+    GetVersionReply,
+    HeaderOnly,
+    JointFeedback,
+    JointFeedbackEx,
+    JointTraj,
+    JointTrajPt,
+    JointTrajPtFull,
+    JointTrajPtFullEx,
+    LocalProtocolError,
+    MalformedMessage,
+    MotoCommand,
+    MotoMotionCtrl,
+    MsgType,
+    Ping,
+    RawMessage,
+    ReadMRegister,
+    ReadMRegisterReply,
+    ReadSingleIo,
+    ReplyCode,
+    SelectTool,
+    Status,
+    TrajPoint,
+    TriState,
+    ValidFields,
+    WriteMRegister,
+    WriteMRegisterReply,
+    decode,
+    encode,
+)
+
+
+def test_joint_arrays_are_padded_and_normalised() -> None:
+    msg = JointTrajPt(0, np.array([0.1, 0.2, 0.3]), 0.5, 1.0)
+    assert msg.joint_data == (0.1, 0.2, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    assert all(type(v) is float for v in msg.joint_data)
+    assert JointTrajPt(0, [1, 2]).joint_data[:2] == (1.0, 2.0)
+
+
+def test_more_than_ten_joints_is_a_local_error() -> None:
+    with pytest.raises(LocalProtocolError, match="at most 10"):
+        JointTrajPt(0, list(range(11)))
+    with pytest.raises(ValueError):  # LocalProtocolError is also a ValueError
+        JointFeedback(positions=[0.0] * 12)
+
+
+def test_out_of_range_ints_are_local_errors_at_encode() -> None:
+    with pytest.raises(LocalProtocolError, match="JointTrajPt"):
+        encode(JointTrajPt(2**31), LE32)
+    with pytest.raises(LocalProtocolError):
+        encode(ReadSingleIo(-1), LE32)  # uint32 address
+    with pytest.raises(LocalProtocolError):
+        encode(HeaderOnly(2**40), LE32)
+
+
+def test_messages_are_immutable_and_hashable() -> None:
+    msg = Status(1, 0, 0, 0, 0, 2, 1)
+    with pytest.raises(AttributeError):
+        msg.in_motion = 1  # type: ignore[misc]
+    assert hash(msg) == hash(Status(1, 0, 0, 0, 0, 2, 1))
+    assert msg.msg_type == MsgType.STATUS and msg.name == "STATUS"
+
+
+def test_decoded_constants_come_back_as_enums() -> None:
+    status = decode(Status(1, 0, 1234, 1, 0, 2, -1).encode(), LE32)
+    assert status.drives_powered is TriState.TRUE  # type: ignore[attr-defined]
+    assert status.comm_type is CommType.TOPIC
+    full = decode(JointTrajPtFull(valid_fields=0x0F).encode(), LE32)
+    assert (
+        full.valid_fields == ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY | ValidFields.ACCELERATION
+    )  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize(
+    ("msg", "length32", "length64"),
+    [
+        (Ping(), 12, 12),
+        (JointTrajPt(), 64, 112),
+        (Status(), 40, 40),
+        (JointTrajPtFull(), 148, 272),
+        (JointFeedback(), 144, 268),
+        (MotoMotionCtrl(), 64, 104),
+        (JointTrajPtFullEx(groups=[ExGroup()]), 152, 276),
+        (JointTrajPtFullEx(groups=[ExGroup()] * 2), 284, 532),
+        (JointTrajPtFullEx(groups=[ExGroup()] * 4), 548, 1044),
+        (JointFeedbackEx(groups=[ExGroup()]), 544, 1040),
+    ],
+)
+def test_frame_sizes(msg: object, length32: int, length64: int) -> None:
+    """simple-message.md §12 frame size table; FLOAT64 doubles every real."""
+    assert len(encode(msg, LE32)) - 4 == length32  # type: ignore[arg-type]
+    assert len(encode(msg, LE64)) - 4 == length64  # type: ignore[arg-type]
+
+
+def test_to_reply_echoes_the_body_like_the_cpp_library() -> None:
+    req = JointTrajPt(3, [0.5], 0.5, 1.25)
+    rep = req.to_reply(ReplyCode.SUCCESS)
+    assert (rep.comm_type, rep.reply_code) == (3, 1)
+    assert encode(rep, LE32)[16:] == encode(req, LE32)[16:]
+    assert HeaderOnly.reply_to(req, ReplyCode.FAILURE).encode(BE32).hex() == "0000000c0000000b0000000300000002"
+
+
+def test_ping_with_the_rep_body_of_ten_ints() -> None:
+    frame = Ping(data=[0] * 10).encode(LE32)
+    assert len(frame) == 56
+    assert decode(frame, LE32) == Ping(data=[0] * 10)
+    assert decode(Ping().encode(LE32), LE32) == Ping()
+
+
+def test_get_version_request_and_reply() -> None:
+    assert decode(GetVersion().encode(), LE32) == GetVersion()
+    rep = GetVersionReply(1, 2, 3)
+    assert decode(rep.encode(), LE32) == rep
+    assert isinstance(decode(HeaderOnly(2, reply_code=2).encode(), LE32), HeaderOnly)
+
+
+def test_joint_traj_cpp_layout_puts_the_count_last() -> None:
+    traj = JointTraj([TrajPoint(0, [0.5], 0.5, 1.0), TrajPoint(1, [0.25], 0.5, 1.0)])
+    frame = traj.encode(LE32)
+    assert len(frame) == 16 + 2 * 52 + 4
+    assert frame[-4:] == (2).to_bytes(4, "little")
+    assert decode(frame, LE32) == traj
+    with pytest.raises(LocalProtocolError, match="200"):
+        JointTraj([TrajPoint()] * 201)
+
+
+def test_full_ex_short_and_full_forms_both_reencode() -> None:
+    short = JointTrajPtFullEx(sequence=7, groups=[ExGroup(0, 7, 1.0, [0.5]), ExGroup(1, 7, 1.0, [0.25])])
+    assert short.number_of_valid_groups == 2
+    assert decode(short.encode(), LE32) == short
+    full = JointTrajPtFullEx(2, 7, [ExGroup(0), ExGroup(1), ExGroup(), ExGroup()])
+    assert len(full.encode()) == 4 + 12 + 536
+    back = decode(full.encode(), LE32)
+    assert back == full and len(back.valid_groups) == 2  # type: ignore[attr-defined]
+    three_of_two = JointTrajPtFullEx(2, 7, [ExGroup()] * 3).encode()
+    with pytest.raises(MalformedMessage):
+        decode(three_of_two, LE32)
+
+
+def test_feedback_ex_always_carries_four_groups() -> None:
+    fb = JointFeedbackEx(groups=[ExGroup(0, 6, 0.0, [0.5]), ExGroup(1, 6)])
+    assert fb.number_of_valid_groups == 2 and len(fb.groups) == 4
+    assert len(fb.encode()) == 548
+    assert decode(fb.encode(), LE32) == fb
+
+
+def test_motoros_mregister_request_and_reply_share_a_type() -> None:
+    assert decode(ReadMRegister(123).encode(), LE32) == ReadMRegister(123)
+    rep = ReadMRegisterReply(42, 0)
+    assert rep.msg_type == MsgType.READ_MREGISTER
+    assert decode(rep.encode(), LE32) == rep
+    assert decode(WriteMRegister(5, 9).encode(), LE32) == WriteMRegister(5, 9)
+    assert decode(WriteMRegisterReply(1003).encode(), LE32) == WriteMRegisterReply(1003)
+
+
+def test_select_tool_and_dh_parameters() -> None:
+    assert decode(SelectTool(0, 3, 9).encode(), LE32) == SelectTool(0, 3, 9)
+    assert decode(GetDhParameters().encode(), LE32) == GetDhParameters()
+    dh = GetDhParametersReply([[DhLink(0.0, 0.339, 0.0, 0.0), DhLink(1.0, 0.0, 0.25, 1.5)]])
+    assert len(dh.groups) == 4 and all(len(g) == 2 for g in dh.groups)
+    full = GetDhParametersReply([[DhLink()] * 8] * 4)
+    assert len(full.encode(LE32)) == 16 + 4 * 8 * 16
+    assert decode(full.encode(LE32), LE32) == full
+
+
+def test_dummy_data_reply_of_rep_i0006() -> None:
+    frame = DummyReply(11, [1.0] * 10).encode(LE32)
+    assert len(frame) == 16 + 40
+    back = decode(frame, LE32)
+    assert isinstance(back, DummyReply) and back.msg_type == 11 and back.data == (1.0,) * 10
+
+
+def test_unknown_type_is_raw_and_byte_exact() -> None:
+    frame = RawMessage(65001, b"\x01\x02\x03", comm_type=1).encode(BE32)
+    back = decode(frame, BE32)
+    assert isinstance(back, RawMessage) and back.body == b"\x01\x02\x03" and back.name == "UNKNOWN"
+    assert back.encode(BE32) == frame
+
+
+def test_moto_motion_ctrl_command() -> None:
+    msg = MotoMotionCtrl(command=MotoCommand.STOP_MOTION)
+    assert decode(msg.encode(), LE32).command == 200111  # type: ignore[attr-defined]
