@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import struct
 from collections import deque
+from collections.abc import Iterator
 
 from .constants import HEADER_SIZE, LENGTH_SIZE
 from .errors import FrameError
@@ -102,13 +103,14 @@ class FrameDecoder:
         """Take the next chunk of the stream. Frames it completes are queued for :meth:`next_frame`."""
         if self._error is not None or not data:
             return
-        buf = self._buf
-        buf += data
+        # Work on one immutable bytes object, so each frame costs one slice (one copy); only the
+        # incomplete tail, at most one frame, is kept between calls.
+        buf = bytes(self._buf) + bytes(data) if self._buf else bytes(data)
         pos = 0
         end = len(buf)
         prefix = self._prefix
         max_length = self.max_length
-        frames = self._frames
+        append = self._frames.append
         try:
             while end - pos >= LENGTH_SIZE:
                 if prefix is None:
@@ -121,14 +123,13 @@ class FrameDecoder:
                 stop = pos + LENGTH_SIZE + length
                 if stop > end:
                     break
-                frames.append(bytes(buf[pos:stop]))
+                append(buf[pos:stop])
                 pos = stop
         except FrameError as exc:
             self._error = exc
-            buf.clear()
+            self._buf = bytearray()
             return
-        if pos:
-            del buf[:pos]
+        self._buf = bytearray(buf[pos:]) if pos < end else bytearray()
 
     def next_frame(self) -> bytes | None:
         """The next complete frame, or ``None`` if more data is needed.
@@ -143,14 +144,15 @@ class FrameDecoder:
             raise self._error
         return None
 
-    def __iter__(self) -> FrameDecoder:
-        return self
-
-    def __next__(self) -> bytes:
-        frame = self.next_frame()
-        if frame is None:
-            raise StopIteration
-        return frame
+    def __iter__(self) -> Iterator[bytes]:
+        """Every complete frame queued so far; raises :class:`~.errors.FrameError` after them if
+        the stream is broken."""
+        frames = self._frames
+        while frames:
+            self.frames_decoded += 1
+            yield frames.popleft()
+        if self._error is not None:
+            raise self._error
 
 
 def _length_problem(length: int, max_length: int) -> str:

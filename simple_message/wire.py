@@ -9,9 +9,10 @@ is this module's default; Fanuc and the Motoman FS100 speak big-endian.
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 from functools import cache
+from typing import Any
 
 __all__ = ["ByteOrder", "WireFormat", "LE32", "BE32", "LE64", "BE64", "DEFAULT_FORMAT"]
 
@@ -38,12 +39,18 @@ class WireFormat:
 
     byte_order: ByteOrder = ByteOrder.LITTLE
     real_size: int = 4
+    #: Prefix + header struct (four int32), precomputed for the hot decode path.
+    header: struct.Struct = field(init=False, repr=False, compare=False, hash=False)
+    #: Per-message-class codecs, filled lazily by :mod:`.messages` (an implementation detail).
+    codecs: dict[type, Any] = field(init=False, repr=False, compare=False, hash=False)
 
     def __post_init__(self) -> None:
         # Accept the plain strings "little" and "big" too (e.g. from a command line).
         object.__setattr__(self, "byte_order", ByteOrder(self.byte_order))
         if self.real_size not in (4, 8):
             raise ValueError(f"real_size must be 4 or 8 bytes, not {self.real_size!r}")
+        object.__setattr__(self, "header", self.struct("iiii"))
+        object.__setattr__(self, "codecs", {})
 
     @property
     def real_char(self) -> str:

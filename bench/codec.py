@@ -1,0 +1,122 @@
+"""Codec benchmark: encode/decode rates per message type and frame-decoder throughput.
+
+Plain script; prints a table. Target (issue 2): decoding at least 300,000 JOINT_TRAJ_PT frames per
+second on one core, frame cutting included.
+
+    python bench/codec.py [--seconds 0.5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import random
+import time
+from collections.abc import Callable
+
+from simple_message import (
+    LE32,
+    FrameDecoder,
+    JointFeedback,
+    JointTrajPt,
+    JointTrajPtFull,
+    Message,
+    Status,
+    decode,
+    encode,
+)
+
+
+def rate(fn: Callable[[], object], seconds: float, batch: int = 1000) -> float:
+    """Calls per second of ``fn``, best of three runs of about ``seconds`` each."""
+    best = 0.0
+    for _ in range(3):
+        n = 0
+        start = time.perf_counter()
+        deadline = start + seconds
+        while True:
+            for _ in range(batch):
+                fn()
+            n += batch
+            now = time.perf_counter()
+            if now >= deadline:
+                break
+        best = max(best, n / (now - start))
+    return best
+
+
+def machine() -> str:
+    """Python version, CPU model and core count, for the benchmark tables."""
+    model = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    model = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return f"Python {platform.python_version()}, {model}, {os.cpu_count()} cores"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--seconds", type=float, default=0.5)
+    args = parser.parse_args()
+    q = [0.1, -0.2, 0.3, -0.4, 0.5, -0.6]
+    samples: list[tuple[str, Message]] = [
+        ("JOINT_TRAJ_PT", JointTrajPt(7, q, 0.5, 0.1)),
+        ("JOINT_TRAJ_PT_FULL", JointTrajPtFull(0, 7, 0x0F, 1.5, q, q, q)),
+        ("JOINT_FEEDBACK", JointFeedback(0, 0x0E, 1.5, q, q, q)),
+    ]
+    print(f"# simple_message codec benchmark: {machine()}")
+    print()
+    print(f"| {'message':<22} | {'encode msg/s':>14} | {'decode msg/s':>14} | {'cut+decode msg/s':>17} |")
+    print(f"|{'-' * 24}|{'-' * 16}|{'-' * 16}|{'-' * 19}|")
+    for name, msg in samples:
+        frame = encode(msg, LE32)
+        enc = rate(lambda m=msg: encode(m, LE32), args.seconds)
+        dec = rate(lambda f=frame: decode(f, LE32), args.seconds)
+        # Frame cutting plus decoding, from a stream of 1000 coalesced frames per feed.
+        chunk = frame * 1000
+        decoder = FrameDecoder()
+
+        def cut_and_decode(chunk: bytes = chunk, decoder: FrameDecoder = decoder) -> None:
+            decoder.feed(chunk)
+            for f in decoder:
+                decode(f, LE32)
+
+        both = rate(cut_and_decode, args.seconds, batch=1) * 1000
+        print(f"| {name:<22} | {enc:>14,.0f} | {dec:>14,.0f} | {both:>17,.0f} |")
+
+    # Frame-decoder throughput on a 10 MB mixed stream fed in 64 KiB reads (as a socket delivers it).
+    rng = random.Random(1)
+    mix = [encode(m, LE32) for _, m in samples] + [encode(Status(1, 0, 0, 0, 1, 2, 1), LE32)]
+    parts: list[bytes] = []
+    size = 0
+    while size < 10_000_000:
+        f = rng.choice(mix)
+        parts.append(f)
+        size += len(f)
+    stream = b"".join(parts)
+    chunks = [stream[i : i + 65536] for i in range(0, len(stream), 65536)]
+    best = 0.0
+    frames = 0
+    for _ in range(3):
+        decoder = FrameDecoder()
+        frames = 0
+        start = time.perf_counter()
+        for c in chunks:
+            decoder.feed(c)
+            for _f in decoder:
+                frames += 1
+        best = max(best, len(stream) / (time.perf_counter() - start))
+    print()
+    print("| frame decoder, 10 MB mixed stream in 64 KiB reads | MB/s | frames/s |")
+    print("|---|---:|---:|")
+    print(f"| {len(stream) / 1e6:.1f} MB, {frames:,} frames | {best / 1e6:,.1f} | {best / len(stream) * frames:,.0f} |")
+
+
+if __name__ == "__main__":
+    main()
