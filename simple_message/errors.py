@@ -28,6 +28,11 @@ __all__ = [
     "FrameError",
     "MalformedMessage",
     "HeaderError",
+    "ConnectionClosed",
+    "NotConnected",
+    "RequestTimeout",
+    "RequestFailed",
+    "UnexpectedReply",
 ]
 
 
@@ -115,3 +120,37 @@ class HeaderError(RemoteProtocolError):
         )
         #: The header's reply_code as received (named apart from the reply we would send).
         self.received_reply_code = reply_code
+
+
+# -- errors of the asyncio layer (connection.py, endpoints.py) -----------------------------------
+
+
+class ConnectionClosed(SimpleMessageError, ConnectionError):
+    """The connection is closed or was lost; a pending request gets this at once, never a hang."""
+
+
+class NotConnected(ConnectionClosed):
+    """A client is between connections (connecting or reconnecting). Nothing was sent or queued."""
+
+
+class RequestTimeout(SimpleMessageError, TimeoutError):
+    """No reply arrived in time. The request was sent once and is never re-sent silently."""
+
+
+class RequestFailed(SimpleMessageError):
+    """The peer answered the request with reply_code FAILURE."""
+
+    def __init__(self, message: str, reply: object) -> None:
+        super().__init__(message)
+        #: The FAILURE reply as received.
+        self.reply = reply
+
+
+class UnexpectedReply(RemoteProtocolError):
+    """A SERVICE_REPLY that cannot answer the pending request: another message type, reply_code
+    INVALID, or a body that fits no layout."""
+
+    def __init__(self, message: str, reply: object = None) -> None:
+        super().__init__(message, reply_code=None)
+        #: The reply as received (a message, or ``None`` if it could not be decoded).
+        self.reply = reply

@@ -1,0 +1,510 @@
+"""Servers and reconnecting clients over TCP and serial links.
+
+:class:`Server` is what every emulated controller port is built on. Per connection it reads in
+arrival order and answers every SERVICE_REQUEST exactly once, in order (simple-message.md §11 item
+4), whatever the handler does:
+
+* handlers are registered per message type: ``server.handle(MsgType.JOINT_TRAJ_PT, fn)``. A handler
+  gets ``(message, session)`` and may be sync or async; for a request it returns the reply message,
+  a :class:`~.constants.ReplyCode` (replied in the server's ``reply_style``: ``echo`` like the C++
+  library, ``header`` like ABB, §3), or ``None`` for SUCCESS;
+* ``on_arrival`` hooks run synchronously the moment a request is read, before queued requests are
+  handled: a STOP must act at once even while an earlier point waits for queue space (§10 pitfall 5);
+* PING is answered SUCCESS with an empty body unless a handler is registered;
+* an unknown SERVICE_REQUEST gets a header-only FAILURE (or what ``unknown_request`` returns, e.g.
+  the MotoROS 2002 INVALID/3003 reply); unknown TOPICs and stray SERVICE_REPLYs are ignored (debug);
+* a request with a malformed body or an invalid header (§1.2) is answered FAILURE;
+* a handler that raises is answered FAILURE and logged; the server goes on;
+* a frame error (bad length prefix) closes only that connection;
+* at most ``max_connections`` connections per server: excess ones are accepted and closed at once,
+  with a log line, so the peer sees a clean EOF rather than a hang;
+* writes are bounded per connection (:class:`~.connection.Connection`), so a stalled peer is closed
+  and never delays the others. :meth:`Server.broadcast` publishes a topic to every connection.
+
+:class:`Client` keeps one connection to a server and reconnects with bounded exponential backoff
+and jitter when it is lost. Its state is observable (:class:`~.connection.ConnectionState`); while it
+is not connected, requests fail at once with :class:`~.errors.NotConnected` (nothing is queued, so
+nothing is sent late); pending requests fail with :class:`~.errors.ConnectionClosed` the moment the
+link drops. Subscriptions survive reconnection.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import inspect
+import logging
+import random
+import socket
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from .connection import Connection, ConnectionState, Subscription, malformed_error
+from .constants import CommType, MsgType, ReplyCode
+from .errors import ConnectionClosed, NotConnected
+from .framing import DEFAULT_MAX_LENGTH
+from .header import header_error
+from .messages import HeaderOnly, Message, Ping
+from .transport import StreamPair, open_fd, open_serial, open_tcp, set_nodelay
+from .wire import DEFAULT_FORMAT, WireFormat
+
+__all__ = ["Server", "Session", "Handler", "Client", "ReconnectPolicy", "ReplyStyle"]
+
+log = logging.getLogger(__name__)
+
+ReplyStyle = Literal["echo", "header"]
+HandlerResult = Message | ReplyCode | int | None
+#: ``handler(message, session)``: returns the reply (see the module docstring); may be async.
+Handler = Callable[[Message, "Session"], HandlerResult | Awaitable[HandlerResult]]
+#: ``hook(message, session)``: runs synchronously as soon as a request arrives.
+ArrivalHook = Callable[[Message, "Session"], None]
+
+
+class Session:
+    """One server-side connection and its request pipeline."""
+
+    def __init__(self, server: Server, connection: Connection, queue_size: int) -> None:
+        self.server = server
+        self.connection = connection
+        self.queue: asyncio.Queue[Message] = asyncio.Queue(queue_size)
+        #: Free for handlers to keep per-connection state in.
+        self.data: dict[str, Any] = {}
+        self.end_reason: BaseException | None = None
+        self._end_task: asyncio.Task[None] | None = None
+
+    @property
+    def name(self) -> str:
+        return self.connection.name
+
+    @property
+    def wire(self) -> WireFormat:
+        return self.connection.wire
+
+    async def send(self, msg: Message) -> None:
+        await self.connection.send(msg)
+
+    def end_of_input(self, reason: BaseException | None) -> None:
+        """The peer stopped sending (EOF or a frame error): answer what is queued, then close."""
+        self.end_reason = reason
+        self._end_task = asyncio.get_running_loop().create_task(self.queue.put(_END))
+
+    def send_nowait(self, msg: Message) -> bool:
+        return self.connection.send_nowait(msg)
+
+
+class Server:
+    """A simple_message server: handlers per message type over any number of links."""
+
+    def __init__(
+        self,
+        wire: WireFormat = DEFAULT_FORMAT,
+        *,
+        name: str = "server",
+        autodetect: bool = False,
+        reply_style: ReplyStyle = "echo",
+        max_connections: int = 16,
+        max_length: int = DEFAULT_MAX_LENGTH,
+        request_queue: int = 64,
+        drain_timeout: float = 2.0,
+        max_write_buffer: int = 256 * 1024,
+        unknown_request: Handler | None = None,
+        socket_send_buffer: int | None = None,
+    ) -> None:
+        self.wire = wire
+        #: SO_SNDBUF for accepted sockets (``None``: the kernel's autotuning, up to megabytes).
+        #: A small value makes a stalled peer show up in our own bounded buffer sooner.
+        self.socket_send_buffer = socket_send_buffer
+        self.name = name
+        self.autodetect = autodetect
+        self.reply_style: ReplyStyle = reply_style
+        self.max_connections = max_connections
+        self.max_length = max_length
+        self.request_queue = request_queue
+        self.drain_timeout = drain_timeout
+        self.max_write_buffer = max_write_buffer
+        self.unknown_request = unknown_request
+        self.sessions: set[Session] = set()
+        self._handlers: dict[int, Handler] = {}
+        self._arrival: dict[int, ArrivalHook] = {}
+        self._servers: list[asyncio.base_events.Server] = []
+        self._tasks: set[asyncio.Task[None]] = set()
+        self._closing = False
+        #: Called with each new and each ended session (e.g. to start publishing state).
+        self.on_connect: Callable[[Session], None] | None = None
+        self.on_disconnect: Callable[[Session], None] | None = None
+        self.refused = 0
+
+    # -- configuration -----------------------------------------------------------------------------
+
+    def handle(self, msg_type: int, handler: Handler, *, on_arrival: ArrivalHook | None = None) -> None:
+        """Register ``handler`` for ``msg_type`` (requests and topics alike)."""
+        self._handlers[msg_type] = handler
+        if on_arrival is not None:
+            self._arrival[msg_type] = on_arrival
+
+    # -- serving -----------------------------------------------------------------------------------
+
+    async def serve_tcp(self, host: str | None = "127.0.0.1", port: int = 0, *, reuse_address: bool = True) -> int:
+        """Listen on ``host:port`` (127.0.0.1 unless told otherwise; ``::1`` for IPv6; port 0 picks
+        a free port) and return the bound port."""
+        server = await asyncio.start_server(self._accept, host, port, reuse_address=reuse_address)
+        self._servers.append(server)
+        bound = server.sockets[0].getsockname()[1]
+        for sock in server.sockets:
+            log.info("%s: listening on %s", self.name, _addr(sock))
+        return int(bound)
+
+    async def _accept(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        set_nodelay(writer)
+        sock = writer.get_extra_info("socket")
+        if self.socket_send_buffer is not None and sock is not None:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.socket_send_buffer)
+        if self._closing or len(self.sessions) >= self.max_connections:
+            self.refused += 1
+            log.warning(
+                "%s: refused %s: %d connections is the limit",
+                self.name,
+                writer.get_extra_info("peername"),
+                self.max_connections,
+            )
+            writer.close()
+            with contextlib.suppress(Exception):
+                await writer.wait_closed()
+            return
+        await self.serve_link((reader, writer))
+
+    async def serve_link(self, streams: StreamPair, name: str | None = None) -> None:
+        """Serve one link (an accepted socket, a serial port) until it closes."""
+        connection = Connection(
+            streams,
+            self.wire,
+            autodetect=self.autodetect,
+            max_length=self.max_length,
+            name=name or f"{self.name} {streams[1].get_extra_info('peername')}",
+            drain_timeout=self.drain_timeout,
+            max_write_buffer=self.max_write_buffer,
+        )
+        session = Session(self, connection, self.request_queue)
+        connection.on_message = lambda msg: self._arrived(session, msg)
+        connection.on_read_end = session.end_of_input
+        self.sessions.add(session)
+        worker = asyncio.get_running_loop().create_task(self._work(session), name=f"sm-work {connection.name}")
+        if self.on_connect is not None:
+            self.on_connect(session)
+        try:
+            connection.start()
+            await connection.wait_closed()
+        finally:
+            worker.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await worker
+            self.sessions.discard(session)
+            await connection.close()
+            if self.on_disconnect is not None:
+                self.on_disconnect(session)
+
+    async def serve_serial(self, url: str, **serial_options: Any) -> None:
+        """Serve one serial link (pyserial URL) until it closes."""
+        await self.serve_link(await open_serial(url, **serial_options), name=f"{self.name} {url}")
+
+    async def serve_fd(self, fd: int, *, name: str = "fd") -> None:
+        """Serve one link over an open file descriptor (e.g. a pty master)."""
+        await self.serve_link(await open_fd(fd, name=name), name=f"{self.name} {name}")
+
+    def start_serving(self, coro: Awaitable[None]) -> asyncio.Task[None]:
+        """Run a ``serve_*`` coroutine in the background, owned (and closed) by this server."""
+        task = asyncio.ensure_future(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+        return task
+
+    def broadcast(self, msg: Message) -> int:
+        """Send a topic to every connection without waiting; returns how many got it."""
+        return sum(1 for s in list(self.sessions) if s.connection.send_nowait(msg))
+
+    async def close(self) -> None:
+        """Stop listening and close every connection."""
+        self._closing = True
+        for server in self._servers:
+            server.close()
+        for session in list(self.sessions):
+            await session.connection.close()
+        for server in self._servers:
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(server.wait_closed(), 2.0)
+        for task in list(self._tasks):
+            task.cancel()
+        if self._tasks:
+            await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._servers.clear()
+
+    async def __aenter__(self) -> Server:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    # -- per-connection pipeline ---------------------------------------------------------------
+
+    def _arrived(self, session: Session, msg: Message) -> Awaitable[None] | None:
+        if msg.comm_type == CommType.SERVICE_REQUEST:
+            hook = self._arrival.get(msg.msg_type)
+            if hook is not None and malformed_error(msg) is None:
+                try:
+                    hook(msg, session)
+                except Exception:
+                    log.exception("%s: on_arrival hook for %s failed", session.name, msg.name)
+        try:
+            session.queue.put_nowait(msg)
+        except asyncio.QueueFull:
+            return session.queue.put(msg)  # back-pressure: stop reading until there is room
+        return None
+
+    async def _work(self, session: Session) -> None:
+        while True:
+            msg = await session.queue.get()
+            if msg is _END:
+                session.connection.abort(session.end_reason)
+                return
+            reply = await self._dispatch(session, msg)
+            if reply is None:
+                continue
+            try:
+                await session.connection.send(reply)
+            except ConnectionClosed:
+                return
+
+    async def _dispatch(self, session: Session, msg: Message) -> Message | None:
+        is_request = msg.comm_type == CommType.SERVICE_REQUEST
+        error = malformed_error(msg)
+        if error is not None:
+            log.warning("%s: malformed message: %s", session.name, error)
+            return HeaderOnly(msg.msg_type, reply_code=ReplyCode.FAILURE) if is_request else None
+        problem = header_error(msg.msg_type, msg.comm_type, msg.reply_code)
+        if problem is not None:
+            log.warning("%s: %s", session.name, problem)
+            return HeaderOnly(msg.msg_type, reply_code=ReplyCode.FAILURE) if is_request else None
+        handler = self._handlers.get(msg.msg_type)
+        if handler is None:
+            if msg.msg_type == MsgType.PING:
+                return Ping(comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS) if is_request else None
+            if not is_request:
+                log.debug("%s: ignored %s comm_type %s", session.name, msg.name, msg.comm_type)
+                return None
+            if self.unknown_request is None:
+                log.info("%s: no handler for request type %s; FAILURE", session.name, msg.msg_type)
+                return HeaderOnly(msg.msg_type, reply_code=ReplyCode.FAILURE)
+            handler = self.unknown_request
+        try:
+            result = handler(msg, session)
+            if inspect.isawaitable(result):
+                result = await result
+        except Exception:
+            log.exception("%s: handler for %s failed; answering FAILURE", session.name, msg.name)
+            return HeaderOnly(msg.msg_type, reply_code=ReplyCode.FAILURE) if is_request else None
+        if isinstance(result, Message):
+            return result
+        if not is_request:
+            return None
+        code = ReplyCode.SUCCESS if result is None else ReplyCode(result)
+        if self.reply_style == "echo":
+            return msg.to_reply(code)
+        return HeaderOnly(msg.msg_type, reply_code=code)
+
+
+#: Queued after the last message of a connection whose input ended.
+_END = HeaderOnly(0)
+
+
+def _addr(sock: socket.socket) -> str:
+    name = sock.getsockname()
+    return f"[{name[0]}]:{name[1]}" if sock.family == socket.AF_INET6 else f"{name[0]}:{name[1]}"
+
+
+# ---------------------------------------------------------------------------------------------
+# Reconnecting client
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ReconnectPolicy:
+    """Bounded exponential backoff with jitter. ``max_attempts=None`` retries for ever."""
+
+    initial_delay: float = 0.1
+    max_delay: float = 5.0
+    factor: float = 2.0
+    jitter: float = 0.2
+    max_attempts: int | None = None
+
+    def delay(self, attempt: int, rng: random.Random | None = None) -> float:
+        """The wait before reconnection attempt ``attempt`` (1-based), jitter included."""
+        base = min(self.max_delay, self.initial_delay * self.factor ** max(0, attempt - 1))
+        spread = base * self.jitter
+        return max(0.0, base + (rng or random).uniform(-spread, spread))
+
+
+Connector = Callable[[], Awaitable[StreamPair]]
+
+
+class Client:
+    """A client that keeps one connection alive and reconnects (see the module docstring)."""
+
+    def __init__(
+        self,
+        connector: Connector,
+        wire: WireFormat = DEFAULT_FORMAT,
+        *,
+        name: str = "client",
+        reconnect: ReconnectPolicy | None = ReconnectPolicy(),
+        max_length: int = DEFAULT_MAX_LENGTH,
+        drain_timeout: float = 5.0,
+    ) -> None:
+        self._connector = connector
+        self.wire = wire
+        self.name = name
+        self.reconnect = reconnect
+        self.max_length = max_length
+        self.drain_timeout = drain_timeout
+        self.connection: Connection | None = None
+        self.subscriptions: list[Subscription] = []
+        self._state = ConnectionState.CONNECTING
+        self._changed = asyncio.Event()
+        self._task: asyncio.Task[None] | None = None
+        self._closing = False
+        self.attempts = 0
+        self.connects = 0
+        #: Why the last connection attempt or connection failed.
+        self.last_error: BaseException | None = None
+
+    @classmethod
+    def tcp(cls, host: str, port: int, wire: WireFormat = DEFAULT_FORMAT, **kwargs: Any) -> Client:
+        return cls(lambda: open_tcp(host, port), wire, name=kwargs.pop("name", f"{host}:{port}"), **kwargs)
+
+    @classmethod
+    def serial(cls, url: str, wire: WireFormat = DEFAULT_FORMAT, **kwargs: Any) -> Client:
+        options = kwargs.pop("serial_options", {})
+        return cls(lambda: open_serial(url, **options), wire, name=kwargs.pop("name", url), **kwargs)
+
+    # -- state -------------------------------------------------------------------------------------
+
+    @property
+    def state(self) -> ConnectionState:
+        return self._state
+
+    def _set_state(self, state: ConnectionState) -> None:
+        if state is not self._state:
+            log.info("%s: %s", self.name, state.value)
+            self._state = state
+            self._changed.set()
+            self._changed = asyncio.Event()
+
+    async def wait_for(self, state: ConnectionState, timeout: float | None = None) -> None:
+        """Wait until the client is in ``state``; raises TimeoutError after ``timeout`` s."""
+        async with asyncio.timeout(timeout):
+            while self._state is not state:
+                if self._state is ConnectionState.CLOSED:
+                    raise ConnectionClosed(f"{self.name}: closed ({self.last_error})")
+                await self._changed.wait()
+
+    async def states(self) -> AsyncIterator[ConnectionState]:
+        """Yields the current state, then every change, until CLOSED."""
+        state = self._state
+        yield state
+        while state is not ConnectionState.CLOSED:
+            await self._changed.wait()
+            state = self._state
+            yield state
+
+    @property
+    def closing(self) -> bool:
+        """True once :meth:`close` was called (checked after every await of the supervisor)."""
+        return self._closing
+
+    # -- lifecycle ---------------------------------------------------------------------------------
+
+    async def start(self, timeout: float | None = 10.0) -> Client:
+        """Connect, and keep reconnecting in the background. Waits for the first connection."""
+        if self._task is None:
+            self._task = asyncio.get_running_loop().create_task(self._run(), name=f"sm-client {self.name}")
+        await self.wait_for(ConnectionState.CONNECTED, timeout)
+        return self
+
+    async def __aenter__(self) -> Client:
+        return await self.start()
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    async def close(self) -> None:
+        """Close the connection and stop reconnecting (cancels a pending backoff wait)."""
+        self._closing = True
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+        if self.connection is not None:
+            await self.connection.close()
+        for sub in self.subscriptions:
+            sub.close()
+        self._set_state(ConnectionState.CLOSED)
+
+    async def _run(self) -> None:
+        failures = 0
+        try:
+            while not self._closing:
+                try:
+                    self.attempts += 1
+                    streams = await self._connector()
+                except (OSError, TimeoutError) as exc:
+                    self.last_error = exc
+                    failures += 1
+                    log.info("%s: connection attempt %d failed: %s", self.name, failures, exc)
+                else:
+                    failures = 0
+                    self.connects += 1
+                    conn = Connection(
+                        streams,
+                        self.wire,
+                        max_length=self.max_length,
+                        name=self.name,
+                        subscriptions=self.subscriptions,
+                        drain_timeout=self.drain_timeout,
+                    )
+                    self.connection = conn.start()
+                    self._set_state(ConnectionState.CONNECTED)
+                    await conn.wait_closed()
+                    self.last_error = conn.close_reason
+                    failures = 1
+                if self.closing:
+                    break
+                if self.reconnect is None or (
+                    self.reconnect.max_attempts is not None and failures > self.reconnect.max_attempts
+                ):
+                    break
+                self._set_state(ConnectionState.RECONNECTING)
+                await asyncio.sleep(self.reconnect.delay(failures))
+        finally:
+            if not self._closing:
+                self._set_state(ConnectionState.CLOSED)
+
+    # -- traffic -----------------------------------------------------------------------------------
+
+    def _live(self) -> Connection:
+        conn = self.connection
+        if conn is None or conn.closed or self._state is not ConnectionState.CONNECTED:
+            raise NotConnected(f"{self.name}: not connected ({self._state.value})")
+        return conn
+
+    async def request(self, msg: Message, timeout: float | None = 5.0) -> Message:
+        """See :meth:`Connection.request`; raises NotConnected at once while disconnected."""
+        return await self._live().request(msg, timeout)
+
+    async def send(self, msg: Message) -> None:
+        await self._live().send(msg)
+
+    def subscribe(self, maxsize: int = 256, msg_types: Iterable[int] | None = None) -> Subscription:
+        """A bounded subscription to received topics that lasts across reconnections."""
+        sub = Subscription(maxsize, msg_types)
+        self.subscriptions.append(sub)
+        return sub
