@@ -349,7 +349,8 @@ class Connection:
         sub.close()
 
     def __aiter__(self) -> AsyncIterator[Message]:
-        """Every received message that is not a reply, through a bounded inbox of 1024."""
+        """Every message that is not a reply, received from the first call on, through one
+        bounded inbox of 1024 (oldest dropped first, like any :class:`Subscription`)."""
         if self._inbox is None:
             self._inbox = Subscription(1024)
             if self.closed:
@@ -403,20 +404,26 @@ class Connection:
             raise LocalProtocolError(f"request() sends SERVICE_REQUESTs, not comm_type {msg.comm_type}")
         if self.state is ConnectionState.CLOSED:
             raise ConnectionClosed(f"{self.name}: connection closed")
-        future: asyncio.Future[Message] = asyncio.get_running_loop().create_future()
+        loop = asyncio.get_running_loop()
+        future: asyncio.Future[Message] = loop.create_future()
         entry = _Pending(msg.msg_type, future)
         self._pending.append(entry)
+        # A timer on the future itself, not wait_for(): no extra task per request on the hot path.
+        timer = loop.call_later(timeout, _expire, future) if timeout is not None else None
         try:
             await self.send(msg)
-            reply = await asyncio.wait_for(asyncio.shield(future), timeout)
-        except TimeoutError:
-            entry.future = None
-            raise RequestTimeout(f"{self.name}: no reply to {msg.name} within {timeout} s") from None
+            reply = await future
+        except asyncio.CancelledError:
+            entry.future = None  # keep the place in the FIFO: a late reply must not go to the next request
+            if future.cancelled() and getattr(future, "expired", False):
+                raise RequestTimeout(f"{self.name}: no reply to {msg.name} within {timeout} s") from None
+            raise
         except BaseException:
             entry.future = None
-            if future.done() and not future.cancelled():
-                future.exception()  # retrieved, so asyncio does not log it
             raise
+        finally:
+            if timer is not None:
+                timer.cancel()
         if reply.reply_code == ReplyCode.SUCCESS:
             return reply
         if reply.reply_code == ReplyCode.FAILURE:
@@ -442,6 +449,13 @@ class _MalformedFrame(Message):
     @property
     def msg_type(self) -> int:
         return self.error.msg_type or 0
+
+
+def _expire(future: asyncio.Future[Message]) -> None:
+    """The request timer fired: mark the future, so request() can tell a timeout from a cancel."""
+    if not future.done():
+        future.expired = True  # type: ignore[attr-defined]
+        future.cancel()
 
 
 def _type_name(msg_type: int) -> str:

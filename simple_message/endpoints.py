@@ -67,7 +67,9 @@ class Session:
     def __init__(self, server: Server, connection: Connection, queue_size: int) -> None:
         self.server = server
         self.connection = connection
-        self.queue: asyncio.Queue[Message] = asyncio.Queue(queue_size)
+        self.queue: asyncio.Queue[_Item] = asyncio.Queue(queue_size)
+        #: True while the worker handles a message (so new ones must queue behind it).
+        self.busy = False
         #: Free for handlers to keep per-connection state in.
         self.data: dict[str, Any] = {}
         self.end_reason: BaseException | None = None
@@ -255,27 +257,54 @@ class Server:
                     hook(msg, session)
                 except Exception:
                     log.exception("%s: on_arrival hook for %s failed", session.name, msg.name)
+        item: _Item = msg
+        if not session.busy and session.queue.empty():
+            # Nothing is ahead of this message: handle it now, without a hop through the worker.
+            # Order holds, and a synchronous handler's reply goes out in this very loop iteration.
+            out = self._dispatch_now(session, msg)
+            if out is None:
+                return None
+            if isinstance(out, Message) and session.connection.write_buffer_size() <= self.max_write_buffer:
+                with contextlib.suppress(ConnectionClosed):
+                    session.connection.send_nowait(out)
+                return None
+            item = out if isinstance(out, _Later) else _Ready(out)
         try:
-            session.queue.put_nowait(msg)
+            session.queue.put_nowait(item)
         except asyncio.QueueFull:
-            return session.queue.put(msg)  # back-pressure: stop reading until there is room
+            return session.queue.put(item)  # back-pressure: stop reading until there is room
         return None
 
     async def _work(self, session: Session) -> None:
         while True:
-            msg = await session.queue.get()
-            if msg is _END:
+            item = await session.queue.get()
+            if item is _END:
                 session.connection.abort(session.end_reason)
                 return
-            reply = await self._dispatch(session, msg)
-            if reply is None:
-                continue
+            session.busy = True
             try:
-                await session.connection.send(reply)
+                reply = await self._dispatch(session, item)
+                if reply is not None:
+                    await session.connection.send(reply)
             except ConnectionClosed:
                 return
+            finally:
+                session.busy = False
 
-    async def _dispatch(self, session: Session, msg: Message) -> Message | None:
+    async def _dispatch(self, session: Session, item: _Item) -> Message | None:
+        if isinstance(item, _Ready):
+            return item.reply
+        out = item if isinstance(item, _Later) else self._dispatch_now(session, item)
+        if not isinstance(out, _Later):
+            return out
+        try:
+            result = await out.awaitable
+        except Exception:
+            return self._handler_failed(session, out.msg)
+        return self._finish(out.msg, result)
+
+    def _dispatch_now(self, session: Session, msg: Message) -> Message | _Later | None:
+        """Everything up to the handler's result: the reply, nothing, or an awaitable to finish."""
         is_request = msg.comm_type == CommType.SERVICE_REQUEST
         error = malformed_error(msg)
         if error is not None:
@@ -298,19 +327,50 @@ class Server:
             handler = self.unknown_request
         try:
             result = handler(msg, session)
-            if inspect.isawaitable(result):
-                result = await result
         except Exception:
-            log.exception("%s: handler for %s failed; answering FAILURE", session.name, msg.name)
-            return HeaderOnly(msg.msg_type, reply_code=ReplyCode.FAILURE) if is_request else None
+            return self._handler_failed(session, msg)
+        if inspect.isawaitable(result):
+            return _Later(msg, result)
+        return self._finish(msg, result)
+
+    def _handler_failed(self, session: Session, msg: Message) -> Message | None:
+        log.exception("%s: handler for %s failed; answering FAILURE", session.name, msg.name)
+        if msg.comm_type == CommType.SERVICE_REQUEST:
+            return HeaderOnly(msg.msg_type, reply_code=ReplyCode.FAILURE)
+        return None
+
+    def _finish(self, msg: Message, result: HandlerResult) -> Message | None:
+        """Turn a handler's result into the reply (see the module docstring)."""
         if isinstance(result, Message):
             return result
-        if not is_request:
+        if msg.comm_type != CommType.SERVICE_REQUEST:
             return None
         code = ReplyCode.SUCCESS if result is None else ReplyCode(result)
         if self.reply_style == "echo":
             return msg.to_reply(code)
         return HeaderOnly(msg.msg_type, reply_code=code)
+
+
+class _Later:
+    """A handler's awaitable result, finished by the connection's worker in order."""
+
+    __slots__ = ("awaitable", "msg")
+
+    def __init__(self, msg: Message, awaitable: Awaitable[HandlerResult]) -> None:
+        self.msg = msg
+        self.awaitable = awaitable
+
+
+class _Ready:
+    """A reply computed on arrival that must wait for the write buffer (sent by the worker)."""
+
+    __slots__ = ("reply",)
+
+    def __init__(self, reply: Message) -> None:
+        self.reply = reply
+
+
+_Item = Message | _Later | _Ready
 
 
 #: Queued after the last message of a connection whose input ended.
