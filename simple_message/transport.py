@@ -79,7 +79,19 @@ def _streams(
     return reader, writer
 
 
-class _WriteFlow:
+class _Base(asyncio.Transport):
+    """What every transport below shares: a closing flag, and no half-close."""
+
+    _closing = False
+
+    def is_closing(self) -> bool:
+        return self._closing
+
+    def can_write_eof(self) -> bool:
+        return False
+
+
+class _WriteFlow(_Base):
     """High/low water marks shared by the transports below (asyncio's flow-control contract)."""
 
     _protocol: asyncio.Protocol
@@ -101,7 +113,7 @@ class _WriteFlow:
             self._protocol.resume_writing()
 
 
-class _FdTransport(_WriteFlow, asyncio.Transport):
+class _FdTransport(_WriteFlow):
     """A non-blocking transport over a file descriptor (serial device, pty, socket)."""
 
     def __init__(
@@ -195,12 +207,6 @@ class _FdTransport(_WriteFlow, asyncio.Transport):
     def is_reading(self) -> bool:
         return self._reading and not self._closing
 
-    def is_closing(self) -> bool:
-        return self._closing
-
-    def can_write_eof(self) -> bool:
-        return False
-
     def close(self) -> None:
         if self._closing:
             return
@@ -234,7 +240,7 @@ class _FdTransport(_WriteFlow, asyncio.Transport):
                 self._on_close()
 
 
-class _ThreadTransport(_WriteFlow, asyncio.Transport):
+class _ThreadTransport(_WriteFlow):
     """A transport for pyserial ports without a file descriptor (``loop://``, ``rfc2217://``)."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop, port: Any, protocol: asyncio.Protocol) -> None:
@@ -297,12 +303,6 @@ class _ThreadTransport(_WriteFlow, asyncio.Transport):
 
     def get_write_buffer_size(self) -> int:
         return self._pending
-
-    def is_closing(self) -> bool:
-        return self._closing
-
-    def can_write_eof(self) -> bool:
-        return False
 
     def close(self) -> None:
         self._lost(None)
@@ -381,7 +381,7 @@ class FaultSpec:
         self.corrupt = corrupt
 
 
-class _MemoryTransport(asyncio.Transport):
+class _MemoryTransport(_Base):
     def __init__(
         self, loop: asyncio.AbstractEventLoop, protocol: asyncio.Protocol, faults: FaultSpec, name: str
     ) -> None:
@@ -428,12 +428,6 @@ class _MemoryTransport(asyncio.Transport):
 
     def get_write_buffer_size(self) -> int:
         return len(self._held)
-
-    def is_closing(self) -> bool:
-        return self._closing
-
-    def can_write_eof(self) -> bool:
-        return False
 
     def close(self) -> None:
         if self._closing:
