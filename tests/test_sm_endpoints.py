@@ -227,11 +227,13 @@ async def test_on_arrival_hook_runs_before_queued_requests_finish(link_kind: str
     """A STOP must act while an earlier request still waits (simple-message.md §10 pitfall 5)."""
     server = echo_server()
     released = asyncio.Event()
+    waiting = asyncio.Event()
     order: list[str] = []
 
     async def point(msg: JointTrajPt, session: Session) -> None:
         if msg.sequence >= 0:
             order.append(f"point {msg.sequence} waits")
+            waiting.set()
             await asyncio.wait_for(released.wait(), T)
             order.append(f"point {msg.sequence} done")
         else:
@@ -246,7 +248,7 @@ async def test_on_arrival_hook_runs_before_queued_requests_finish(link_kind: str
     async with LINKS[link_kind](server) as link:
         conn = await link.connection()
         first = asyncio.create_task(conn.request(JointTrajPt(0), timeout=T))
-        await asyncio.sleep(0.05)
+        await asyncio.wait_for(waiting.wait(), T)  # point 0 is being handled and waits for room
         stop = await conn.request(JointTrajPt(-4), timeout=T)
         assert (await first).sequence == 0  # type: ignore[attr-defined]
         assert stop.sequence == -4  # type: ignore[attr-defined]
