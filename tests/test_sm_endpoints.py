@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import pytest
 
 from simple_message import (
+    BE32,
     LE32,
     CommType,
     FrameDecoder,
@@ -28,7 +29,7 @@ from simple_message import (
     encode,
 )
 from simple_message.connection import Connection
-from simple_message.endpoints import Server, Session
+from simple_message.endpoints import Client, Server, Session
 from simple_message.errors import ConnectionClosed, RequestFailed
 from simple_message.transport import StreamPair, open_fd, open_serial, open_tcp
 
@@ -417,3 +418,27 @@ async def test_fd_transport_reports_hang_up() -> None:
     async with asyncio.timeout(T):
         assert await reader.read(10) == b""  # EIO on the master is the peer hanging up
     writer.close()
+
+
+async def test_server_autodetects_each_connections_byte_order() -> None:
+    server = Server(LE32, autodetect=True)
+    server.handle(MsgType.JOINT_TRAJ_PT, lambda msg, session: None)
+    async with tcp_link(server) as link:
+        big = Connection(await link.open(), BE32, name="big-endian peer").start()
+        little = Connection(await link.open(), LE32, name="little-endian peer").start()
+        for conn in (big, little, big):
+            reply = await conn.request(JointTrajPt(5, [0.5]), timeout=T)
+            assert reply.sequence == 5  # type: ignore[attr-defined]
+        assert sorted(s.wire.byte_order.value for s in server.sessions) == ["big", "little"]
+        await big.close()
+        await little.close()
+
+
+async def test_pyserial_socket_url_reaches_a_tcp_server() -> None:
+    """serial_for_url("socket://...") has a file descriptor: it runs on the non-blocking fd transport."""
+    async with tcp_link(echo_server()) as link:
+        port = server_port(link.server)
+        client = Client.serial(f"socket://127.0.0.1:{port}", LE32, reconnect=None)
+        async with client:
+            assert (await client.request(Ping(), timeout=T)).reply_code == ReplyCode.SUCCESS
+            assert (await client.request(JointTrajPt(2), timeout=T)).sequence == 2  # type: ignore[attr-defined]
