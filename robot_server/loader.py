@@ -1,0 +1,239 @@
+"""Load robot models: TOML D-H files and the models shipped with the package.
+
+A TOML model states its units (``[units] length = "m" | "mm"``, ``angle = "rad" | "deg"``) and its
+D-H convention (``[dh] convention = "standard" | "modified"``); see ``models/jibot_zxs.toml`` for a
+complete, commented example. Every value is converted to SI on load. Every error names the file and
+the field (:class:`~.model.ModelError`).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .model import Joint, JointType, ModelError, RobotModel, rot_x, rot_z, trans, transform
+
+__all__ = ["load_model", "load_toml", "shipped_models", "model_from_dh"]
+
+Matrix = NDArray[np.float64]
+_LENGTH = {"m": 1.0, "mm": 1e-3}
+_ANGLE = {"rad": 1.0, "deg": math.pi / 180.0}
+_DH_KEYS = {"name", "alpha", "a", "d", "theta", "type"}
+
+
+def shipped_models() -> list[str]:
+    """Names of the models shipped in the package (``robot_server/models/*.toml``)."""
+    folder = resources.files("robot_server") / "models"
+    return sorted(p.name[: -len(".toml")] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def load_model(name_or_path: str | Path) -> RobotModel:
+    """A shipped model by name (``jibot_zxs``), or a model file by path (``.toml``)."""
+    text = str(name_or_path)
+    if text in shipped_models():
+        resource = resources.files("robot_server") / "models" / f"{text}.toml"
+        return load_toml(Path(str(resource)))
+    path = Path(text)
+    if not path.exists():
+        raise ModelError(f"{text}: no such model file, and not a shipped model ({', '.join(shipped_models())})")
+    if path.suffix.lower() == ".toml":
+        return load_toml(path)
+    raise ModelError(f"{path}: unknown model file type {path.suffix!r} (expected .toml)")
+
+
+class _Fields:
+    """Typed access to a TOML table with errors that name the file and the field."""
+
+    def __init__(self, path: Path, table: Any, where: str) -> None:
+        if not isinstance(table, dict):
+            raise ModelError(f"{path}: {where or 'the file'} must be a table")
+        self.path = path
+        self.table = table
+        self.where = where
+
+    def _name(self, key: str) -> str:
+        return f"{self.where}.{key}" if self.where else key
+
+    def sub(self, key: str, required: bool = True) -> _Fields | None:
+        if key not in self.table:
+            if required:
+                raise ModelError(f"{self.path}: missing table [{self._name(key)}]")
+            return None
+        return _Fields(self.path, self.table[key], self._name(key))
+
+    def text(self, key: str, default: str | None = None, choices: dict[str, Any] | None = None) -> str:
+        value = self.table.get(key, default)
+        if value is None:
+            raise ModelError(f"{self.path}: missing field {self._name(key)}")
+        if not isinstance(value, str):
+            raise ModelError(f"{self.path}: field {self._name(key)} must be a string, not {value!r}")
+        if choices is not None and value not in choices:
+            raise ModelError(f"{self.path}: field {self._name(key)} = {value!r} is not one of {sorted(choices)}")
+        return value
+
+    def number(self, key: str, default: float | None = None) -> float:
+        value = self.table.get(key, default)
+        if value is None:
+            raise ModelError(f"{self.path}: missing field {self._name(key)}")
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise ModelError(f"{self.path}: field {self._name(key)} must be a finite number, not {value!r}")
+        return float(value)
+
+    def numbers(self, key: str, count: int, default: list[float] | None = None) -> list[float]:
+        value = self.table.get(key, default)
+        if value is None:
+            raise ModelError(f"{self.path}: missing field {self._name(key)}")
+        if not isinstance(value, list) or len(value) != count:
+            raise ModelError(f"{self.path}: field {self._name(key)} must be a list of {count} numbers, not {value!r}")
+        for i, v in enumerate(value):
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise ModelError(f"{self.path}: field {self._name(key)}[{i}] must be a finite number, not {v!r}")
+        return [float(v) for v in value]
+
+
+def load_toml(path: Path) -> RobotModel:
+    try:
+        with open(path, "rb") as stream:
+            data = tomllib.load(stream)
+    except tomllib.TOMLDecodeError as exc:
+        raise ModelError(f"{path}: not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise ModelError(f"{path}: cannot read: {exc}") from None
+    top = _Fields(path, data, "")
+    robot = top.sub("robot")
+    units = top.sub("units")
+    dh = top.sub("dh")
+    assert robot is not None and units is not None and dh is not None
+    length = _LENGTH[units.text("length", choices=_LENGTH)]
+    angle = _ANGLE[units.text("angle", choices=_ANGLE)]
+    convention = dh.text("convention", choices={"standard": 0, "modified": 0})
+    rows = dh.table.get("joints")
+    if not isinstance(rows, list) or not rows:
+        raise ModelError(f"{path}: field dh.joints must be a non-empty list of joint tables")
+    n = len(rows)
+    limits = top.sub("limits", required=False)
+    defaults = _default_limits(n, angle)
+    lo = limits.numbers("position_min", n, defaults["position_min"]) if limits else defaults["position_min"]
+    hi = limits.numbers("position_max", n, defaults["position_max"]) if limits else defaults["position_max"]
+    vel = limits.numbers("velocity", n, defaults["velocity"]) if limits else defaults["velocity"]
+    acc = limits.numbers("acceleration", n, defaults["acceleration"]) if limits else defaults["acceleration"]
+    jerk = limits.numbers("jerk", n, defaults["jerk"]) if limits else defaults["jerk"]
+    table: list[tuple[str, JointType, float, float, float, float]] = []
+    for i, row in enumerate(rows):
+        f = _Fields(path, row, f"dh.joints[{i}]")
+        unknown = set(row) - _DH_KEYS
+        if unknown:
+            raise ModelError(f"{path}: dh.joints[{i}] has unknown field(s) {sorted(unknown)}")
+        kind = JointType(f.text("type", "revolute", choices={t.value: t for t in JointType}))
+        table.append(
+            (
+                f.text("name", f"joint_{i + 1}"),
+                kind,
+                f.number("alpha") * angle,
+                f.number("a") * length,
+                f.number("d") * length,
+                f.number("theta", 0.0) * angle,
+            )
+        )
+    scales = [angle if kind is JointType.REVOLUTE else length for _, kind, *_ in table]
+    base = top.sub("base", required=False)
+    tool = top.sub("tool", required=False)
+    return model_from_dh(
+        robot.text("name"),
+        convention,
+        table,
+        position=[(a * s, b * s) for a, b, s in zip(lo, hi, scales, strict=True)],
+        velocity=[v * s for v, s in zip(vel, scales, strict=True)],
+        acceleration=[v * s for v, s in zip(acc, scales, strict=True)],
+        jerk=[v * s for v, s in zip(jerk, scales, strict=True)],
+        base=_pose(base, length, angle),
+        tool=_pose(tool, length, angle),
+        description=robot.text("description", ""),
+        source=robot.text("source", ""),
+    )
+
+
+def _default_limits(n: int, angle: float) -> dict[str, list[float]]:
+    """motion.md §5 emulator defaults, expressed in the file's angle unit."""
+    return {
+        "position_min": [-math.pi / angle] * n,
+        "position_max": [math.pi / angle] * n,
+        "velocity": [math.pi / angle] * n,
+        "acceleration": [10.0 / angle] * n,
+        "jerk": [500.0 / angle] * n,
+    }
+
+
+def _pose(table: _Fields | None, length: float, angle: float) -> Matrix:
+    if table is None:
+        return np.eye(4)
+    xyz = table.numbers("xyz", 3, [0.0, 0.0, 0.0])
+    rpy = table.numbers("rpy", 3, [0.0, 0.0, 0.0])
+    return transform(
+        (xyz[0] * length, xyz[1] * length, xyz[2] * length), (rpy[0] * angle, rpy[1] * angle, rpy[2] * angle)
+    )
+
+
+def model_from_dh(
+    name: str,
+    convention: str,
+    rows: list[tuple[str, JointType, float, float, float, float]],
+    *,
+    position: list[tuple[float, float]],
+    velocity: list[float],
+    acceleration: list[float],
+    jerk: list[float],
+    base: Matrix | None = None,
+    tool: Matrix | None = None,
+    description: str = "",
+    source: str = "",
+) -> RobotModel:
+    """A model from D-H rows ``(name, type, alpha, a, d, theta_offset)`` in SI units.
+
+    For ``modified`` rows alpha and a are Craig's alpha_{i-1} and a_{i-1}. A prismatic joint's
+    variable is d (its row's d is the offset); a revolute joint's is theta.
+    """
+    z = np.array([0.0, 0.0, 1.0])
+    joints = []
+    for i, (jname, kind, alpha, a, d, theta) in enumerate(rows):
+        revolute = kind is JointType.REVOLUTE
+        if convention == "standard":
+            # A = Rz(theta) Tz(d) Tx(a) Rx(alpha)
+            pre = np.eye(4) if revolute else rot_z(theta)
+            post = (trans(0, 0, d) if revolute else np.eye(4)) @ trans(a, 0, 0) @ rot_x(alpha)
+        elif convention == "modified":
+            # A = Rx(alpha_{i-1}) Tx(a_{i-1}) Rz(theta) Tz(d)
+            pre = rot_x(alpha) @ trans(a, 0, 0) @ (np.eye(4) if revolute else rot_z(theta))
+            post = trans(0, 0, d) if revolute else np.eye(4)
+        else:
+            raise ModelError(f"model {name!r}: unknown D-H convention {convention!r} (standard or modified)")
+        joints.append(
+            Joint(
+                name=jname,
+                type=kind,
+                pre=pre,
+                axis=z,
+                post=post,
+                offset=theta if revolute else d,
+                position=position[i],
+                velocity=velocity[i],
+                acceleration=acceleration[i],
+                jerk=jerk[i],
+                dh=(theta, d, a, alpha),
+            )
+        )
+    return RobotModel(
+        name=name,
+        joints=tuple(joints),
+        base=np.eye(4) if base is None else base,
+        tool=np.eye(4) if tool is None else tool,
+        description=description,
+        source=source,
+        convention=convention,
+    )
