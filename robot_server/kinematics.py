@@ -9,6 +9,7 @@ against 0.6-1.1 us for batched 4x4 matmuls).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -20,19 +21,24 @@ __all__ = ["fk", "fk_batch", "link_frames"]
 Matrix = NDArray[np.float64]
 
 
+def _axis_rotation(x: float, y: float, z: float, c: Any, s: Any) -> Any:
+    """Rotation about the unit axis (x, y, z) by the angle with cosine c and sine s (Rodrigues),
+    as nested 3x3 rows; c and s may be floats or arrays (one rotation per configuration)."""
+    v = 1.0 - c
+    return (
+        (c + x * x * v, x * y * v - z * s, x * z * v + y * s),
+        (y * x * v + z * s, c + y * y * v, y * z * v - x * s),
+        (z * x * v - y * s, z * y * v + x * s, c + z * z * v),
+    )
+
+
 def _motion(joint_type: JointType, axis: Matrix, value: float) -> Matrix:
     m = np.eye(4)
     if joint_type is JointType.PRISMATIC:
         m[:3, 3] = axis * value
         return m
     x, y, z = axis
-    c, s = math.cos(value), math.sin(value)
-    v = 1.0 - c
-    m[:3, :3] = (
-        (c + x * x * v, x * y * v - z * s, x * z * v + y * s),
-        (y * x * v + z * s, c + y * y * v, y * z * v - x * s),
-        (z * x * v - y * s, z * y * v + x * s, c + z * z * v),
-    )
+    m[:3, :3] = _axis_rotation(x, y, z, math.cos(value), math.sin(value))
     return m
 
 
@@ -102,13 +108,7 @@ def fk_batch(model: RobotModel, q: ArrayLike) -> NDArray[np.float64]:
             c0, c1 = cols[0], cols[1]
             cols[0], cols[1] = c0 * c + c1 * s, c1 * c - c0 * s
         else:
-            c, s = np.cos(theta), np.sin(theta)
-            v = 1.0 - c
-            r = (
-                (c + x * x * v, x * y * v - z * s, x * z * v + y * s),
-                (y * x * v + z * s, c + y * y * v, y * z * v - x * s),
-                (z * x * v - y * s, z * y * v + x * s, c + z * z * v),
-            )
+            r = _axis_rotation(x, y, z, np.cos(theta), np.sin(theta))
             c0, c1, c2 = cols[0], cols[1], cols[2]
             cols[0] = c0 * r[0][0] + c1 * r[1][0] + c2 * r[2][0]
             cols[1] = c0 * r[0][1] + c1 * r[1][1] + c2 * r[2][1]

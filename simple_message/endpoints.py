@@ -46,7 +46,7 @@ from .errors import ConnectionClosed, NotConnected
 from .framing import DEFAULT_MAX_LENGTH
 from .header import header_error
 from .messages import HeaderOnly, Message, Ping
-from .transport import StreamPair, open_fd, open_serial, open_tcp, set_nodelay
+from .transport import StreamPair, open_fd, open_serial, open_tcp
 from .wire import DEFAULT_FORMAT, WireFormat
 
 __all__ = ["Server", "Session", "Handler", "Client", "ReconnectPolicy", "ReplyStyle"]
@@ -158,7 +158,6 @@ class Server:
         return int(bound)
 
     async def _accept(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        set_nodelay(writer)
         sock = writer.get_extra_info("socket")
         if self.socket_send_buffer is not None and sock is not None:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.socket_send_buffer)

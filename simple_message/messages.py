@@ -116,6 +116,19 @@ def _joints(value: Iterable[float], name: str) -> Floats:
     return items + ZEROS[len(items) :]
 
 
+def _normalise_arrays(obj: object, names: Iterable[str]) -> None:
+    """Normalise the joint-array fields ``names`` of a frozen dataclass in place (constructors only)."""
+    for name in names:
+        value = getattr(obj, name)
+        if type(value) is not tuple or len(value) != MAX_JOINTS:
+            object.__setattr__(obj, name, _joints(value, name))
+
+
+def _body_format(layout: tuple[tuple[str, str], ...]) -> str:
+    """The struct format of a body LAYOUT ("r" = one real, "r10" = ten)."""
+    return "".join(f"{code[1:]}{code[0]}" if len(code) > 1 else code for _, code in layout)
+
+
 # ---------------------------------------------------------------------------------------------
 # Base class and the generic layout machinery
 # ---------------------------------------------------------------------------------------------
@@ -136,10 +149,7 @@ class Message:
     ARRAYS: ClassVar[tuple[str, ...]] = ()
 
     def __post_init__(self) -> None:
-        for name in self.ARRAYS:
-            value = getattr(self, name)
-            if type(value) is not tuple or len(value) != MAX_JOINTS:
-                object.__setattr__(self, name, _joints(value, name))
+        _normalise_arrays(self, self.ARRAYS)
 
     @property
     def msg_type(self) -> int:
@@ -162,13 +172,15 @@ class Message:
         return {f.name: _plain(getattr(self, f.name)) for f in fields(self) if f.name not in _HEADER_FIELDS}
 
     # -- hooks for messages whose layout is not a fixed struct ---------------------------------
+    # The defaults describe an empty body (GET_VERSION and GET_DH_PARAMETERS requests); classes
+    # with a LAYOUT never reach them, variable layouts override both.
     def _encode_body(self, wire: WireFormat) -> bytes:
-        raise NotImplementedError  # pragma: no cover - only variable layouts override this
+        return b""
 
     @classmethod
     def _decode_body(cls, body: bytes, wire: WireFormat, comm_type: int, reply_code: int) -> Message | None:
         """Decode a variable layout; ``None`` if ``body`` fits no layout of this type."""
-        raise NotImplementedError  # pragma: no cover
+        return None if body else cls(comm_type=comm_type, reply_code=reply_code)
 
     def to_reply(self, reply_code: int = ReplyCode.SUCCESS) -> Message:
         """This message as a SERVICE_REPLY echoing the body (the C++ ``TypedMessage::toReply``)."""
@@ -211,15 +223,13 @@ class _Codec:
     __slots__ = ("length", "plan", "struct", "unpack")
 
     def __init__(self, cls: type[Message], wire: WireFormat) -> None:
-        layout = _HEADER
         plan: list[tuple[str, int, int]] = []
         pos = 4
         for name, code in cls.LAYOUT:
             count = int(code[1:] or 1)
-            layout += f"{count}{code[0]}" if count > 1 else code[0]
             plan.append((name, pos, pos + count if count > 1 else -1))
             pos += count
-        self.struct = wire.struct(layout)
+        self.struct = wire.struct(_HEADER + _body_format(cls.LAYOUT))
         self.length = self.struct.size - LENGTH_SIZE
         self.plan = tuple(plan)
         self.unpack = self._compile_unpack(cls)
@@ -364,10 +374,11 @@ class TrajPoint:
     duration: float = 0.0
 
     def __post_init__(self) -> None:
-        if type(self.joint_data) is not tuple or len(self.joint_data) != MAX_JOINTS:
-            object.__setattr__(self, "joint_data", _joints(self.joint_data, "joint_data"))
+        _normalise_arrays(self, ("joint_data",))
 
 
+#: A JOINT_TRAJ point is laid out as a JOINT_TRAJ_PT body.
+_TRAJ_POINT = _body_format(JointTrajPt.LAYOUT)
 #: JOINT_TRAJ holds at most this many points (``JointTraj::MAX_NUM_POINTS``).
 JOINT_TRAJ_MAX_POINTS = 200
 
@@ -387,14 +398,14 @@ class JointTraj(Message):
         object.__setattr__(self, "points", points)
 
     def _encode_body(self, wire: WireFormat) -> bytes:
-        s = wire.struct("i10rrr")
+        s = wire.struct(_TRAJ_POINT)
         parts = [s.pack(p.sequence, *p.joint_data, p.velocity, p.duration) for p in self.points]
         parts.append(wire.struct("i").pack(len(self.points)))
         return b"".join(parts)
 
     @classmethod
     def _decode_body(cls, body: bytes, wire: WireFormat, comm_type: int, reply_code: int) -> Message | None:
-        s = wire.struct("i10rrr")
+        s = wire.struct(_TRAJ_POINT)
         if len(body) < 4 or (len(body) - 4) % s.size:
             return None
         (count,) = wire.struct("i").unpack_from(body, len(body) - 4)
@@ -681,10 +692,7 @@ class ExGroup:
     accelerations: Floats = ZEROS
 
     def __post_init__(self) -> None:
-        for name in ("positions", "velocities", "accelerations"):
-            value = getattr(self, name)
-            if type(value) is not tuple or len(value) != MAX_JOINTS:
-                object.__setattr__(self, name, _joints(value, name))
+        _normalise_arrays(self, ("positions", "velocities", "accelerations"))
 
     def pack(self, wire: WireFormat) -> bytes:
         return wire.struct(_EX_GROUP).pack(
@@ -697,7 +705,8 @@ class ExGroup:
         return cls(v[0], _VALID.get(v[1], v[1]), v[2], v[3:13], v[13:23], v[23:33])
 
 
-_EX_GROUP = "iir10r10r10r"
+#: An EX group is laid out as a JOINT_FEEDBACK body (group_no in robot_id's place).
+_EX_GROUP = _body_format(JointFeedback.LAYOUT)
 
 
 def _ex_groups(groups: Iterable[ExGroup | dict[str, Any]]) -> tuple[ExGroup, ...]:
@@ -874,9 +883,6 @@ class HeaderOnly(Message):
     def msg_type(self) -> int:
         return self.type_id
 
-    def _encode_body(self, wire: WireFormat) -> bytes:
-        return b""
-
     def body_dict(self) -> dict[str, Any]:
         return {}
 
@@ -996,7 +1002,7 @@ def encode(msg: Message, wire: WireFormat = DEFAULT_FORMAT) -> bytes:
     cls = type(msg)
     if cls.LAYOUT:
         return (wire.codecs.get(cls) or _codec(cls, wire)).pack(msg)
-    body = b"" if cls in (GetVersion, GetDhParameters) else msg._encode_body(wire)
+    body = msg._encode_body(wire)
     try:
         header = wire.header.pack(HEADER_SIZE + len(body), msg.msg_type, msg.comm_type, msg.reply_code)
     except struct.error as exc:
@@ -1062,8 +1068,6 @@ def decode(frame: bytes, wire: WireFormat = DEFAULT_FORMAT) -> Message:
         if size == codec.struct.size:
             return codec.unpack(frame)
         result: Message | None = None
-    elif cls in (GetVersion, GetDhParameters):
-        result = cls(comm_type=comm_e, reply_code=reply_e) if size == 16 else None
     else:
         result = cls._decode_body(bytes(frame[16:]), wire, comm_e, reply_e)
     if result is not None:

@@ -282,6 +282,10 @@ class _ThreadTransport(_WriteFlow):
         while True:
             data = self._queue.get()
             if data is None:
+                # Closing can block (rfc2217 negotiates and joins its thread): do it here, not
+                # on the event loop.
+                with contextlib.suppress(Exception):
+                    self._port.close()
                 return
             try:
                 self._port.write(data)
@@ -315,9 +319,7 @@ class _ThreadTransport(_WriteFlow):
             return
         self._closing = True
         self._stop.set()
-        self._queue.put(None)
-        with contextlib.suppress(Exception):
-            self._port.close()
+        self._queue.put(None)  # the writer thread closes the port after what is queued
         self._loop.call_soon(self._protocol.connection_lost, exc)
 
 

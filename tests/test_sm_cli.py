@@ -147,7 +147,7 @@ def test_encode_json_lines(monkeypatch: pytest.MonkeyPatch, capsys: pytest.Captu
     frames = captured.out.split()
     assert frames[0] == JointTrajPt(0, [0.1, 0.2], 0.5).encode(LE32).hex()
     assert frames[1] == "0c0000000b0000000300000001000000"
-    assert frames[2] == "0c0000000f27000003000000020000000"[:32]
+    assert frames[2] == "0c0000000f2700000300000002000000"
     assert len(frames) == 4
     errors = [json.loads(e) for e in captured.err.splitlines()]
     assert [e["line"] for e in errors] == [5, 6, 7]
