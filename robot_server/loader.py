@@ -1,4 +1,4 @@
-"""Load robot models: TOML D-H files and the models shipped with the package.
+"""Load robot models: TOML D-H files, URDF files (:mod:`.urdf`) and the models shipped with the package.
 
 A TOML model states its units (``[units] length = "m" | "mm"``, ``angle = "rad" | "deg"``) and its
 D-H convention (``[dh] convention = "standard" | "modified"``); see ``models/jibot_zxs.toml`` for a
@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .model import Joint, JointType, ModelError, RobotModel, rot_x, rot_z, trans, transform
+from .urdf import load_urdf
 
 __all__ = ["load_model", "load_toml", "shipped_models", "model_from_dh"]
 
@@ -27,24 +28,37 @@ _ANGLE = {"rad": 1.0, "deg": math.pi / 180.0}
 _DH_KEYS = {"name", "alpha", "a", "d", "theta", "type"}
 
 
-def shipped_models() -> list[str]:
-    """Names of the models shipped in the package (``robot_server/models/*.toml``)."""
+_SUFFIXES = (".toml", ".urdf")
+
+
+def _shipped() -> dict[str, Path]:
     folder = resources.files("robot_server") / "models"
-    return sorted(p.name[: -len(".toml")] for p in folder.iterdir() if p.name.endswith(".toml"))
+    found: dict[str, Path] = {}
+    for entry in folder.iterdir():
+        for suffix in _SUFFIXES:
+            if entry.name.endswith(suffix):
+                found[entry.name[: -len(suffix)]] = Path(str(entry))
+    return found
+
+
+def shipped_models() -> list[str]:
+    """Names of the models shipped in the package (``robot_server/models/*.toml`` and ``*.urdf``)."""
+    return sorted(_shipped())
 
 
 def load_model(name_or_path: str | Path) -> RobotModel:
-    """A shipped model by name (``jibot_zxs``), or a model file by path (``.toml``)."""
+    """A shipped model by name (``jibot_zxs``), or a model file by path (``.toml`` or ``.urdf``)."""
     text = str(name_or_path)
-    if text in shipped_models():
-        resource = resources.files("robot_server") / "models" / f"{text}.toml"
-        return load_toml(Path(str(resource)))
-    path = Path(text)
+    shipped = _shipped()
+    path = shipped.get(text, Path(text))
     if not path.exists():
-        raise ModelError(f"{text}: no such model file, and not a shipped model ({', '.join(shipped_models())})")
-    if path.suffix.lower() == ".toml":
+        raise ModelError(f"{text}: no such model file, and not a shipped model ({', '.join(sorted(shipped))})")
+    suffix = path.suffix.lower()
+    if suffix == ".toml":
         return load_toml(path)
-    raise ModelError(f"{path}: unknown model file type {path.suffix!r} (expected .toml)")
+    if suffix == ".urdf":
+        return load_urdf(path)
+    raise ModelError(f"{path}: unknown model file type {path.suffix!r} (expected .toml or .urdf)")
 
 
 class _Fields:

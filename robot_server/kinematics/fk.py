@@ -1,0 +1,147 @@
+"""Forward kinematics, the geometric Jacobian and manipulability of any serial chain.
+
+The flange pose is computed by code generated per model (:mod:`._codegen`): one function of the
+joint values that serves a single configuration (Python floats) and a batch (numpy columns, no
+Python loop over configurations). ``link_frames`` is the plain matrix product, for display and
+tests; it is independent of the generated code and the tests check one against the other.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..model import JointType, RobotModel
+from ._codegen import Compiled, compile_chain
+
+__all__ = ["fk", "fk_batch", "link_frames", "jacobian", "manipulability", "singularity_measure", "chain_functions"]
+
+Matrix = NDArray[np.float64]
+
+
+class _Chain:
+    __slots__ = ("pose", "axes")
+
+    def __init__(self, model: RobotModel) -> None:
+        self.pose: Compiled = compile_chain(model, with_axes=False)
+        self.axes: Compiled = compile_chain(model, with_axes=True)
+
+
+_CHAINS: weakref.WeakKeyDictionary[RobotModel, _Chain] = weakref.WeakKeyDictionary()
+
+
+def chain_functions(model: RobotModel) -> tuple[Compiled, Compiled]:
+    """The model's generated ``(pose, pose_and_axes)`` functions (compiled once per model)."""
+    chain = _CHAINS.get(model)
+    if chain is None:
+        chain = _CHAINS[model] = _Chain(model)
+    return chain.pose, chain.axes
+
+
+def _values(model: RobotModel, q: ArrayLike) -> list[float]:
+    try:
+        values = [float(v) for v in q]  # type: ignore[union-attr]
+    except TypeError:
+        raise ValueError(f"{model.name}: a configuration is a sequence of {model.dof} numbers, not {q!r}") from None
+    if len(values) != model.dof:
+        raise ValueError(f"{model.name} has {model.dof} joints; got {len(values)} values")
+    return values
+
+
+def _matrix(v: tuple[Any, ...]) -> Matrix:
+    return np.array([v[0:4], v[4:8], v[8:12], (0.0, 0.0, 0.0, 1.0)])
+
+
+def fk(model: RobotModel, q: ArrayLike) -> Matrix:
+    """The flange (tool) pose for one configuration, as a 4x4 homogeneous matrix."""
+    pose, _ = chain_functions(model)
+    return _matrix(pose(*_values(model, q), math.cos, math.sin))
+
+
+def fk_batch(model: RobotModel, q: ArrayLike) -> NDArray[np.float64]:
+    """Flange poses for N configurations: ``(N, dof)`` in, ``(N, 4, 4)`` out, no loop over N."""
+    values = np.asarray(q, dtype=float)
+    if values.ndim != 2 or values.shape[1] != model.dof:
+        raise ValueError(f"fk_batch takes an (N, {model.dof}) array for {model.name}, not shape {values.shape}")
+    pose, _ = chain_functions(model)
+    n = values.shape[0]
+    out = np.zeros((n, 4, 4))
+    out[:, 3, 3] = 1.0
+    flat = out.reshape(n, 16)
+    # Chunks small enough for the intermediate columns to stay in cache: about twice as fast as
+    # whole-batch columns for N = 100,000 on the CI machine class.
+    for start in range(0, n, _CHUNK):
+        stop = min(n, start + _CHUNK)
+        for k, value in enumerate(pose(*values[start:stop].T, np.cos, np.sin)):
+            flat[start:stop, k] = value
+    return out
+
+
+_CHUNK = 8192
+
+
+def _jacobian_from(model: RobotModel, v: tuple[Any, ...]) -> Matrix:
+    px, py, pz = v[3], v[7], v[11]
+    jac = np.zeros((6, model.dof))
+    for i, joint in enumerate(model.joints):
+        ax, ay, az, ox, oy, oz = v[12 + 6 * i : 18 + 6 * i]
+        if joint.type is JointType.PRISMATIC:
+            jac[:3, i] = (ax, ay, az)
+        else:
+            dx, dy, dz = px - ox, py - oy, pz - oz
+            jac[:, i] = (ay * dz - az * dy, az * dx - ax * dz, ax * dy - ay * dx, ax, ay, az)
+    return jac
+
+
+def jacobian(model: RobotModel, q: ArrayLike) -> Matrix:
+    """The geometric Jacobian (6 x dof) in the base frame at the flange (tool) point: rows are the
+    linear velocity (m/s) then the angular velocity (rad/s) per unit joint velocity."""
+    _, axes = chain_functions(model)
+    return _jacobian_from(model, axes(*_values(model, q), math.cos, math.sin))
+
+
+def manipulability(model: RobotModel, q: ArrayLike) -> float:
+    """Yoshikawa's manipulability sqrt(det(J J^T)); 0 at a singularity."""
+    jac = jacobian(model, q)
+    square = jac @ jac.T if model.dof >= 6 else jac.T @ jac
+    return float(math.sqrt(max(np.linalg.det(square), 0.0)))
+
+
+def singularity_measure(model: RobotModel, q: ArrayLike) -> float:
+    """The inverse condition number of the Jacobian (smallest over largest singular value), in
+    [0, 1]: 0 at a singularity, unit-free enough to threshold (lengths are in metres)."""
+    sv = np.linalg.svd(jacobian(model, q), compute_uv=False)
+    return float(sv[-1] / sv[0]) if sv[0] > 0 else 0.0
+
+
+def _axis_rotation(x: float, y: float, z: float, c: float, s: float) -> Matrix:
+    v = 1.0 - c
+    return np.array(
+        [
+            [c + x * x * v, x * y * v - z * s, x * z * v + y * s],
+            [y * x * v + z * s, c + y * y * v, y * z * v - x * s],
+            [z * x * v - y * s, z * y * v + x * s, c + z * z * v],
+        ]
+    )
+
+
+def link_frames(model: RobotModel, q: ArrayLike) -> list[Matrix]:
+    """The pose of every joint's frame after its motion (``T_0i``, base included), then the flange
+    with the tool: ``dof + 1`` 4x4 matrices, by plain matrix products."""
+    t = model.base.copy()
+    frames = []
+    for joint, value in zip(model.joints, _values(model, q), strict=True):
+        motion = np.eye(4)
+        theta = value + joint.offset
+        if joint.type is JointType.PRISMATIC:
+            motion[:3, 3] = joint.axis * theta
+        else:
+            motion[:3, :3] = _axis_rotation(*joint.axis, math.cos(theta), math.sin(theta))
+        t = t @ joint.pre @ motion @ joint.post
+        frames.append(t)
+    frames.append(t @ model.tool)
+    return frames
