@@ -61,12 +61,12 @@ class _UrdfJoint:
         if self.kind in ("revolute", "prismatic"):
             if limit is None:
                 raise ModelError(f"{path}: {where} ({self.kind}) has no <limit> element")
-            self.lower = _number(path, limit, "lower", where, "limit", 0.0)
-            self.upper = _number(path, limit, "upper", where, "limit", 0.0)
+            self.lower = _number(path, limit, "lower", where, "limit", default=0.0)
+            self.upper = _number(path, limit, "upper", where, "limit", default=0.0)
             if self.lower >= self.upper:
                 raise ModelError(f"{path}: {where} limit lower={self.lower} must be below upper={self.upper}")
         if limit is not None:
-            self.velocity = _number(path, limit, "velocity", where, "limit", math.pi)
+            self.velocity = _number(path, limit, "velocity", where, "limit", default=math.pi)
             if self.velocity <= 0:
                 raise ModelError(f"{path}: {where} limit.velocity must be > 0, not {self.velocity}")
 
@@ -79,7 +79,7 @@ def _link_ref(path: Path, element: ET.Element, tag: str, where: str) -> str:
     return link
 
 
-def _number(path: Path, element: ET.Element, key: str, where: str, tag: str, default: float) -> float:
+def _number(path: Path, element: ET.Element, key: str, where: str, tag: str, *, default: float) -> float:
     text = element.get(key)
     if text is None:
         return default

@@ -114,3 +114,72 @@ def test_bad_model_files_name_the_file_and_the_field(tmp_path: Path, text: str, 
 def test_unknown_model_name() -> None:
     with pytest.raises(ModelError, match="jibot_zxs"):
         load_model("no_such_robot")
+
+
+# -- URDF ---------------------------------------------------------------------------------------
+
+
+def test_urdf_of_the_dh_robot_gives_the_same_flange_poses() -> None:
+    dh = load_model("jibot_zxs")
+    urdf = load_model(DATA / "jibot_zxs.urdf")
+    assert urdf.convention == "urdf" and urdf.dof == 6
+    assert urdf.joint_names == tuple(f"joint_{i}" for i in range(1, 7))  # the tool0 branch, not "base"
+    assert np.allclose(urdf.lower, dh.lower) and np.allclose(urdf.upper, dh.upper)
+    q = np.random.default_rng(5).uniform(dh.lower, dh.upper, size=(1000, 6))
+    assert np.max(np.abs(fk_batch(urdf, q) - fk_batch(dh, q))) < 1e-12
+
+
+def test_shipped_urdf_model_kuka() -> None:
+    model = load_model("kuka_kr6_r900_sixx")
+    assert model.dof == 6 and model.convention == "urdf"
+    assert model.upper[1] == pytest.approx(math.radians(45))
+    assert model.max_velocity[5] == pytest.approx(math.radians(615))
+    # q = 0: the arm stretched forward, flange at x = 25 + 455 + 420 + 80 mm, z = 400 + 35 mm
+    assert np.allclose(fk(model, [0] * 6)[:3, 3], [0.98, 0.0, 0.435], atol=1e-12)
+
+
+_URDF_HEAD = '<robot name="r"><link name="a"/><link name="b"/><link name="c"/>'
+_GOOD_JOINT = (
+    '<joint name="j1" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/>'
+    '<limit lower="-1" upper="1" velocity="1"/></joint>'
+)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("<robot name='r'><link name='a'>", "not well-formed XML"),
+        ("<model/>", "not <robot>"),
+        (_URDF_HEAD + _GOOD_JOINT.replace('<limit lower="-1" upper="1" velocity="1"/>', "") + "</robot>", "no <limit>"),
+        (_URDF_HEAD + _GOOD_JOINT.replace('lower="-1"', 'lower="minus one"') + "</robot>", "limit.lower"),
+        (_URDF_HEAD + _GOOD_JOINT.replace('xyz="0 0 1"', 'xyz="0 0"') + "</robot>", "axis.xyz"),
+        (_URDF_HEAD + _GOOD_JOINT.replace('xyz="0 0 1"', 'xyz="0 0 0"') + "</robot>", "zero vector"),
+        (_URDF_HEAD + _GOOD_JOINT.replace("revolute", "floating") + "</robot>", "type 'floating'"),
+        (_URDF_HEAD + _GOOD_JOINT.replace('link="b"', 'link="zz"') + "</robot>", "undefined link 'zz'"),
+        (_URDF_HEAD + _GOOD_JOINT.replace('<parent link="a"/>', "") + "</robot>", "missing <parent"),
+        (
+            _URDF_HEAD
+            + _GOOD_JOINT
+            + _GOOD_JOINT.replace('name="j1"', 'name="j2"').replace('link="a"', 'link="c"')
+            + "</robot>",
+            "closed loop: link 'b'",
+        ),
+        (
+            '<robot name="r"><link name="a"/><link name="b"/>'
+            + _GOOD_JOINT
+            + _GOOD_JOINT.replace('name="j1"', 'name="j2"')
+            .replace('"a"', '"x"')
+            .replace('"b"', '"a"')
+            .replace('"x"', '"b"')
+            + "</robot>",
+            "cycle",
+        ),
+    ],
+)
+def test_bad_urdf_names_file_and_field(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "bad.urdf"
+    path.write_text(text)
+    with pytest.raises(ModelError) as info:
+        load_model(path)
+    assert str(path) in str(info.value)
+    assert message in str(info.value)

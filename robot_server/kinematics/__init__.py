@@ -1,7 +1,14 @@
 """Kinematics of any serial chain: forward kinematics, Jacobian, closed-form and numeric inverse
 kinematics. SI units throughout (m, rad). ``python -m robot_server.kinematics`` is the command."""
 
+from __future__ import annotations
+
+from numpy.typing import ArrayLike
+
+from ..model import RobotModel
 from .fk import chain_functions, fk, fk_batch, jacobian, link_frames, manipulability, singularity_measure
+from .ik import ClosedFormIK, IKSolution, NotApplicable, Singularity, closed_form
+from .numeric import NumericIKResult, ik_numeric, rotation_error
 
 __all__ = [
     "chain_functions",
@@ -11,4 +18,41 @@ __all__ = [
     "link_frames",
     "manipulability",
     "singularity_measure",
+    "ClosedFormIK",
+    "IKSolution",
+    "NotApplicable",
+    "Singularity",
+    "closed_form",
+    "NumericIKResult",
+    "ik_numeric",
+    "rotation_error",
+    "ik",
+    "IKFailed",
 ]
+
+
+class IKFailed(ValueError):
+    """No configuration within the joint limits reaches the pose (to the tolerances)."""
+
+
+def ik(model: RobotModel, pose: ArrayLike, seed: ArrayLike | None = None, *, all: bool = False) -> list[IKSolution]:
+    """Inverse kinematics by the best method the model admits: closed form (every solution, or the
+    one nearest ``seed``) when the model has a spherical wrist, else numeric (one solution, from
+    ``seed``). Raises :class:`IKFailed` when there is none."""
+    solver = closed_form(model)
+    if solver is not None:
+        solutions = solver.solve_all(pose, seed)
+        if not solutions:
+            raise IKFailed(f"{model.name}: the pose is out of reach within the joint limits")
+        if all or seed is None:
+            return solutions if all else solutions[:1]
+        nearest = solver.solve(pose, seed)
+        assert nearest is not None
+        return [nearest]
+    result = ik_numeric(model, pose, seed)
+    if not result.success:
+        raise IKFailed(
+            f"{model.name}: no solution found (best residual {result.position_error:.3g} m, "
+            f"{result.orientation_error:.3g} rad after {result.iterations} iterations)"
+        )
+    return [IKSolution(result.q)]

@@ -60,9 +60,9 @@ class Tracer:
         each intermediate is deleted after its last use: for numpy batches, where keeping a
         thousand dead arrays alive costs more than the arithmetic (fresh memory every line)."""
         returned = ", ".join(_text(o) for o in outputs)
-        lines = self.lines
+        lines = _live(self.lines, set(_NAME.findall(returned)))
         if release:
-            lines = _with_releases(lines, set(re.findall(r"\bv\d+\b", returned)))
+            lines = _with_releases(lines, set(_NAME.findall(returned)))
         text = "\n".join(lines)
         body = [f"def {name}({', '.join(inputs)}, ops):"]
         body += [f"    {f} = ops.{f}" for f in _OPS if f"{f}(" in text]
@@ -70,19 +70,32 @@ class Tracer:
         body.append(f"    return ({returned},)")
         source = "\n".join(body)
         namespace: dict[str, Any] = {}
-        exec(compile(source, f"<{label}>", "exec"), namespace)  # noqa: S102 - generated above, no input text
+        exec(compile(source, f"<{label}>", "exec"), namespace)
         function: Callable[..., Any] = namespace[name]
         function.__doc__ = source
         return function
 
 
 _OPS = ("sqrt", "atan2", "cos", "sin", "acos", "where", "quartic")
+_NAME = re.compile(r"\bv\d+\b")
+
+
+def _live(lines: list[str], needed: set[str]) -> list[str]:
+    """Only the lines the outputs depend on (tracing records every intermediate, used or not)."""
+    kept = []
+    for line in reversed(lines):
+        target, expr = line.split("=", 1)
+        if target.strip() in needed:
+            needed.update(_NAME.findall(expr))
+            kept.append(line)
+    kept.reverse()
+    return kept
 
 
 def _with_releases(lines: list[str], keep: set[str]) -> list[str]:
     last: dict[str, int] = {}
     for i, line in enumerate(lines):
-        for used in re.findall(r"\bv\d+\b", line.split("=", 1)[1]):
+        for used in _NAME.findall(line.split("=", 1)[1]):
             last[used] = i
     dead: dict[int, list[str]] = {}
     for var, i in last.items():
@@ -113,7 +126,7 @@ def _is_number(value: Any) -> bool:
 class Var:
     """A per-call value while tracing: operations on it are recorded, not computed."""
 
-    __slots__ = ("tracer", "name")
+    __slots__ = ("name", "tracer")
 
     def __init__(self, tracer: Tracer, name: str) -> None:
         self.tracer = tracer
@@ -126,7 +139,7 @@ class Var:
             k = snap(float(other))
             if op == "*" and k == 0.0:
                 return 0.0
-            if op == "*" and k == 1.0 or op in "+-" and k == 0.0 and not (reverse and op == "-"):
+            if (op == "*" and k == 1.0) or (op in "+-" and k == 0.0 and not (reverse and op == "-")):
                 return self
             if op == "/" and not reverse and k == 1.0:
                 return self
@@ -136,6 +149,13 @@ class Var:
                 return -self
         elif not isinstance(other, Var):
             return NotImplemented
+        elif other is self and op == "-":
+            return 0.0
+        elif op in "+-" and other.name in self.tracer.negated:  # a + (-b) is a - b
+            base = self.tracer.negated[other.name]
+            if reverse:  # (-b) + a, (-b) - a
+                return self - base if op == "+" else -(base + self)
+            return self - base if op == "+" else self + base
         a, b = (_text(other), self.name) if reverse else (self.name, _text(other))
         return self.tracer.emit(f"{a} {op} {b}")
 
@@ -273,10 +293,8 @@ class _ScalarOps:
     def where(c: Any, a: Any, b: Any) -> Any:
         return a if c else b
 
-    @staticmethod
-    def quartic(*k: float) -> tuple[Any, ...]:
-        out = trig_quadratic_roots(*(np.array([float(x)]) for x in k))
-        return tuple(x.item() for x in out)
+    def quartic(self, *k: float) -> tuple[Any, ...]:
+        return trig_quadratic_roots(self, *k)
 
 
 class _ArrayOps:
@@ -294,10 +312,8 @@ class _ArrayOps:
 
     where = staticmethod(np.where)
 
-    @staticmethod
-    def quartic(*k: Any) -> tuple[Any, ...]:
-        arrays = np.broadcast_arrays(*(np.atleast_1d(np.asarray(x, dtype=float)) for x in k))
-        return trig_quadratic_roots(*arrays)
+    def quartic(self, *k: Any) -> tuple[Any, ...]:
+        return trig_quadratic_roots(self, *k)
 
 
 SCALAR_OPS = _ScalarOps()

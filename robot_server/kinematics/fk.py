@@ -1,6 +1,6 @@
 """Forward kinematics, the geometric Jacobian and manipulability of any serial chain.
 
-The flange pose is computed by code generated per model (:mod:`._codegen`): one function of the
+The flange pose is computed by code generated per model (:mod:`._chain`, :mod:`._trace`): one function of the
 joint values that serves a single configuration (Python floats) and a batch (numpy columns, no
 Python loop over configurations). ``link_frames`` is the plain matrix product, for display and
 tests; it is independent of the generated code and the tests check one against the other.
@@ -10,13 +10,17 @@ from __future__ import annotations
 
 import math
 import weakref
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..model import JointType, RobotModel
-from ._codegen import Compiled, compile_chain
+from ._chain import chain, pose_and_jacobian
+from ._trace import ARRAY_OPS, SCALAR_OPS, TRACE_OPS, Tracer, Var
+
+Compiled = Callable[..., tuple[Any, ...]]
 
 __all__ = ["fk", "fk_batch", "link_frames", "jacobian", "manipulability", "singularity_measure", "chain_functions"]
 
@@ -24,27 +28,42 @@ Matrix = NDArray[np.float64]
 
 
 class _Chain:
-    __slots__ = ("pose", "axes")
+    __slots__ = ("jacobian", "pose", "pose_batch")
 
     def __init__(self, model: RobotModel) -> None:
-        self.pose: Compiled = compile_chain(model, with_axes=False)
-        self.axes: Compiled = compile_chain(model, with_axes=True)
+        self.pose = _compile(model, lambda ops, q: chain(ops, model, q, with_axes=False))
+        self.pose_batch = _compile(model, lambda ops, q: chain(ops, model, q, with_axes=False), release=True)
+        self.jacobian = _compile(model, lambda ops, q: pose_and_jacobian(ops, model, q))
+
+
+def _compile(model: RobotModel, body: Callable[[Any, list[Any]], list[Any]], release: bool = False) -> Compiled:
+    tracer = Tracer()
+    names = [f"q{i}" for i in range(model.dof)]
+    outputs = body(TRACE_OPS, [Var(tracer, n) for n in names])
+    return tracer.compile("chain", names, outputs, f"kinematics of {model.name}", release=release)
 
 
 _CHAINS: weakref.WeakKeyDictionary[RobotModel, _Chain] = weakref.WeakKeyDictionary()
 
 
+def _chain(model: RobotModel) -> _Chain:
+    compiled = _CHAINS.get(model)
+    if compiled is None:
+        compiled = _CHAINS[model] = _Chain(model)
+    return compiled
+
+
 def chain_functions(model: RobotModel) -> tuple[Compiled, Compiled]:
-    """The model's generated ``(pose, pose_and_axes)`` functions (compiled once per model)."""
-    chain = _CHAINS.get(model)
-    if chain is None:
-        chain = _CHAINS[model] = _Chain(model)
-    return chain.pose, chain.axes
+    """The model's generated ``(pose, pose_and_jacobian)`` functions, ``f(q0, ..., ops)``
+    (compiled once per model): the flange's 3x4 block row-major, then for the second the
+    Jacobian row-major (:func:`._chain.pose_and_jacobian`)."""
+    compiled = _chain(model)
+    return compiled.pose, compiled.jacobian
 
 
 def _values(model: RobotModel, q: ArrayLike) -> list[float]:
     try:
-        values = [float(v) for v in q]  # type: ignore[union-attr]
+        values = [float(v) for v in q]  # type: ignore[union-attr, arg-type]
     except TypeError:
         raise ValueError(f"{model.name}: a configuration is a sequence of {model.dof} numbers, not {q!r}") from None
     if len(values) != model.dof:
@@ -59,7 +78,7 @@ def _matrix(v: tuple[Any, ...]) -> Matrix:
 def fk(model: RobotModel, q: ArrayLike) -> Matrix:
     """The flange (tool) pose for one configuration, as a 4x4 homogeneous matrix."""
     pose, _ = chain_functions(model)
-    return _matrix(pose(*_values(model, q), math.cos, math.sin))
+    return _matrix(pose(*_values(model, q), SCALAR_OPS))
 
 
 def fk_batch(model: RobotModel, q: ArrayLike) -> NDArray[np.float64]:
@@ -67,7 +86,7 @@ def fk_batch(model: RobotModel, q: ArrayLike) -> NDArray[np.float64]:
     values = np.asarray(q, dtype=float)
     if values.ndim != 2 or values.shape[1] != model.dof:
         raise ValueError(f"fk_batch takes an (N, {model.dof}) array for {model.name}, not shape {values.shape}")
-    pose, _ = chain_functions(model)
+    pose = _chain(model).pose_batch
     n = values.shape[0]
     out = np.zeros((n, 4, 4))
     out[:, 3, 3] = 1.0
@@ -76,7 +95,7 @@ def fk_batch(model: RobotModel, q: ArrayLike) -> NDArray[np.float64]:
     # whole-batch columns for N = 100,000 on the CI machine class.
     for start in range(0, n, _CHUNK):
         stop = min(n, start + _CHUNK)
-        for k, value in enumerate(pose(*values[start:stop].T, np.cos, np.sin)):
+        for k, value in enumerate(pose(*np.ascontiguousarray(values[start:stop].T), ARRAY_OPS)):
             flat[start:stop, k] = value
     return out
 
@@ -84,24 +103,11 @@ def fk_batch(model: RobotModel, q: ArrayLike) -> NDArray[np.float64]:
 _CHUNK = 8192
 
 
-def _jacobian_from(model: RobotModel, v: tuple[Any, ...]) -> Matrix:
-    px, py, pz = v[3], v[7], v[11]
-    jac = np.zeros((6, model.dof))
-    for i, joint in enumerate(model.joints):
-        ax, ay, az, ox, oy, oz = v[12 + 6 * i : 18 + 6 * i]
-        if joint.type is JointType.PRISMATIC:
-            jac[:3, i] = (ax, ay, az)
-        else:
-            dx, dy, dz = px - ox, py - oy, pz - oz
-            jac[:, i] = (ay * dz - az * dy, az * dx - ax * dz, ax * dy - ay * dx, ax, ay, az)
-    return jac
-
-
 def jacobian(model: RobotModel, q: ArrayLike) -> Matrix:
     """The geometric Jacobian (6 x dof) in the base frame at the flange (tool) point: rows are the
     linear velocity (m/s) then the angular velocity (rad/s) per unit joint velocity."""
-    _, axes = chain_functions(model)
-    return _jacobian_from(model, axes(*_values(model, q), math.cos, math.sin))
+    values = _chain(model).jacobian(*_values(model, q), SCALAR_OPS)
+    return np.array(values[12:], dtype=float).reshape(6, model.dof)
 
 
 def manipulability(model: RobotModel, q: ArrayLike) -> float:
@@ -140,7 +146,8 @@ def link_frames(model: RobotModel, q: ArrayLike) -> list[Matrix]:
         if joint.type is JointType.PRISMATIC:
             motion[:3, 3] = joint.axis * theta
         else:
-            motion[:3, :3] = _axis_rotation(*joint.axis, math.cos(theta), math.sin(theta))
+            x, y, z = (float(v) for v in joint.axis)
+            motion[:3, :3] = _axis_rotation(x, y, z, math.cos(theta), math.sin(theta))
         t = t @ joint.pre @ motion @ joint.post
         frames.append(t)
     frames.append(t @ model.tool)

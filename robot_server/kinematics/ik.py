@@ -42,14 +42,14 @@ from __future__ import annotations
 import math
 import weakref
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from enum import IntFlag
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..model import JointType, ModelError, RobotModel
+from ._chain import chain
 from ._trace import ARRAY_OPS, SCALAR_OPS, TRACE_OPS, Tracer, Var
 from .fk import fk
 
@@ -82,8 +82,9 @@ class Singularity(IntFlag):
 _FLAGS = [Singularity(i) for i in range(8)]
 
 
-@dataclass(frozen=True)
-class IKSolution:
+class IKSolution(NamedTuple):
+    """One inverse-kinematics solution: joint values (rad) and the singularities it sits at."""
+
     q: tuple[float, ...]
     singular: Singularity = Singularity.NONE
 
@@ -126,8 +127,8 @@ def _trig_roots(ops: Any, p0: Any, pc: Any, ps: Any) -> tuple[Any, Any, Any, Any
 def _turn_angle(ops: Any, h: Vec, p: Vec, t: Vec, fallback: Any) -> tuple[Any, Any]:
     """The angle about h that turns p onto t (their components across h); ``fallback`` when p has
     no such component (the angle is free): (angle, degenerate)."""
-    pp = _sub(p, tuple(hk * _dot(h, p) for hk in h))  # type: ignore[arg-type]
-    tt = _sub(t, tuple(hk * _dot(h, t) for hk in h))  # type: ignore[arg-type]
+    pp = _sub(p, tuple(hk * _dot(h, p) for hk in h))
+    tt = _sub(t, tuple(hk * _dot(h, t) for hk in h))
     sin_part = _dot(h, _cross(pp, tt))
     cos_part = _dot(pp, tt)
     degenerate = _dot(pp, pp) < _DEGENERATE * _DEGENERATE
@@ -205,7 +206,9 @@ class ClosedFormIK:
         tracer = Tracer()
         names = [f"r{i}{j}" for i in range(3) for j in range(3)] + ["px", "py", "pz"] + [f"s{i}" for i in range(6)]
         var = {name: Var(tracer, name) for name in names}
-        rt = [[var[f"r{i}{j}"] for j in range(3)] for i in range(3)]
+        # rt = R . M0^T, with the model's M0 folded in
+        r0 = self.r0.tolist()
+        rt = [[sum(var[f"r{i}{k}"] * r0[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
         p = (var["px"], var["py"], var["pz"])
         seed = [var[f"s{i}"] for i in range(6)]
         outputs = [value for branch in self._branches(TRACE_OPS, rt, p, seed) for value in branch]
@@ -224,7 +227,7 @@ class ClosedFormIK:
         # rt = R . M0^T. The wrist centre p + R c_flange = p + rt (M0 c_flange), and W h6, W n6
         # before q1..q3 are undone
         pw = tuple(p[i] + rt[i][0] * cf[0] + rt[i][1] * cf[1] + rt[i][2] * cf[2] for i in range(3))
-        rel = _sub(pw, self.o1)  # type: ignore[arg-type]
+        rel = _sub(pw, self.o1)
         dd = _dot(rel, rel)
         hh = _dot(h1, rel)
         t_h6 = tuple(rt[i][0] * h6[0] + rt[i][1] * h6[1] + rt[i][2] * h6[2] for i in range(3))
@@ -240,18 +243,18 @@ class ClosedFormIK:
             turns = ((h1, q1), (h2, q2 + q3)) if self.h23_parallel else ((h1, q1), (h2, q2), (h3, q3))
             for h, q in turns:
                 c, s = ops.cos(q), -ops.sin(q)
-                a_h6 = _rotate(h, c, s, a_h6)  # type: ignore[arg-type]
-                a_n6 = _rotate(h, c, s, a_n6)  # type: ignore[arg-type]
+                a_h6 = _rotate(h, c, s, a_h6)
+                a_n6 = _rotate(h, c, s, a_n6)
             # q5 from h4 . W h6 = h4 . Rot(h5, q5) h6
-            gamma = _dot(h4, a_h6) - self.wrist_const  # type: ignore[arg-type]
+            gamma = _dot(h4, a_h6) - self.wrist_const
             q5a, q5b, ok5, merged5 = _trig_roots(ops, -gamma, self.wrist_alpha, self.wrist_beta)
             for q5 in (q5a, q5b):
                 c5, s5 = ops.cos(q5), ops.sin(q5)
                 p6 = _lin(*self.p6, c5, s5)  # Rot(h5, q5) h6
-                q4, wrist = _turn_angle(ops, h4, p6, a_h6, seed[3])  # type: ignore[arg-type]
+                q4, wrist = _turn_angle(ops, h4, p6, a_h6, seed[3])
                 c4, s4 = ops.cos(q4), ops.sin(q4)
                 # Rot(h6, q6) = (Rot4 Rot5)^T W: read it on n6
-                m = _rotate(h5, c5, -s5, _rotate(h4, c4, -s4, a_n6))  # type: ignore[arg-type]
+                m = _rotate(h5, c5, -s5, _rotate(h4, c4, -s4, a_n6))
                 q6 = ops.atan2(_dot(h6, _cross(self.n6, m)), _dot(self.n6, m))
                 at_wrist = ops.where(wrist | merged5, int(Singularity.WRIST), 0)
                 out.append((q1, q2, q3, q4, q5, q6, valid & ok5, flags | at_wrist))
@@ -259,7 +262,7 @@ class ClosedFormIK:
 
     def _positions(self, ops: Any, dd: Any, hh: Any, rel: Vec, seed: Sequence[Any]) -> list[tuple[Any, ...]]:
         """(q1, q2, q3, valid, flags) for each position branch."""
-        h1, h2, h3 = self.h[0], self.h[1], self.h[2]
+        h1, h2, _h3 = self.h[0], self.h[1], self.h[2]
         v0, vc, vs, w = self.v0, self.vc, self.vs, self.w
         # |v|^2 and h2.v as linear functions of (1, c3, s3)
         n0 = _dot(v0, v0) + _dot(vc, vc)
@@ -332,8 +335,8 @@ class ClosedFormIK:
         if t.shape != (4, 4):
             raise ValueError(f"a pose is a 4x4 homogeneous matrix, not shape {t.shape}")
         ref = (0.0,) * 6 if seed is None else tuple(np.asarray(seed, dtype=float).reshape(6).tolist())
-        rt = (t[:3, :3] @ self.r0.T).ravel().tolist()
-        out = self._solver(*rt, t[0, 3], t[1, 3], t[2, 3], *ref, SCALAR_OPS)
+        (r00, r01, r02, px), (r10, r11, r12, py), (r20, r21, r22, pz), _ = t.tolist()
+        out = self._solver(r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz, *ref, SCALAR_OPS)
         found: list[IKSolution] = []
         # branches coincide only at singularities, which are flagged: compare only then
         singular = any(out[b + 7] for b in range(0, 64, 8))
@@ -367,7 +370,7 @@ class ClosedFormIK:
             raise ValueError(f"solve_batch takes (N, 4, 4) poses, not shape {t.shape}")
         n = t.shape[0]
         ref = np.zeros((n, 6)) if seeds is None else np.broadcast_to(np.asarray(seeds, dtype=float), (n, 6))
-        rt = np.ascontiguousarray((t[:, :3, :3] @ self.r0.T).reshape(n, 9).T)
+        rt = np.ascontiguousarray(t[:, :3, :3].reshape(n, 9).T)
         p = np.ascontiguousarray(t[:, :3, 3].T)
         r = np.ascontiguousarray(ref.T)
         q = np.empty((n, 8, 6))
@@ -433,22 +436,9 @@ def _shift_batch(
 
 def _axis_lines(model: RobotModel) -> tuple[list[Matrix], list[Matrix]]:
     """Each joint's axis direction and a point on it, in the base frame at q = 0."""
-    t = model.base.copy()
-    axes, points = [], []
-    for joint in model.joints:
-        frame = t @ joint.pre
-        axes.append(frame[:3, :3] @ joint.axis)
-        points.append(frame[:3, 3].copy())
-        motion = np.eye(4)
-        c, s = math.cos(joint.offset), math.sin(joint.offset)
-        x, y, z = joint.axis
-        v = 1.0 - c
-        motion[:3, :3] = [
-            [c + x * x * v, x * y * v - z * s, x * z * v + y * s],
-            [y * x * v + z * s, c + y * y * v, y * z * v - x * s],
-            [z * x * v - y * s, z * y * v + x * s, c + z * z * v],
-        ]
-        t = frame @ motion @ joint.post
+    values = chain(SCALAR_OPS, model, [0.0] * model.dof, with_axes=True)[12:]
+    axes = [np.array(values[6 * i : 6 * i + 3], dtype=float) for i in range(model.dof)]
+    points = [np.array(values[6 * i + 3 : 6 * i + 6], dtype=float) for i in range(model.dof)]
     return axes, points
 
 

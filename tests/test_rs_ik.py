@@ -1,0 +1,332 @@
+"""Jacobian, closed-form and numeric inverse kinematics on the shipped models."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+
+from robot_server.kinematics import (
+    IKFailed,
+    Singularity,
+    closed_form,
+    fk,
+    fk_batch,
+    ik,
+    ik_numeric,
+    jacobian,
+    manipulability,
+    rotation_error,
+    singularity_measure,
+)
+from robot_server.kinematics.__main__ import main as kinematics_main
+from robot_server.loader import load_model, shipped_models
+from robot_server.model import RobotModel
+
+from .refdata import DATA
+
+SPHERICAL = ["jibot_zxs", "puma560", "kuka_kr6_r900_sixx"]
+REFERENCE = json.loads((DATA / "fk_reference.json").read_text())
+
+
+def pose_error(model: RobotModel, q: np.ndarray, target: np.ndarray) -> tuple[float, float]:
+    t = fk(model, q)
+    return float(np.linalg.norm(t[:3, 3] - target[:3, 3])), float(
+        np.linalg.norm(rotation_error(target[:3, :3].tolist(), t[:3].ravel().tolist()))
+    )
+
+
+def wrapped_equal(a: np.ndarray, b: np.ndarray, tol: float = 1e-7) -> bool:
+    return bool(np.all(np.abs(np.remainder(np.asarray(a) - np.asarray(b) + math.pi, 2 * math.pi) - math.pi) < tol))
+
+
+def unlimited(model: RobotModel) -> RobotModel:
+    joints = tuple(dataclasses.replace(j, position=(-2 * math.pi, 2 * math.pi)) for j in model.joints)
+    return dataclasses.replace(model, joints=joints)
+
+
+# -- Jacobian -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", shipped_models())
+def test_jacobian_matches_finite_differences(name: str) -> None:
+    model = load_model(name)
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        q = rng.uniform(model.lower, model.upper)
+        jac = jacobian(model, q)
+        t0 = fk(model, q)
+        h = 1e-7
+        for i in range(model.dof):
+            dq = q.copy()
+            dq[i] += h
+            t1 = fk(model, dq)
+            linear = (t1[:3, 3] - t0[:3, 3]) / h
+            angular = np.array(rotation_error(t1[:3, :3].tolist(), t0[:3].ravel().tolist())) / h
+            assert np.allclose(jac[:3, i], linear, atol=1e-5)
+            assert np.allclose(jac[3:, i], angular, atol=1e-5)
+
+
+def test_manipulability_and_singularity_measure_vanish_at_the_wrist_singularity() -> None:
+    model = load_model("jibot_zxs")
+    regular = [0.1, 1.2, -0.4, 0.3, 0.8, 0.2]
+    singular = [0.1, 1.2, -0.4, 0.3, 0.0, 0.2]
+    assert manipulability(model, regular) > 1e-3
+    assert manipulability(model, singular) < 1e-8  # sqrt of a determinant rounded near 1e-19
+    assert 0.0 < singularity_measure(model, regular) <= 1.0
+    assert singularity_measure(model, singular) < 1e-10
+
+
+# -- closed form --------------------------------------------------------------------------------
+
+
+def test_closed_form_is_detected_from_the_geometry() -> None:
+    assert {name: closed_form(load_model(name)) is not None for name in shipped_models()} == {
+        "jibot_zxs": True,
+        "puma560": True,
+        "kuka_kr6_r900_sixx": True,  # a URDF model, shoulder offset: the general (quartic) case
+        "ur5": False,  # offset wrist
+    }
+    assert closed_form(load_model(str(DATA / "jibot_zxs.urdf"))) is not None
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", SPHERICAL)
+def test_closed_form_on_10000_random_poses(name: str) -> None:
+    model = load_model(name)
+    solver = closed_form(model)
+    assert solver is not None
+    rng = np.random.default_rng(2024)
+    q = rng.uniform(model.lower, model.upper, size=(10_000, 6))
+    poses = fk_batch(model, q)
+    solutions, valid, flags = solver.solve_batch(poses)
+    assert not np.isnan(solutions[valid]).any()
+    # every returned solution reproduces its pose to 1e-9 and lies within the limits
+    rows, slots = np.nonzero(valid)
+    reached = fk_batch(model, solutions[rows, slots])
+    assert np.max(np.abs(reached - poses[rows])) < 1e-9
+    assert np.all(solutions[rows, slots] >= model.lower - 1e-12)
+    assert np.all(solutions[rows, slots] <= model.upper + 1e-12)
+    # for non-singular poses the generating configuration is among the solutions (modulo 2 pi)
+    singular = (flags != 0).any(axis=1)
+    diff = np.remainder(solutions - q[:, None, :] + math.pi, 2 * math.pi) - math.pi
+    found = (np.max(np.abs(np.nan_to_num(diff, nan=1.0)), axis=2) < 1e-7).any(axis=1)
+    assert np.all(found | singular)
+    assert singular.mean() < 0.01
+    # the single-pose solver agrees with the batch
+    for i in range(0, 10_000, 97):
+        single = solver.solve_all(poses[i])
+        assert len(single) == valid[i].sum()
+        for s in single:
+            assert any(wrapped_equal(s.q, solutions[i, j], 1e-9) for j in np.nonzero(valid[i])[0])
+
+
+def test_reference_solution_sets_of_non_singular_cases() -> None:
+    model = unlimited(load_model("jibot_zxs"))
+    solver = closed_form(model)
+    assert solver is not None
+    checked = 0
+    for case in REFERENCE["cases"]:
+        if case["wrist_singular"] or case["shoulder_singular"]:
+            continue
+        ours = [np.array(s.q) for s in solver.solve_all(np.array(case["T"]))]
+        theirs = [np.array(q) for q in case["ik_solutions_rtb_analytic"]]
+        assert len(ours) == len(theirs) == case["n_ik_solutions_rtb_analytic"]
+        for q in theirs:
+            assert any(wrapped_equal(q, o, 1e-7) for o in ours)
+        checked += 1
+    assert checked >= 10
+
+
+@pytest.mark.parametrize("name", SPHERICAL)
+def test_wrist_singularity_is_flagged_keeps_the_seed_q4_and_has_no_nan(name: str) -> None:
+    model = load_model(name)
+    solver = closed_form(model)
+    assert solver is not None
+    # find q5 with axes 4 and 6 aligned: where the manipulability vanishes along q5
+    q = np.array([0.3, -0.4, 0.5, 0.7, 0.0, -0.2])
+    q5 = min(np.linspace(-1.5, 1.5, 3001), key=lambda v: manipulability(model, [*q[:4], v, q[5]]))
+    q[4] = q5
+    target = fk(model, q)
+    seed = np.array([0.3, -0.4, 0.5, 1.1, q5, 0.0])
+    solutions = solver.solve_all(target, seed)
+    assert solutions
+    assert any(s.singular & Singularity.WRIST for s in solutions)
+    for s in solutions:
+        assert all(math.isfinite(v) for v in s.q)
+        pos, ori = pose_error(model, np.array(s.q), target)
+        assert pos < 1e-9 and ori < 1e-9
+        if s.singular & Singularity.WRIST:
+            assert s.q[3] == pytest.approx(1.1, abs=1e-9) or wrapped_equal([s.q[3]], [1.1 + math.pi], 1e-6)
+
+
+def _shoulder_singular(model: RobotModel) -> np.ndarray:
+    """A configuration with the wrist centre on axis 1 (found by bisection on q2)."""
+    solver = closed_form(model)
+    assert solver is not None
+
+    def centre_offset(q2: float) -> float:
+        t = fk(model, [0.0, q2, 0.4, 0.2, 0.5, 0.1])
+        c = t[:3, 3] + t[:3, :3] @ (solver.r0.T @ np.array(solver.c_flange))
+        h1 = np.array(solver.h[0])
+        c = c - np.array(solver.o1)
+        return float(np.dot(np.cross(h1, c), [0.0, 1.0, 0.0]) + np.dot(np.cross(h1, c), [1.0, 0.0, 0.0]))
+
+    grid = np.linspace(model.lower[1], model.upper[1], 721)
+    values = [centre_offset(v) for v in grid]
+    for a, b, fa, fb in zip(grid, grid[1:], values, values[1:], strict=False):
+        if fa * fb < 0:
+            for _ in range(80):
+                m = (a + b) / 2
+                if centre_offset(m) * fa < 0:
+                    b = m
+                else:
+                    a, fa = m, centre_offset(m)
+            return np.array([0.0, (a + b) / 2, 0.4, 0.2, 0.5, 0.1])
+    raise AssertionError("no shoulder singularity on the q2 grid")
+
+
+def test_shoulder_singularity_is_flagged_and_keeps_the_seed_q1() -> None:
+    model = load_model("jibot_zxs")
+    solver = closed_form(model)
+    assert solver is not None
+    q = _shoulder_singular(model)
+    target = fk(model, q)
+    solutions = solver.solve_all(target, [0.9, 0, 0, 0, 0, 0])
+    assert solutions and all(s.singular & Singularity.SHOULDER for s in solutions)
+    for s in solutions:
+        pos, ori = pose_error(model, np.array(s.q), target)
+        assert pos < 1e-9 and ori < 1e-9
+
+
+def wrist_centre(model: RobotModel, q: np.ndarray) -> np.ndarray:
+    solver = closed_form(model)
+    assert solver is not None
+    t = fk(model, q)
+    return t[:3, 3] + t[:3, :3] @ (solver.r0.T @ np.array(solver.c_flange))
+
+
+@pytest.mark.parametrize("name", ["jibot_zxs", "puma560"])
+def test_elbow_singularity_merges_the_branches(name: str) -> None:
+    model = load_model(name)
+    solver = closed_form(model)
+    assert solver is not None
+
+    # axes 1 and 2 meet at o1, so the elbow alone sets the wrist centre's distance from o1; the
+    # elbow is singular where that distance is largest (arm stretched): golden-section search on q3
+    def reach(q3: float) -> float:
+        return -float(np.linalg.norm(wrist_centre(model, np.array([0.2, 0.3, q3, 0.4, 0.6, 0.1])) - solver.o1))
+
+    grid = np.linspace(model.lower[2], model.upper[2], 3601)
+    q3 = float(min(grid, key=reach))
+    lo, hi = q3 - 0.002, q3 + 0.002
+    for _ in range(80):
+        a, b = lo + 0.382 * (hi - lo), lo + 0.618 * (hi - lo)
+        lo, hi = (lo, b) if reach(a) < reach(b) else (a, hi)
+    q = np.array([0.2, 0.3, (lo + hi) / 2, 0.4, 0.6, 0.1])
+    target = fk(model, q)
+    solutions = solver.solve_all(target, q)
+    assert solutions
+    assert all(s.singular & Singularity.ELBOW for s in solutions)
+    assert len(solutions) <= 4  # elbow up and down coincide
+    for s in solutions:
+        pos, ori = pose_error(model, np.array(s.q), target)
+        assert pos < 1e-9 and ori < 1e-9
+
+
+def test_limits_shift_by_two_pi_and_nearest_to_seed() -> None:
+    model = load_model("jibot_zxs")  # joint 6 spans -360..360 deg
+    solver = closed_form(model)
+    assert solver is not None
+    q = np.array([0.2, 0.3, -0.5, 0.4, 0.6, 5.0])
+    target = fk(model, q)
+    near = solver.solve(target, q)
+    assert near is not None and np.allclose(near.q, q, atol=1e-9)  # 5.0, not 5.0 - 2 pi
+    default = solver.solve_all(target)
+    assert any(np.allclose(s.q[:5], q[:5], atol=1e-9) and s.q[5] == pytest.approx(5.0 - 2 * math.pi) for s in default)
+    assert all(model.within_limits(np.array(s.q), 1e-12) for s in default)
+
+
+def test_unreachable_pose_gives_no_solution_not_nan() -> None:
+    model = load_model("kuka_kr6_r900_sixx")
+    solver = closed_form(model)
+    assert solver is not None
+    far = np.eye(4)
+    far[:3, 3] = (3.0, 0.0, 0.5)
+    assert solver.solve_all(far) == []
+    q, valid, _ = solver.solve_batch(np.stack([far, fk(model, [0.1, -1.0, 1.0, 0.2, 0.3, 0.4])]))
+    assert not valid[0].any() and valid[1].any() and np.isnan(q[0]).all()
+    with pytest.raises(IKFailed, match="out of reach"):
+        ik(model, far)
+
+
+# -- numeric ------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [*shipped_models(), "urdf:jibot"])
+def test_numeric_ik_on_1000_random_poses(name: str) -> None:
+    model = load_model(DATA / "jibot_zxs.urdf") if name == "urdf:jibot" else load_model(name)
+    rng = np.random.default_rng(99)
+    solved = 0
+    for _ in range(1000):
+        target = fk(model, rng.uniform(model.lower, model.upper))
+        result = ik_numeric(model, target, rng.uniform(model.lower, model.upper), rng=rng)
+        pos, ori = pose_error(model, np.array(result.q), target)
+        assert pos == pytest.approx(result.position_error, abs=1e-12)
+        if result.success:
+            solved += 1
+            assert pos <= 1e-6 and ori <= 1e-6
+            assert model.within_limits(np.array(result.q), 1e-12)
+        else:
+            assert result.position_error > 1e-6 or result.orientation_error > 1e-6
+    assert solved >= 999
+
+
+def test_numeric_ik_reports_failure_with_the_best_residual() -> None:
+    model = load_model("ur5")
+    far = np.eye(4)
+    far[:3, 3] = (2.0, 0.0, 0.0)
+    result = ik_numeric(model, far, attempts=3, rng=np.random.default_rng(1))
+    assert not result.success
+    assert 1.0 < result.position_error < 2.1
+    assert result.attempts == 3 and all(math.isfinite(v) for v in result.q)
+    with pytest.raises(IKFailed, match="best residual"):
+        ik(model, far)
+
+
+# -- the command --------------------------------------------------------------------------------
+
+
+def test_command_fk_ik_models(capsys: pytest.CaptureFixture[str]) -> None:
+    assert kinematics_main(["fk", "--model", "puma560", "0.1", "0.2", "0.3", "0.4", "0.5", "0.6"]) == 0
+    pose = json.loads(capsys.readouterr().out)
+    assert np.allclose(pose["T"], fk(load_model("puma560"), [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]))
+    seed = ["0.1", "0.2", "0.3", "0.4", "0.5", "0.6"]
+    assert kinematics_main(["ik", "--model", "puma560", "--pose", json.dumps(pose), "--seed", *seed]) == 0
+    (q,) = json.loads(capsys.readouterr().out)["solutions"]
+    assert np.allclose(q, [0.1, 0.2, 0.3, 0.4, 0.5, 0.6], atol=1e-9)
+    assert kinematics_main(["ik", "--model", "puma560", "--pose", json.dumps(pose["T"]), "--all"]) == 0
+    assert len(json.loads(capsys.readouterr().out)["solutions"]) > 1
+    assert kinematics_main(["models"]) == 0
+    names = [m["name"] for m in json.loads(capsys.readouterr().out)["models"]]
+    assert names == shipped_models()
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["fk", "--model", "puma560", "0.1"], "has 6 joints"),
+        (["fk", "--model", "nosuch", "0"], "not a shipped model"),
+        (["ik", "--model", "puma560", "--pose", "[1, 2"], "not valid JSON"),
+        (["ik", "--model", "puma560", "--pose", "[[1, 0], [0, 1]]"], "4x4"),
+        (["ik", "--model", "puma560", "--pose", json.dumps((2 * np.eye(4)).tolist())], "homogeneous"),
+        (["ik", "--model", "puma560", "--pose", json.dumps(np.eye(4).tolist())], "out of reach"),
+    ],
+)
+def test_command_errors_are_clear(argv: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert kinematics_main(argv) == 2
+    assert message in capsys.readouterr().err
