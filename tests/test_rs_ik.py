@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
 
@@ -164,27 +165,18 @@ def test_wrist_singularity_is_flagged_keeps_the_seed_q4_and_has_no_nan(name: str
 
 
 def _shoulder_singular(model: RobotModel) -> np.ndarray:
-    """A configuration with the wrist centre on axis 1 (found by bisection on q2)."""
-    solver = closed_form(model)
-    assert solver is not None
+    """A configuration with the wrist centre on axis 1 (the base z axis): with q1 = 0 the centre
+    stays in the x-z plane, so bisect on q2 for x = 0."""
 
-    def centre_offset(q2: float) -> float:
-        t = fk(model, [0.0, q2, 0.4, 0.2, 0.5, 0.1])
-        c = t[:3, 3] + t[:3, :3] @ (solver.r0.T @ np.array(solver.c_flange))
-        h1 = np.array(solver.h[0])
-        c = c - np.array(solver.o1)
-        return float(np.dot(np.cross(h1, c), [0.0, 1.0, 0.0]) + np.dot(np.cross(h1, c), [1.0, 0.0, 0.0]))
+    def centre_x(q2: float) -> float:
+        return float(wrist_centre(model, np.array([0.0, q2, 0.4, 0.2, 0.5, 0.1]))[0])
 
     grid = np.linspace(model.lower[1], model.upper[1], 721)
-    values = [centre_offset(v) for v in grid]
-    for a, b, fa, fb in zip(grid, grid[1:], values, values[1:], strict=False):
-        if fa * fb < 0:
+    for a, b in itertools.pairwise(grid):
+        if centre_x(a) * centre_x(b) < 0:
             for _ in range(80):
                 m = (a + b) / 2
-                if centre_offset(m) * fa < 0:
-                    b = m
-                else:
-                    a, fa = m, centre_offset(m)
+                a, b = (a, m) if centre_x(a) * centre_x(m) < 0 else (m, b)
             return np.array([0.0, (a + b) / 2, 0.4, 0.2, 0.5, 0.1])
     raise AssertionError("no shoulder singularity on the q2 grid")
 

@@ -147,7 +147,6 @@ class ClosedFormIK:
         o = [tuple(float(x) for x in p) for p in points]
         centre = _wrist_centre(model.name, axes[3:], points[3:])
         zero = fk(model, [0.0] * 6)
-        self.lower, self.upper = model.lower, model.upper
         self.h: list[Vec] = h  # type: ignore[assignment]
         # the flange orientation at q = 0, and the wrist centre's offset from the flange (base axes)
         self.r0 = zero[:3, :3].copy()
