@@ -8,6 +8,7 @@ the field (:class:`~.model.ModelError`).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tomllib
 from importlib import resources
@@ -17,7 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .model import Joint, JointType, ModelError, RobotModel, rot_x, rot_z, trans, transform
+from .model import Joint, JointType, ModelError, MotorParameters, RobotModel, rot_x, rot_z, trans, transform
 from .urdf import load_urdf
 
 __all__ = ["load_model", "load_toml", "shipped_models", "model_from_dh"]
@@ -158,7 +159,7 @@ def load_toml(path: Path) -> RobotModel:
     scales = [angle if kind is JointType.REVOLUTE else length for _, kind, *_ in table]
     base = top.sub("base", required=False)
     tool = top.sub("tool", required=False)
-    return model_from_dh(
+    model = model_from_dh(
         robot.text("name"),
         convention,
         table,
@@ -171,6 +172,30 @@ def load_toml(path: Path) -> RobotModel:
         description=robot.text("description", ""),
         source=robot.text("source", ""),
     )
+    motors = top.sub("motors", required=False)
+    if motors is None:
+        return model
+    return dataclasses.replace(model, motors=_motors(motors, n))
+
+
+_MOTOR_FIELDS = tuple(f.name for f in dataclasses.fields(MotorParameters))
+
+
+def _motors(table: _Fields, n: int) -> tuple[MotorParameters, ...]:
+    """``[motors]``: per field a list of n numbers in SI units; a missing field takes the default."""
+    unknown = set(table.table) - set(_MOTOR_FIELDS)
+    if unknown:
+        raise ModelError(
+            f"{table.path}: [motors] has unknown field(s) {sorted(unknown)} (known: {list(_MOTOR_FIELDS)})"
+        )
+    columns = {key: table.numbers(key, n) for key in _MOTOR_FIELDS if key in table.table}
+    motors = []
+    for i in range(n):
+        try:
+            motors.append(MotorParameters(**{key: values[i] for key, values in columns.items()}))
+        except ModelError as exc:
+            raise ModelError(f"{table.path}: [motors] joint {i + 1}: {exc}") from None
+    return tuple(motors)
 
 
 def _default_limits(n: int, angle: float) -> dict[str, list[float]]:

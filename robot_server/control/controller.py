@@ -1,0 +1,460 @@
+"""The controller: trajectory queue, interpolation clock, servo drives, stop and alarms.
+
+A :class:`Controller` is a sans-I/O state machine. :meth:`Controller.submit` takes received points
+(:mod:`.trajectory` says what they mean), :meth:`Controller.stop` aborts, and :meth:`Controller.step`
+advances one servo period. :class:`ControlLoop` drives ``step`` from a :mod:`.clock`.
+
+**Timing.** Every interpolation period (default 4 ms, as MotoROS) the queued segments are sampled
+on one continuous timeline, so a segment ending between two samples hands over to the next one at
+the right place (MotoROS carries partial periods over the same way). Between two samples the servo
+ticks (default 1 ms) interpolate the setpoint linearly, as a drive does with the increments it
+receives. Controller time is ``tick x servo_period`` with an integer tick count.
+
+**The queue.** Streamed points are planned at once and queued; :attr:`Controller.queue_fill` is
+how many are still to run, out of :attr:`Controller.queue_capacity`. A download (sequence -1, then
+points, then -3) is planned point by point into a separate bounded buffer and queued whole at the
+end marker. If the queue runs dry while the last segment ends in motion (streaming fell behind), the
+robot is brought to rest with the same jerk-limited deceleration as a stop rather than stopping dead.
+
+**Stop.** STOP (sequence -4) or :meth:`Controller.stop` replaces everything queued with ruckig's
+time-optimal jerk-limited motion from the current setpoint (position, velocity and acceleration)
+to rest, within the velocity, acceleration and jerk limits: no position jump, no unbounded
+deceleration. The next point then starts a new trajectory.
+
+**Alarms.** A following error beyond a joint's limit raises alarm ``4100 + joint number``: the
+queue is emptied, the command is set to the actual position (the drives brake at full torque
+under their own loops) and new points are refused until :meth:`Controller.reset`.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from simple_message.constants import SpecialSeq
+
+from ..model import RobotModel
+from .clock import Clock
+from .recorder import Recorder
+from .segments import PlanningError, RuckigSegment, Segment, hold
+from .servo import ServoDrives
+from .trajectory import Limits, Point, PointRejected, Policy, Reason, State, TrajectoryPlanner
+
+__all__ = ["Controller", "ControllerConfig", "ControlLoop", "LoopStats", "Tick", "FOLLOWING_ERROR_ALARM"]
+
+log = logging.getLogger(__name__)
+
+#: alarm code of a following-error alarm is this plus the joint number (1-based)
+FOLLOWING_ERROR_ALARM = 4100
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """Controller settings (SI units)."""
+
+    policy: Policy = Policy.QUINTIC
+    interpolation_period: float = 0.004
+    servo_period: float = 0.001
+    queue_capacity: int = 64
+    download_capacity: int = 10_000
+    #: a trajectory's first point must be this close to the current position (None: no check)
+    start_tolerance: float | None = 0.01
+    #: in_motion stays TRUE until every joint is this close to the command (rad or m) ...
+    settle_position: float = 1e-3
+    #: ... and this slow (rad/s or m/s)
+    settle_velocity: float = 1e-3
+    #: where the robot starts (default: 0, moved into the limits)
+    initial_position: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        ratio = self.interpolation_period / self.servo_period
+        if not (self.servo_period > 0 and self.interpolation_period > 0) or abs(ratio - round(ratio)) > 1e-9:
+            raise ValueError(
+                f"the interpolation period ({self.interpolation_period} s) must be a whole multiple "
+                f"of the servo period ({self.servo_period} s)"
+            )
+        if self.queue_capacity < 1 or self.download_capacity < 2:
+            raise ValueError("queue_capacity must be >= 1 and download_capacity >= 2")
+
+
+class Tick(NamedTuple):
+    """One servo tick: commanded and actual state per joint, and the following error (command - actual)."""
+
+    time: float
+    command_position: list[float]
+    command_velocity: list[float]
+    command_acceleration: list[float]
+    actual_position: list[float]
+    actual_velocity: list[float]
+    actual_acceleration: list[float]
+    following_error: list[float]
+
+
+class Controller:
+    """One robot's motion controller (see the module doc)."""
+
+    def __init__(self, model: RobotModel, config: ControllerConfig | None = None) -> None:
+        self.model = model
+        self.config = config = config if config is not None else ControllerConfig()
+        self.limits = Limits.from_model(model)
+        n = model.dof
+        if config.initial_position is not None:
+            start = np.array(config.initial_position, dtype=float)
+            if start.shape != (n,) or not model.within_limits(start):
+                raise ValueError(f"initial position {config.initial_position} is not {n} values within the limits")
+        else:
+            start = np.clip(np.zeros(n), self.limits.lower, self.limits.upper)
+        self.planner = TrajectoryPlanner(self.limits, config.policy, config.start_tolerance)
+        self.planner.begin(State.rest(start))
+        self.servo = ServoDrives([model.motor(i) for i in range(n)], config.servo_period, start.tolist())
+        self._sub = round(config.interpolation_period / config.servo_period)
+        self._tick = 0
+        self._queue: deque[Segment] = deque()
+        self._queued_ends: deque[State] = deque()
+        self._segment_start = 0.0  # controller time at which _queue[0] starts
+        self._download: list[Segment] | None = None
+        self._stopping = False
+        hold = start.tolist()
+        zeros = [0.0] * n
+        self._previous = (hold, zeros, zeros)  # setpoint at the last interpolation instant
+        self._next = (hold, zeros, zeros)  # setpoint at the next one
+        self._planned_until = 0.0
+        self._hold = hold  # where the robot stands when nothing is queued
+        self.command = Tick(0.0, hold, zeros, zeros, list(hold), list(zeros), list(zeros), list(zeros))
+        self.error_code = 0
+        self.error_message = ""
+        self.trajectories = 0
+
+    # -- state ---------------------------------------------------------------------------------
+
+    @property
+    def time(self) -> float:
+        return self._tick * self.config.servo_period
+
+    @property
+    def dof(self) -> int:
+        return self.model.dof
+
+    @property
+    def queue_fill(self) -> int:
+        """Points queued and not yet finished (the running one included)."""
+        return len(self._queue)
+
+    @property
+    def queue_capacity(self) -> int:
+        return self.config.queue_capacity
+
+    @property
+    def in_error(self) -> bool:
+        return self.error_code != 0
+
+    @property
+    def moving(self) -> bool:
+        """Commanded motion is under way (queued segments or a stop in progress)."""
+        return bool(self._queue)
+
+    @property
+    def in_motion(self) -> bool:
+        """TRUE from the first commanded motion until the robot has settled after the last point."""
+        if self._queue:
+            return True
+        tick = self.command
+        cfg = self.config
+        return any(abs(e) > cfg.settle_position for e in tick.following_error) or any(
+            abs(v) > cfg.settle_velocity for v in tick.actual_velocity
+        )
+
+    @property
+    def downloading(self) -> bool:
+        return self._download is not None
+
+    # -- commands ------------------------------------------------------------------------------
+
+    def submit(self, point: Point) -> None:
+        """Act on one received point (its sequence number says how, simple-message.md §4.1):
+        -4 stops; -1 starts a download, -3 ends and runs it; 0 and -2 start a streamed
+        trajectory; other points continue the current one. Raises :class:`PointRejected`."""
+        seq = point.sequence
+        if seq == SpecialSeq.STOP_TRAJECTORY:
+            self.stop()
+            return
+        if self.in_error:
+            raise PointRejected(Reason.NOT_READY, f"the controller is in alarm {self.error_code}: {self.error_message}")
+        if seq < 0 and seq not in (
+            SpecialSeq.START_TRAJECTORY_DOWNLOAD,
+            SpecialSeq.START_TRAJECTORY_STREAMING,
+            SpecialSeq.END_TRAJECTORY,
+        ):
+            raise PointRejected(Reason.SEQUENCE, f"sequence {seq} is reserved")
+        if seq == SpecialSeq.START_TRAJECTORY_DOWNLOAD:
+            buffer: list[Segment] = []
+            self._plan_into(point, buffer, first=True)
+            self._download = buffer
+            return
+        if self._download is not None:
+            if len(self._download) >= self.config.download_capacity:
+                raise PointRejected(
+                    Reason.QUEUE_FULL, f"the download buffer holds {self.config.download_capacity} points at most"
+                )
+            self._plan_into(point, self._download, first=False)
+            if seq == SpecialSeq.END_TRAJECTORY:
+                buffer, self._download = self._download, None
+                for segment in buffer:
+                    self._enqueue(segment)
+                log.info("downloaded trajectory of %d segments queued", len(buffer))
+            return
+        if seq == SpecialSeq.END_TRAJECTORY:
+            raise PointRejected(Reason.SEQUENCE, "END_TRAJECTORY (-3) without a download started by -1")
+        if len(self._queue) >= self.config.queue_capacity:
+            raise PointRejected(Reason.QUEUE_FULL, f"the point queue is full ({self.config.queue_capacity} points)")
+        staged: list[Segment] = []
+        self._plan_into(point, staged, first=seq in (0, SpecialSeq.START_TRAJECTORY_STREAMING))
+        for segment in staged:
+            self._enqueue(segment)
+
+    def stop(self) -> float:
+        """Abort: decelerate to rest (jerk-limited, within the limits) and empty the queue.
+        Returns the time the deceleration takes (0 if already at rest)."""
+        self._download = None
+        had = len(self._queue)
+        self._queue.clear()
+        self._queued_ends.clear()
+        position, velocity, acceleration = (np.array(x) for x in self._next)
+        self._hold = list(self._next[0])
+        duration = 0.0
+        if _moving(velocity) or _moving(acceleration):
+            segment = self._stop_segment(State(position, velocity, acceleration))
+            self._queue.append(segment)
+            end = segment.end()
+            self._queued_ends.append(State.rest(end.position))
+            self._segment_start = self._planned_until
+            duration = segment.duration
+        self.planner.begin(self._planned_end())
+        if had or duration:
+            log.info("stop: %d queued segments dropped, decelerating for %.3f s", had, duration)
+        return duration
+
+    def raise_alarm(self, code: int, message: str) -> None:
+        """Enter alarm ``code``: motion is abandoned where the robot actually is, points are refused."""
+        if self.in_error:
+            return
+        self.error_code, self.error_message = code, message
+        log.warning("alarm %d: %s", code, message)
+        self._abandon()
+
+    def reset(self) -> None:
+        """Clear the alarm (the robot is held where it is)."""
+        if self.in_error:
+            log.info("alarm %d reset", self.error_code)
+        self.error_code, self.error_message = 0, ""
+
+    # -- stepping ------------------------------------------------------------------------------
+
+    def step(self) -> Tick:
+        """Advance one servo period; returns the tick's command and actual state."""
+        i = self._tick % self._sub
+        if i == 0:
+            self._previous = self._next
+            self._planned_until = (self._tick + self._sub) * self.config.servo_period
+            self._next = self._setpoint(self._planned_until)
+        self._tick += 1
+        f = (i + 1) / self._sub
+        g = 1.0 - f
+        (p0, v0, a0), (p1, v1, a1) = self._previous, self._next
+        cmd_p = [g * x + f * y for x, y in zip(p0, p1, strict=True)]
+        cmd_v = [g * x + f * y for x, y in zip(v0, v1, strict=True)]
+        cmd_a = [g * x + f * y for x, y in zip(a0, a1, strict=True)]
+        servo = self.servo
+        servo.step(cmd_p, cmd_v)
+        actual = list(servo.position)
+        error = [c - a for c, a in zip(cmd_p, actual, strict=True)]
+        tick = self.command = Tick(
+            self._tick * self.config.servo_period,
+            cmd_p,
+            cmd_v,
+            cmd_a,
+            actual,
+            list(servo.velocity),
+            list(servo.acceleration),
+            error,
+        )
+        for j, (e, limit) in enumerate(zip(error, servo.following_error_limit, strict=True)):
+            if abs(e) > limit:
+                self.raise_alarm(
+                    FOLLOWING_ERROR_ALARM + j + 1,
+                    f"following error of joint {j + 1} ({self.model.joints[j].name}) is {e:.4g}, limit {limit:g}",
+                )
+                break
+        return tick
+
+    def run_for(self, seconds: float, recorder: Recorder | None = None) -> None:
+        """Step for ``seconds`` of controller time at once (simulated time, no clock)."""
+        for _ in range(round(seconds / self.config.servo_period)):
+            tick = self.step()
+            if recorder is not None:
+                recorder.add(tick)
+
+    # -- internals -----------------------------------------------------------------------------
+
+    def _plan_into(self, point: Point, out: list[Segment], first: bool) -> None:
+        if first:
+            self.planner.begin(self._planned_end())
+        segment = self.planner.plan(point)
+        if first:
+            self.trajectories += 1
+        if segment is not None:
+            out.append(segment)
+
+    def _planned_end(self) -> State:
+        """Where everything queued ends (the current setpoint if nothing is)."""
+        if self._queued_ends:
+            return self._queued_ends[-1]
+        p, v, a = self._next
+        return State(np.array(p), np.array(v), np.array(a))
+
+    def _enqueue(self, segment: Segment) -> None:
+        if not self._queue:
+            self._segment_start = self._planned_until
+        self._queue.append(segment)
+        end = segment.end()
+        if segment.kind == "linear" or not _moving(end.velocity):
+            # ends at rest (a cubic's acceleration steps to 0 there, and a linear segment's velocity
+            # does, by design: never overshoot a final point to smooth that out)
+            self._queued_ends.append(State.rest(end.position))
+        else:
+            self._queued_ends.append(State(end.position, end.velocity, end.acceleration))
+
+    def _setpoint(self, t: float) -> tuple[list[float], list[float], list[float]]:
+        queue = self._queue
+        while queue and t >= self._segment_start + queue[0].duration:
+            done = queue.popleft()
+            end = self._queued_ends.popleft()
+            self._segment_start += done.duration
+            self._hold = end.position.tolist()
+            if not queue and _moving(end.velocity):
+                log.warning("the point queue ran dry while moving: decelerating to rest")
+                stop = self._stop_segment(end)
+                queue.append(stop)
+                self._queued_ends.append(State.rest(stop.end().position))
+                self.planner.begin(self._queued_ends[-1])
+        if queue:
+            s = queue[0].sample(t - self._segment_start)
+            return s.position.tolist(), s.velocity.tolist(), s.acceleration.tolist()
+        zeros = [0.0] * self.dof
+        return self._hold, zeros, zeros
+
+    def _stop_segment(self, state: State) -> Segment:
+        lim = self.limits
+        rest = np.zeros_like(state.position)
+        try:
+            return RuckigSegment.plan(
+                state, (state.position, rest, rest), lim.velocity, lim.acceleration, lim.jerk, velocity_interface=True
+            )
+        except PlanningError:  # pragma: no cover - ruckig plans a stop from any finite state
+            log.exception("no jerk-limited stop from %s; holding", state)
+            return hold(state.position, self.config.interpolation_period)
+
+    def _abandon(self) -> None:
+        """Drop all motion and command the actual position (alarm, emergency stop)."""
+        self._queue.clear()
+        self._queued_ends.clear()
+        self._download = None
+        actual = list(self.servo.position)
+        zeros = [0.0] * self.dof
+        self._previous = self._next = (actual, zeros, zeros)
+        self._hold = actual
+        self.servo.hold()
+        self.planner.begin(State.rest(np.array(actual)))
+
+
+def _moving(values: np.ndarray) -> bool:
+    """Not at rest: velocities or accelerations beyond floating-point noise."""
+    return bool(np.any(np.abs(values) > 1e-9))
+
+
+@dataclass
+class LoopStats:
+    """What a :class:`ControlLoop` run did. Lateness is how long after its deadline a wake-up
+    happened (controller time); an overrun is a wake-up later than one interpolation period."""
+
+    ticks: int = 0
+    wakes: int = 0
+    overruns: int = 0
+    max_lateness: float = 0.0
+    final_lateness: float = 0.0
+    simulated: float = 0.0
+    wall: float = 0.0
+
+    @property
+    def realtime_factor(self) -> float:
+        return self.simulated / self.wall if self.wall > 0 else float("inf")
+
+
+@dataclass
+class ControlLoop:
+    """Runs a controller on a clock: one wake-up per interpolation period at absolute deadlines,
+    each running that period's servo ticks (and any missed ones, so a late wake-up catches up)."""
+
+    controller: Controller
+    clock: Clock
+    recorder: Recorder | None = None
+    stats: LoopStats = field(default_factory=LoopStats)
+    _running: bool = field(default=False, init=False)
+
+    def stop(self) -> None:
+        self._running = False
+
+    async def run(self, duration: float | None = None) -> LoopStats:
+        """Run for ``duration`` seconds of controller time (None: until :meth:`stop`)."""
+        ctl, clock, recorder = self.controller, self.clock, self.recorder
+        period = ctl.config.interpolation_period
+        sub = ctl._sub
+        origin = clock.now()
+        periods = None if duration is None else round(duration / period)
+        stats = self.stats
+        self._running = True
+        wall0 = time.perf_counter()
+        k = 0
+        try:
+            while self._running and (periods is None or k < periods):
+                deadline = origin + k * period
+                await clock.sleep_until(deadline)  # returns at once when late: the loop catches up
+                if clock.realtime:
+                    lateness = clock.now() - deadline
+                    stats.final_lateness = lateness
+                    stats.max_lateness = max(stats.max_lateness, lateness)
+                    if lateness > period:
+                        stats.overruns += 1
+                for _ in range(sub):
+                    tick = ctl.step()
+                    if recorder is not None:
+                        recorder.add(tick)
+                stats.ticks += sub
+                stats.wakes += 1
+                k += 1
+        finally:
+            self._running = False
+            stats.simulated += k * period
+            stats.wall += time.perf_counter() - wall0
+        return stats
+
+
+async def run_simulated(controller: Controller, seconds: float, recorder: Recorder | None = None) -> LoopStats:
+    """Convenience: run ``controller`` for ``seconds`` on a :class:`.SimulatedClock`."""
+    from .clock import SimulatedClock
+
+    return await ControlLoop(controller, SimulatedClock(controller.time), recorder).run(seconds)
+
+
+def rest_point(sequence: int, position: ArrayLike) -> Point:
+    """A JOINT_TRAJ_PT-style point at ``position`` with no timing (handy for a trajectory's start)."""
+    return Point(sequence, np.array(position, dtype=float))
+
+
+__all__ += ["run_simulated", "rest_point"]

@@ -1,0 +1,111 @@
+"""A bounded recorder of control ticks, exported as CSV.
+
+It keeps the most recent ``capacity`` ticks in preallocated arrays (a ring buffer), so a long run
+never grows memory; :attr:`Recorder.dropped` says how many older ticks were overwritten.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from .controller import Tick
+
+__all__ = ["Recorder", "QUANTITIES"]
+
+#: per joint, in this order after the time column
+QUANTITIES = (
+    "command_position",
+    "command_velocity",
+    "command_acceleration",
+    "actual_position",
+    "actual_velocity",
+    "actual_acceleration",
+    "following_error",
+)
+
+
+class Recorder:
+    """Keeps the last ``capacity`` ticks (every ``decimation``-th tick) of a ``dof``-joint controller."""
+
+    def __init__(self, dof: int, capacity: int = 60_000, decimation: int = 1) -> None:
+        if capacity < 1 or decimation < 1 or dof < 1:
+            raise ValueError("capacity, decimation and dof must be >= 1")
+        self.dof = dof
+        self.capacity = capacity
+        self.decimation = decimation
+        self._time = np.zeros(capacity)
+        self._data = np.zeros((capacity, len(QUANTITIES), dof))
+        self._count = 0  # ticks stored so far (including overwritten ones)
+        self._seen = 0
+
+    def add(self, tick: Tick) -> None:
+        seen = self._seen
+        self._seen = seen + 1
+        if seen % self.decimation:
+            return
+        row = self._count % self.capacity
+        self._time[row] = tick.time
+        self._data[row] = (
+            tick.command_position,
+            tick.command_velocity,
+            tick.command_acceleration,
+            tick.actual_position,
+            tick.actual_velocity,
+            tick.actual_acceleration,
+            tick.following_error,
+        )
+        self._count += 1
+
+    def __len__(self) -> int:
+        return min(self._count, self.capacity)
+
+    @property
+    def dropped(self) -> int:
+        """Recorded ticks overwritten because the buffer was full."""
+        return max(0, self._count - self.capacity)
+
+    def clear(self) -> None:
+        self._count = 0
+        self._seen = 0
+
+    def time(self) -> NDArray[np.float64]:
+        return self._ordered(self._time)
+
+    def get(self, quantity: str) -> NDArray[np.float64]:
+        """``(ticks, dof)`` array of one of :data:`QUANTITIES`, oldest first."""
+        return self._ordered(self._data[:, QUANTITIES.index(quantity), :])
+
+    def _ordered(self, array: NDArray[np.float64]) -> NDArray[np.float64]:
+        n = len(self)
+        if self._count <= self.capacity:
+            return array[:n].copy()
+        start = self._count % self.capacity
+        return np.concatenate([array[start:], array[:start]])
+
+    def header(self, joint_names: Sequence[str] | None = None) -> list[str]:
+        names = list(joint_names) if joint_names is not None else [f"j{i + 1}" for i in range(self.dof)]
+        return ["time"] + [f"{q}_{name}" for q in QUANTITIES for name in names]
+
+    def to_csv(self, target: str | Path | io.TextIOBase, joint_names: Sequence[str] | None = None) -> None:
+        """CSV with a header row: time (s), then each quantity per joint (SI units: rad, rad/s, ...)."""
+        if isinstance(target, str | Path):
+            with open(target, "w", newline="") as stream:
+                self._write(stream, joint_names)
+        else:
+            self._write(target, joint_names)
+
+    def _write(self, stream: io.TextIOBase | io.TextIOWrapper, joint_names: Sequence[str] | None) -> None:
+        writer = csv.writer(stream)
+        writer.writerow(self.header(joint_names))
+        times = self.time()
+        data = np.concatenate([self.get(q) for q in QUANTITIES], axis=1)
+        for t, row in zip(times.tolist(), data.tolist(), strict=True):
+            writer.writerow([repr(t)] + [repr(x) for x in row])

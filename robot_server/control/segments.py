@@ -1,0 +1,376 @@
+"""Segment interpolators: how the controller moves all joints from one state to the next.
+
+Each segment is a small immutable value covering local time ``0 <= t <= duration``; outside that
+range it holds its end state (times are clamped). :meth:`Segment.sample` is vectorised: a scalar
+time gives arrays of shape ``(dof,)``, an array of m times gives ``(m, dof)``, for position,
+velocity, acceleration and jerk.
+
+Polynomial segments (``h_0 + h_1 t + ... + h_5 t^5`` per joint, local time):
+
+* :func:`linear`: constant velocity, C0 at the joins (the jittery baseline the paper measures);
+* :func:`cubic`: rest to rest; :func:`cubic_hermite`: boundary velocities (C1 when chained);
+* :func:`quintic`: rest to rest (the paper's eq. 6-10); :func:`quintic_hermite`: boundary
+  velocities and accelerations (C2 when chained).
+
+:class:`RuckigSegment` is the time-optimal jerk-limited state-to-state motion of ruckig (Community
+features only: no intermediate waypoints, which go through a network service; no position limits,
+which the PyPI build ignores: :meth:`Segment.extremes` lets the caller check them).
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from typing import NamedTuple
+
+import numpy as np
+import ruckig
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "Samples",
+    "Segment",
+    "PolynomialSegment",
+    "RuckigSegment",
+    "linear",
+    "cubic",
+    "cubic_hermite",
+    "quintic",
+    "quintic_hermite",
+    "hold",
+    "PlanningError",
+]
+
+Array = NDArray[np.float64]
+
+
+class PlanningError(ValueError):
+    """A segment cannot be built from these inputs (ruckig refused them, or a duration <= 0)."""
+
+
+class Samples(NamedTuple):
+    """Position, velocity, acceleration and jerk; ``(dof,)`` per time, ``(m, dof)`` for m times."""
+
+    position: Array
+    velocity: Array
+    acceleration: Array
+    jerk: Array
+
+
+class Segment(ABC):
+    """A motion of all joints over ``duration`` seconds."""
+
+    kind: str
+    duration: float
+    dof: int
+
+    @abstractmethod
+    def sample(self, t: ArrayLike) -> Samples:
+        """The state at local time(s) ``t`` (clamped to ``[0, duration]``)."""
+
+    @abstractmethod
+    def extremes(self, order: int) -> tuple[Array, Array]:
+        """Per joint, the exact minimum and maximum over the segment of position (``order`` 0),
+        velocity (1) or acceleration (2)."""
+
+    def end(self) -> Samples:
+        return self.sample(self.duration)
+
+    def peak(self, order: int) -> Array:
+        """Per joint, the largest magnitude of position, velocity or acceleration (``order``)."""
+        lo, hi = self.extremes(order)
+        return np.maximum(np.abs(lo), np.abs(hi))
+
+
+def _vector(value: ArrayLike, name: str, dof: int | None = None) -> Array:
+    array = np.array(value, dtype=float).reshape(-1)
+    if dof is not None and array.shape != (dof,):
+        raise PlanningError(f"{name} has {array.size} values, expected {dof}")
+    return array
+
+
+def _duration(duration: float) -> float:
+    duration = float(duration)
+    if not (math.isfinite(duration) and duration > 0.0):
+        raise PlanningError(f"a segment duration must be a finite number > 0, not {duration}")
+    return duration
+
+
+class PolynomialSegment(Segment):
+    """Per joint a polynomial of degree <= 5 in local time: ``coefficients[k, i]`` is h_k of joint i.
+
+    Internally the polynomial is kept in normalised time ``s = t / duration`` (``c_k = h_k T^k``),
+    which stays well conditioned for short segments (a 4 ms quintic has h_5 ~ 1e12 in seconds).
+    """
+
+    __slots__ = ("kind", "duration", "dof", "_normalised", "_derivatives")
+
+    def __init__(self, coefficients: ArrayLike, duration: float, kind: str = "polynomial") -> None:
+        h = np.array(coefficients, dtype=float)
+        if h.ndim != 2 or not 1 <= h.shape[0] <= 6:
+            raise PlanningError(f"polynomial coefficients must be (degree + 1, dof) with degree <= 5, not {h.shape}")
+        tf = _duration(duration)
+        scale = tf ** np.arange(h.shape[0])[:, None]
+        self._setup(h * scale, tf, kind)
+
+    @classmethod
+    def normalised(cls, coefficients: ArrayLike, duration: float, kind: str) -> PolynomialSegment:
+        """From coefficients in normalised time ``s = t / duration``."""
+        segment = cls.__new__(cls)
+        segment._setup(np.array(coefficients, dtype=float), _duration(duration), kind)
+        return segment
+
+    def _setup(self, c: Array, duration: float, kind: str) -> None:
+        if not np.all(np.isfinite(c)):
+            raise PlanningError("polynomial coefficients must be finite")
+        self._normalised = np.zeros((6, c.shape[1]))
+        self._normalised[: c.shape[0]] = c
+        self.duration = duration
+        self.dof = c.shape[1]
+        self.kind = kind
+        # d/ds sum c_k s^k = sum k c_k s^(k-1); each derivative in t adds a factor 1/T
+        derivatives = [self._normalised]
+        for _ in range(3):
+            prev = derivatives[-1]
+            derivatives.append(prev[1:] * np.arange(1, prev.shape[0])[:, None] / duration)
+        self._derivatives = derivatives
+
+    @property
+    def coefficients(self) -> Array:
+        """``(6, dof)``: h_k of each joint, in seconds."""
+        return self._normalised / self.duration ** np.arange(6)[:, None]
+
+    def sample(self, t: ArrayLike) -> Samples:
+        s = np.clip(np.asarray(t, dtype=float) / self.duration, 0.0, 1.0)[..., None]
+        out = []
+        for coefficients in self._derivatives:
+            value = np.broadcast_to(coefficients[-1], (*s.shape[:-1], self.dof)).copy()
+            for h in coefficients[-2::-1]:
+                value = value * s + h
+            out.append(value)
+        return Samples(*out)
+
+    def extremes(self, order: int) -> tuple[Array, Array]:
+        coefficients = self._derivatives[order]
+        ends = self.sample(np.array([0.0, self.duration]))[order]
+        lo, hi = ends.min(axis=0), ends.max(axis=0)
+        slope = self._derivatives[order + 1]
+        for joint in range(self.dof):
+            column = np.trim_zeros(slope[:, joint], "b")
+            if column.size < 2:
+                continue  # the slope is constant: the extremes are at the ends
+            roots: NDArray[np.complex128] = np.asarray(np.polynomial.polynomial.polyroots(column), dtype=complex)
+            for root in roots:
+                if abs(root.imag) <= 1e-9 and 0.0 < root.real < 1.0:
+                    value = float(np.polynomial.polynomial.polyval(root.real, coefficients[:, joint]))
+                    lo[joint] = min(lo[joint], value)
+                    hi[joint] = max(hi[joint], value)
+        return lo, hi
+
+    def __repr__(self) -> str:
+        return f"PolynomialSegment(kind={self.kind!r}, duration={self.duration!r}, dof={self.dof})"
+
+
+def hold(position: ArrayLike, duration: float) -> PolynomialSegment:
+    """Stand still at ``position``."""
+    p = _vector(position, "position")
+    return PolynomialSegment.normalised(p[None, :], duration, "hold")
+
+
+def linear(start: ArrayLike, end: ArrayLike, duration: float) -> PolynomialSegment:
+    """Constant velocity from ``start`` to ``end``: the velocity steps at every join."""
+    p0 = _vector(start, "start")
+    delta = _vector(end, "end", p0.size) - p0
+    return PolynomialSegment.normalised([p0, delta], duration, "linear")
+
+
+def cubic(start: ArrayLike, end: ArrayLike, duration: float) -> PolynomialSegment:
+    """The rest-to-rest cubic: ``h0 = p0, h1 = 0, h2 = 3 D / T^2, h3 = -2 D / T^3`` (D = end - start).
+
+    Derivation: p(t) = h0 + h1 t + h2 t^2 + h3 t^3 with p(0) = p0 and p'(0) = 0 gives h0 = p0,
+    h1 = 0. At T: h2 T^2 + h3 T^3 = D and 2 h2 T + 3 h3 T^2 = 0, so h3 = -2 h2 / (3 T), and then
+    h2 T^2 / 3 = D: h2 = 3 D / T^2, h3 = -2 D / T^3.
+
+    The paper (its eq. 5) prints h0 = 0 and h2 = -3 D / T^2. Those coefficients reach p(T) = -5 D
+    (from 0) with a velocity of -12 D / T at the end: they meet neither boundary condition
+    (motion.md §4). These are the correct ones. The acceleration steps from 0 to 6 D / T^2 at both
+    ends, which is the jitter that the quintic removes.
+    """
+    p0 = _vector(start, "start")
+    delta = _vector(end, "end", p0.size) - p0
+    zero = np.zeros_like(p0)
+    return PolynomialSegment.normalised([p0, zero, 3.0 * delta, -2.0 * delta], duration, "cubic")
+
+
+def cubic_hermite(
+    start: ArrayLike, start_velocity: ArrayLike, end: ArrayLike, end_velocity: ArrayLike, duration: float
+) -> PolynomialSegment:
+    """The cubic through two positions with two boundary velocities (what ros2_control's joint
+    trajectory controller and MotoROS run): ``h0 = p0, h1 = v0, h2 = (3 D - (2 v0 + v1) T) / T^2,
+    h3 = (-2 D + (v0 + v1) T) / T^3``, from p(T) = p1 and p'(T) = v1. With v0 = v1 = 0 it is
+    :func:`cubic`."""
+    p0 = _vector(start, "start")
+    n = p0.size
+    v0, v1 = _vector(start_velocity, "start velocity", n), _vector(end_velocity, "end velocity", n)
+    delta = _vector(end, "end", n) - p0
+    tf = _duration(duration)
+    c2 = 3.0 * delta - (2.0 * v0 + v1) * tf  # = h2 T^2
+    c3 = -2.0 * delta + (v0 + v1) * tf  # = h3 T^3
+    return PolynomialSegment.normalised([p0, v0 * tf, c2, c3], tf, "cubic")
+
+
+def quintic(start: ArrayLike, end: ArrayLike, duration: float) -> PolynomialSegment:
+    """The rest-to-rest quintic of the paper (eq. 6-10): ``h0 = p0, h1 = h2 = 0, h3 = 10 D / T^3,
+    h4 = -15 D / T^4, h5 = 6 D / T^5``; zero velocity and acceleration at both ends."""
+    p0 = _vector(start, "start")
+    zero = np.zeros_like(p0)
+    return quintic_hermite((p0, zero, zero), (end, zero, zero), duration)
+
+
+def quintic_hermite(
+    start: tuple[ArrayLike, ArrayLike, ArrayLike], end: tuple[ArrayLike, ArrayLike, ArrayLike], duration: float
+) -> PolynomialSegment:
+    """The quintic between two states ``(position, velocity, acceleration)``: ``h0 = p0, h1 = v0,
+    h2 = a0 / 2``, ``h3 = (20 D - (8 v1 + 12 v0) T - (3 a0 - a1) T^2) / (2 T^3)``,
+    ``h4 = (-30 D + (14 v1 + 16 v0) T + (3 a0 - 2 a1) T^2) / (2 T^4)``,
+    ``h5 = (12 D - 6 (v1 + v0) T - (a0 - a1) T^2) / (2 T^5)``.
+
+    These solve p(T) = p1, p'(T) = v1, p''(T) = a1 for h3..h5. Note the sign of the acceleration
+    term of h5: motion.md §4 prints ``- (af - a0) T^2``, which misses p(T) by ``(a0 - a1) T^2``
+    whenever the boundary accelerations differ (the tests check all six boundary conditions).
+    """
+    p0 = _vector(start[0], "start")
+    n = p0.size
+    v0, a0 = _vector(start[1], "start velocity", n), _vector(start[2], "start acceleration", n)
+    v1, a1 = _vector(end[1], "end velocity", n), _vector(end[2], "end acceleration", n)
+    delta = _vector(end[0], "end", n) - p0
+    tf = _duration(duration)
+    t2 = tf * tf
+    c3 = (20.0 * delta - (8.0 * v1 + 12.0 * v0) * tf - (3.0 * a0 - a1) * t2) / 2.0  # = h3 T^3
+    c4 = (-30.0 * delta + (14.0 * v1 + 16.0 * v0) * tf + (3.0 * a0 - 2.0 * a1) * t2) / 2.0
+    c5 = (12.0 * delta - 6.0 * (v1 + v0) * tf - (a0 - a1) * t2) / 2.0
+    return PolynomialSegment.normalised([p0, v0 * tf, a0 * t2 / 2.0, c3, c4, c5], tf, "quintic")
+
+
+class RuckigSegment(Segment):
+    """A time-optimal, jerk-limited state-to-state motion computed offline by ruckig.
+
+    Built with :meth:`plan`. Sampling evaluates ruckig's own piecewise-constant-jerk profiles
+    (an optional two-phase brake, then seven phases per joint) with numpy, so it is vectorised and
+    exact; the tests compare it with ``Trajectory.at_time``.
+    """
+
+    __slots__ = ("_a", "_jerk", "_p", "_position_extrema", "_starts", "_v", "dof", "duration", "kind", "trajectory")
+
+    def __init__(self, trajectory: ruckig.Trajectory, dof: int) -> None:
+        self.kind = "ruckig"
+        self.trajectory = trajectory
+        self.dof = dof
+        self.duration = float(trajectory.duration)
+        starts, jerk, acc, vel, pos = [], [], [], [], []
+        for profiles in trajectory.profiles[0]:
+            if profiles.accel.duration > 0.0:  # a post-profile only exists for targets beyond the limits
+                raise PlanningError("ruckig returned a target post-profile: the target state exceeds the limits")
+            brake = profiles.brake
+            t0 = 0.0
+            phase_start, phase_j, phase_a, phase_v, phase_p = [], [], [], [], []
+            for k in range(2):
+                phase_start.append(t0)
+                phase_j.append(brake.j[k])
+                phase_a.append(brake.a[k])
+                phase_v.append(brake.v[k])
+                phase_p.append(brake.p[k])
+                t0 += brake.t[k] if brake.duration > 0.0 else 0.0
+            for k in range(7):
+                phase_start.append(t0)
+                phase_j.append(profiles.j[k])
+                phase_a.append(profiles.a[k])
+                phase_v.append(profiles.v[k])
+                phase_p.append(profiles.p[k])
+                t0 += profiles.t[k]
+            if brake.duration <= 0.0:  # no brake: its phases have zero length and the profile's start state
+                for k in range(2):
+                    phase_j[k], phase_a[k], phase_v[k], phase_p[k] = 0.0, profiles.a[0], profiles.v[0], profiles.p[0]
+            starts.append(phase_start)
+            jerk.append(phase_j)
+            acc.append(phase_a)
+            vel.append(phase_v)
+            pos.append(phase_p)
+        self._starts = np.array(starts)  # (dof, 9)
+        self._jerk, self._a, self._v, self._p = (np.array(x) for x in (jerk, acc, vel, pos))
+        self._position_extrema = (
+            np.array([e.min for e in trajectory.position_extrema]),
+            np.array([e.max for e in trajectory.position_extrema]),
+        )
+
+    @classmethod
+    def plan(
+        cls,
+        start: tuple[ArrayLike, ArrayLike, ArrayLike],
+        target: tuple[ArrayLike, ArrayLike, ArrayLike],
+        max_velocity: ArrayLike,
+        max_acceleration: ArrayLike,
+        max_jerk: ArrayLike,
+        *,
+        minimum_duration: float | None = None,
+        velocity_interface: bool = False,
+    ) -> RuckigSegment:
+        """From ``start`` to ``target`` (each ``(position, velocity, acceleration)``), all joints
+        finishing together (time synchronisation). With ``velocity_interface`` only the target
+        velocity and acceleration count (a stop: ``target`` velocity and acceleration 0)."""
+        p0 = _vector(start[0], "start position")
+        n = p0.size
+        arrays = [p0, *(_vector(x, "start state", n) for x in start[1:])]
+        arrays += [_vector(x, "target state", n) for x in target]
+        limits = [_vector(x, "limit", n) for x in (max_velocity, max_acceleration, max_jerk)]
+        if not all(np.all(np.isfinite(a)) for a in arrays + limits):
+            raise PlanningError("ruckig inputs must be finite")
+        inp = ruckig.InputParameter(n)
+        inp.current_position, inp.current_velocity, inp.current_acceleration = (a.tolist() for a in arrays[:3])
+        inp.target_position, inp.target_velocity, inp.target_acceleration = (a.tolist() for a in arrays[3:])
+        inp.max_velocity, inp.max_acceleration, inp.max_jerk = (a.tolist() for a in limits)
+        if velocity_interface:
+            inp.control_interface = ruckig.ControlInterface.Velocity
+        if minimum_duration is not None:
+            inp.minimum_duration = float(minimum_duration)
+        trajectory = ruckig.Trajectory(n)
+        try:
+            result = ruckig.Ruckig(n).calculate(inp, trajectory)
+        except RuntimeError as exc:  # ruckig raises for invalid input
+            raise PlanningError(f"ruckig: {exc}") from None
+        if result not in (ruckig.Result.Working, ruckig.Result.Finished):
+            raise PlanningError(f"ruckig could not plan this motion ({result.name})")
+        return cls(trajectory, n)
+
+    def sample(self, t: ArrayLike) -> Samples:
+        times = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
+        flat = times.reshape(-1)
+        # per joint: the phase each time falls in, then the cubic of constant jerk from its start
+        index = np.empty((flat.size, self.dof), dtype=np.intp)
+        for joint in range(self.dof):
+            index[:, joint] = np.searchsorted(self._starts[joint], flat, side="right") - 1
+        cols = np.arange(self.dof)
+        dt = flat[:, None] - self._starts[cols, index]
+        j, a, v, p = self._jerk[cols, index], self._a[cols, index], self._v[cols, index], self._p[cols, index]
+        acc = a + j * dt
+        vel = v + (a + j * dt / 2.0) * dt
+        pos = p + (v + (a / 2.0 + j * dt / 6.0) * dt) * dt
+        shape = (*times.shape, self.dof)
+        return Samples(pos.reshape(shape), vel.reshape(shape), acc.reshape(shape), j.reshape(shape))
+
+    def extremes(self, order: int) -> tuple[Array, Array]:
+        if order == 0:
+            return self._position_extrema[0].copy(), self._position_extrema[1].copy()
+        # the velocity is extreme where the acceleration crosses 0 and the acceleration at phase
+        # boundaries (it is piecewise linear): evaluate at every boundary and every zero crossing
+        times: list[Array] = [self._starts.reshape(-1), np.array([self.duration])]
+        if order == 1:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                zero = self._starts - self._a / self._jerk
+            times.append(zero[np.isfinite(zero)])
+        candidates: Array = np.clip(np.concatenate(times), 0.0, self.duration)
+        values = self.sample(candidates)[order]
+        return values.min(axis=0), values.max(axis=0)
+
+    def __repr__(self) -> str:
+        return f"RuckigSegment(duration={self.duration!r}, dof={self.dof})"

@@ -1,0 +1,201 @@
+"""Segment interpolators: boundary conditions, continuity, the paper's cubic, ruckig limits."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import ruckig
+
+from robot_server.control import (
+    PlanningError,
+    PolynomialSegment,
+    RuckigSegment,
+    cubic,
+    cubic_hermite,
+    hold,
+    linear,
+    quintic,
+    quintic_hermite,
+)
+
+RNG = np.random.default_rng(5)
+N = 6
+
+
+def states(count: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    return [(RNG.uniform(-2, 2, N), RNG.uniform(-1, 1, N), RNG.uniform(-3, 3, N)) for _ in range(count)]
+
+
+def close(a: np.ndarray, b: np.ndarray, tol: float = 1e-12) -> None:
+    assert np.max(np.abs(np.asarray(a) - np.asarray(b))) <= tol
+
+
+@pytest.mark.parametrize("duration", [0.004, 0.37, 2.5])
+def test_boundary_conditions(duration: float) -> None:
+    (p0, v0, a0), (p1, v1, a1) = states(2)
+    zero = np.zeros(N)
+    cases = [
+        (linear(p0, p1, duration), (p0, None, None), (p1, None, None)),
+        (cubic(p0, p1, duration), (p0, zero, None), (p1, zero, None)),
+        (cubic_hermite(p0, v0, p1, v1, duration), (p0, v0, None), (p1, v1, None)),
+        (quintic(p0, p1, duration), (p0, zero, zero), (p1, zero, zero)),
+        (quintic_hermite((p0, v0, a0), (p1, v1, a1), duration), (p0, v0, a0), (p1, v1, a1)),
+    ]
+    for segment, start, end in cases:
+        for t, expected in ((0.0, start), (duration, end)):
+            got = segment.sample(t)
+            for order, value in enumerate(expected):
+                if value is not None:
+                    # position exact to 1e-12; derivatives scale with 1/T^order
+                    close(got[order], value, 1e-12 * max(1.0, duration**-order))
+    close(linear(p0, p1, duration).sample(duration / 2).velocity, (p1 - p0) / duration, 1e-9)
+
+
+def test_rest_to_rest_shapes_match_the_closed_forms() -> None:
+    """motion.md §4: the correct cubic (h2 = 3D/T^2, h3 = -2D/T^3) and the paper's quintic."""
+    p0, p1 = np.full(N, 0.3), np.full(N, 1.3)
+    tf, delta = 2.0, 1.0
+    c = cubic(p0, p1, tf).coefficients
+    close(c[:4, 0], [0.3, 0.0, 3 * delta / tf**2, -2 * delta / tf**3])
+    q = quintic(p0, p1, tf).coefficients
+    close(q[:, 0], [0.3, 0.0, 0.0, 10 * delta / tf**3, -15 * delta / tf**4, 6 * delta / tf**5])
+    # the paper's eq. 5 (h0 = 0, h2 = -3D/T^2) fails both boundary conditions: p(T) = -5D, v(T) = -12D/T
+    paper = PolynomialSegment([[0.0], [0.0], [-3 * delta / tf**2], [-2 * delta / tf**3]], tf)
+    close(paper.end().position, [-5 * delta])
+    close(paper.end().velocity, [-12 * delta / tf])
+    # peaks (motion.md §4): cubic 1.5 D/T and 6 D/T^2 at the ends; quintic 1.875 D/T, 5.774 D/T^2
+    assert math.isclose(cubic(p0, p1, tf).peak(1)[0], 1.5 * delta / tf, rel_tol=1e-12)
+    assert math.isclose(cubic(p0, p1, tf).peak(2)[0], 6 * delta / tf**2, rel_tol=1e-12)
+    assert math.isclose(quintic(p0, p1, tf).peak(1)[0], 1.875 * delta / tf, rel_tol=1e-12)
+    assert math.isclose(quintic(p0, p1, tf).peak(2)[0], 10 / math.sqrt(3) * delta / tf**2, rel_tol=1e-12)
+
+
+def test_cubic_vs_quintic_acceleration_at_segment_ends() -> None:
+    """The paper's point: the cubic's acceleration jumps from 0 to 6D/T^2 when a segment starts
+    (and from -6D/T^2 to 0 when it ends); the quintic's is 0 at both ends, so chained quintics
+    have no acceleration step."""
+    p0, p1, tf = np.zeros(N), np.ones(N), 1.0
+    c, q = cubic(p0, p1, tf), quintic(p0, p1, tf)
+    close(c.sample(0.0).acceleration, np.full(N, 6.0))
+    close(c.sample(tf).acceleration, np.full(N, -6.0))
+    close(q.sample(0.0).acceleration, np.zeros(N))
+    close(q.sample(tf).acceleration, np.zeros(N))
+    # jerk: constant -12 D/T^3 for the cubic, 60 D/T^3 at the start of the quintic
+    close(c.sample(0.3).jerk, np.full(N, -12.0), 1e-11)
+    close(q.sample(0.0).jerk, np.full(N, 60.0), 1e-11)
+
+
+def chain(kind: str, points: list[tuple[np.ndarray, np.ndarray, np.ndarray]], durations: list[float]) -> list:
+    out = []
+    for s, e, tf in zip(points, points[1:], durations, strict=False):
+        if kind == "linear":
+            out.append(linear(s[0], e[0], tf))
+        elif kind == "cubic":
+            out.append(cubic_hermite(s[0], s[1], e[0], e[1], tf))
+        else:
+            out.append(quintic_hermite(s, e, tf))
+    return out
+
+
+@pytest.mark.parametrize(("kind", "continuous_orders"), [("linear", 1), ("cubic", 2), ("quintic", 3)])
+def test_continuity_across_chained_segments(kind: str, continuous_orders: int) -> None:
+    """C0 for linear, C1 for cubic Hermite, C2 for quintic; and the next order does jump."""
+    points = states(6)
+    durations = list(RNG.uniform(0.2, 1.5, 5))
+    segments = chain(kind, points, durations)
+    for left, right in zip(segments, segments[1:], strict=False):
+        a, b = left.end(), right.sample(0.0)
+        for order in range(continuous_orders):
+            close(a[order], b[order], 1e-9)
+        assert np.max(np.abs(a[continuous_orders] - b[continuous_orders])) > 1e-6  # not smoother than claimed
+
+
+def test_sampling_is_vectorised_and_consistent() -> None:
+    (p0, v0, a0), (p1, v1, a1) = states(2)
+    segment = quintic_hermite((p0, v0, a0), (p1, v1, a1), 1.2)
+    times = np.linspace(0, 1.2, 1201)
+    s = segment.sample(times)
+    assert s.position.shape == (1201, N) and s.jerk.shape == (1201, N)
+    close(s.position[600], segment.sample(0.6).position)
+    # each quantity is the derivative of the one before (central differences)
+    h = times[1] - times[0]
+    for order in range(3):
+        numeric = (s[order][2:] - s[order][:-2]) / (2 * h)
+        assert np.max(np.abs(numeric - s[order + 1][1:-1])) < 1e-3
+    # outside [0, T] the segment holds its end states
+    close(segment.sample(-1.0).position, p0)
+    close(segment.sample(9.0).position, p1)
+    close(hold(p0, 1.0).sample(times).position, np.broadcast_to(p0, (1201, N)))
+
+
+def test_extremes_are_exact() -> None:
+    (p0, v0, _), (p1, v1, _) = states(2)
+    segment = cubic_hermite(p0, v0, p1, v1, 0.8)
+    lo, hi = segment.extremes(0)
+    dense = segment.sample(np.linspace(0, 0.8, 200_001)).position
+    assert np.all(lo <= dense.min(axis=0) + 1e-15) and np.all(dense.min(axis=0) - lo < 1e-9)
+    assert np.all(hi >= dense.max(axis=0) - 1e-15) and np.all(hi - dense.max(axis=0) < 1e-9)
+
+
+def test_bad_segments_are_refused() -> None:
+    for bad in (0.0, -1.0, math.nan, math.inf):
+        with pytest.raises(PlanningError):
+            quintic(np.zeros(N), np.ones(N), bad)
+    with pytest.raises(PlanningError):
+        linear(np.zeros(N), np.ones(N - 1), 1.0)
+
+
+LIMITS = (np.full(N, math.pi), np.full(N, 10.0), np.full(N, 500.0))
+
+
+def assert_within_limits(segment: RuckigSegment, step: float = 1e-3) -> None:
+    times = np.arange(0.0, segment.duration + step, step)
+    s = segment.sample(times)
+    for values, limit in zip((s.velocity, s.acceleration, s.jerk), LIMITS, strict=True):
+        assert np.all(np.abs(values) <= limit * (1 + 1e-9))
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_ruckig_segments_respect_limits_and_end_at_target(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    start = (rng.uniform(-2, 2, N), rng.uniform(-3, 3, N), rng.uniform(-9, 9, N))
+    target = (rng.uniform(-2, 2, N), rng.uniform(-2, 2, N) * (seed % 2), np.zeros(N))
+    segment = RuckigSegment.plan(start, target, *LIMITS)
+    assert_within_limits(segment)
+    end = segment.end()
+    close(end.position, target[0], 1e-8)
+    close(end.velocity, target[1], 1e-8)
+    close(segment.sample(0.0).position, start[0], 1e-12)
+    # our vectorised evaluation is ruckig's own
+    for t in np.linspace(0, segment.duration, 37):
+        p, v, a = segment.trajectory.at_time(float(t))
+        s = segment.sample(t)
+        close(s.position, p, 1e-9)
+        close(s.velocity, v, 1e-9)
+        close(s.acceleration, a, 1e-9)
+
+
+def test_ruckig_minimum_duration_and_stop() -> None:
+    rest = np.zeros(N)
+    slow = RuckigSegment.plan((rest, rest, rest), (np.ones(N), rest, rest), *LIMITS, minimum_duration=3.0)
+    assert math.isclose(slow.duration, 3.0)
+    moving = (np.zeros(N), np.full(N, math.pi), np.zeros(N))
+    stop = RuckigSegment.plan(moving, (np.zeros(N), rest, rest), *LIMITS, velocity_interface=True)
+    assert_within_limits(stop)
+    close(stop.end().velocity, rest, 1e-9)
+    lo, hi = stop.extremes(1)
+    assert np.all(hi <= math.pi * (1 + 1e-12)) and np.all(lo >= -1e-9)
+
+
+def test_ruckig_ignores_position_limits_so_we_check_extremes() -> None:
+    """motion.md §3.2: the PyPI build accepts max_position and ignores it; extremes(0) is what
+    the planner checks instead."""
+    inp = ruckig.InputParameter(1)
+    inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0], [1.0], [0.0]
+    inp.target_position, inp.target_velocity, inp.target_acceleration = [0.1], [0.0], [0.0]
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [3.0], [2.0], [10.0]
+    segment = RuckigSegment.plan(([0.0], [1.0], [0.0]), ([0.1], [0.0], [0.0]), [3.0], [2.0], [10.0])
+    lo, hi = segment.extremes(0)
+    assert hi[0] > 0.2  # it overshoots the target well beyond 0.1 before coming back
