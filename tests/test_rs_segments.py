@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -105,7 +106,7 @@ def test_continuity_across_chained_segments(kind: str, continuous_orders: int) -
     points = states(6)
     durations = list(RNG.uniform(0.2, 1.5, 5))
     segments = chain(kind, points, durations)
-    for left, right in zip(segments, segments[1:], strict=False):
+    for left, right in itertools.pairwise(segments):
         a, b = left.end(), right.sample(0.0)
         for order in range(continuous_orders):
             close(a[order], b[order], 1e-9)
@@ -196,6 +197,11 @@ def test_ruckig_ignores_position_limits_so_we_check_extremes() -> None:
     inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0], [1.0], [0.0]
     inp.target_position, inp.target_velocity, inp.target_acceleration = [0.1], [0.0], [0.0]
     inp.max_velocity, inp.max_acceleration, inp.max_jerk = [3.0], [2.0], [10.0]
+    inp.max_position = [0.2]
+    trajectory = ruckig.Trajectory(1)
+    assert ruckig.Ruckig(1).calculate(inp, trajectory) == ruckig.Result.Working
+    assert trajectory.position_extrema[0].max > 0.2  # the limit was ignored
     segment = RuckigSegment.plan(([0.0], [1.0], [0.0]), ([0.1], [0.0], [0.0]), [3.0], [2.0], [10.0])
-    lo, hi = segment.extremes(0)
-    assert hi[0] > 0.2  # it overshoots the target well beyond 0.1 before coming back
+    _, hi = segment.extremes(0)
+    assert math.isclose(hi[0], trajectory.position_extrema[0].max)
+    assert hi[0] > 0.2

@@ -103,7 +103,7 @@ class PolynomialSegment(Segment):
     which stays well conditioned for short segments (a 4 ms quintic has h_5 ~ 1e12 in seconds).
     """
 
-    __slots__ = ("kind", "duration", "dof", "_normalised", "_derivatives")
+    __slots__ = ("_derivatives", "_normalised", "dof", "duration", "kind")
 
     def __init__(self, coefficients: ArrayLike, duration: float, kind: str = "polynomial") -> None:
         h = np.array(coefficients, dtype=float)

@@ -179,12 +179,14 @@ def point_from_message(message: Any, dof: int) -> Point:
         if message.sequence == SpecialSeq.STOP_TRAJECTORY:
             return Point(message.sequence, None)
         valid = ValidFields(message.valid_fields)
+        if ValidFields.TIME not in valid:
+            raise PointRejected(Reason.MISSING_FIELDS, "a JOINT_TRAJ_PT_FULL point needs a time (valid_fields TIME)")
         return Point(
             message.sequence,
             _slots(message.positions, dof, "positions") if ValidFields.POSITION in valid else None,
             _slots(message.velocities, dof, "velocities") if ValidFields.VELOCITY in valid else None,
             _slots(message.accelerations, dof, "accelerations") if ValidFields.ACCELERATION in valid else None,
-            time=float(message.time) if ValidFields.TIME in valid else None,
+            time=float(message.time),
         )
     raise TypeError(f"not a trajectory point message: {type(message).__name__}")
 
