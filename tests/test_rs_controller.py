@@ -22,6 +22,7 @@ from robot_server.control import (
     Reason,
     Recorder,
     SimulatedClock,
+    Tick,
     point_from_message,
     run_simulated,
 )
@@ -421,10 +422,16 @@ async def test_speedup_clock_and_loop_stop() -> None:
     ctl = controller()
     stats = await asyncio.wait_for(ControlLoop(ctl, RealTimeClock(speedup=50.0)).run(0.5), 5)
     assert stats.ticks == 500 and ctl.time == pytest.approx(0.5)
-    endless = ControlLoop(ctl, RealTimeClock())
-    asyncio.get_running_loop().call_soon(endless.stop)  # runs at the loop's first wait
+
+    class StopAfter(Recorder):
+        def add(self, tick: Tick) -> None:
+            super().add(tick)
+            if len(self) == 40:
+                endless.stop()
+
+    endless = ControlLoop(ctl, RealTimeClock(speedup=10.0), StopAfter(N))
     stats = await asyncio.wait_for(endless.run(), 5)
-    assert stats.wakes >= 1 and stats.simulated == pytest.approx(stats.ticks * 0.001)
+    assert stats.ticks == 40 and stats.wakes == 10 and stats.simulated == pytest.approx(0.04)
 
 
 def test_recorder_is_bounded_and_exports_csv() -> None:
