@@ -76,6 +76,10 @@ class Segment(ABC):
     def end(self) -> Samples:
         return self.sample(self.duration)
 
+    def bounds(self, order: int) -> tuple[Array, Array]:
+        """Per joint, cheap bounds that contain :meth:`extremes` (by default the exact values)."""
+        return self.extremes(order)
+
     def peak(self, order: int) -> Array:
         """Per joint, the largest magnitude of position, velocity or acceleration (``order``)."""
         lo, hi = self.extremes(order)
@@ -150,25 +154,57 @@ class PolynomialSegment(Segment):
             out.append(value)
         return Samples(*out)
 
+    def bounds(self, order: int) -> tuple[Array, Array]:
+        # over 0 <= s <= 1: |sum_k c_k s^k - c_0| <= sum_{k>=1} |c_k|
+        coefficients = self._derivatives[order]
+        reach = np.abs(coefficients[1:]).sum(axis=0)
+        return coefficients[0] - reach, coefficients[0] + reach
+
     def extremes(self, order: int) -> tuple[Array, Array]:
         coefficients = self._derivatives[order]
         ends = self.sample(np.array([0.0, self.duration]))[order]
         lo, hi = ends.min(axis=0), ends.max(axis=0)
-        slope = self._derivatives[order + 1]
-        for joint in range(self.dof):
-            column = np.trim_zeros(slope[:, joint], "b")
-            if column.size < 2:
-                continue  # the slope is constant: the extremes are at the ends
-            roots: NDArray[np.complex128] = np.asarray(np.polynomial.polynomial.polyroots(column), dtype=complex)
-            for root in roots:
-                if abs(root.imag) <= 1e-9 and 0.0 < root.real < 1.0:
-                    value = float(np.polynomial.polynomial.polyval(root.real, coefficients[:, joint]))
-                    lo[joint] = min(lo[joint], value)
-                    hi[joint] = max(hi[joint], value)
+        # inside, the extremes are where the next derivative vanishes: its real roots in (0, 1)
+        roots = _unit_roots(self._derivatives[order + 1] * self.duration)
+        if roots.shape[1]:
+            values = np.zeros_like(roots)
+            for h in coefficients[::-1]:
+                values = values * roots + h[:, None]
+            lo = np.minimum(lo, values.min(axis=1))
+            hi = np.maximum(hi, values.max(axis=1))
         return lo, hi
 
     def __repr__(self) -> str:
         return f"PolynomialSegment(kind={self.kind!r}, duration={self.duration!r}, dof={self.dof})"
+
+
+def _unit_roots(slope: Array) -> Array:
+    """``(dof, k)``: per joint the real roots in [0, 1] of ``sum_k slope[k] s^k`` (padded with 0,
+    an end point, so the caller may evaluate them all). Joints sharing the full degree are solved
+    together as companion-matrix eigenvalues."""
+    degree = slope.shape[0] - 1
+    while degree > 0 and not np.any(slope[degree]):
+        degree -= 1
+    dof = slope.shape[1]
+    if degree == 0:
+        return np.zeros((dof, 0))
+    found = np.zeros((dof, degree), dtype=complex)
+    lead = slope[degree]
+    scale = np.abs(slope[: degree + 1]).max(axis=0)
+    full = np.abs(lead) > 1e-12 * scale
+    if np.any(full):
+        companion = np.zeros((int(full.sum()), degree, degree))
+        companion[:, np.arange(1, degree), np.arange(degree - 1)] = 1.0
+        companion[:, :, -1] = -(slope[:degree, full] / lead[full]).T
+        found[full] = np.linalg.eigvals(companion)
+    for joint in np.flatnonzero(~full):  # lower degree for this joint (or no motion at all)
+        column = np.trim_zeros(slope[: degree + 1, joint], "b")
+        if column.size >= 2:
+            r = np.polynomial.polynomial.polyroots(column)
+            found[joint, : r.size] = r
+    real = found.real
+    usable = (np.abs(found.imag) <= 1e-9) & (real > 0.0) & (real < 1.0)
+    return np.where(usable, real, 0.0)
 
 
 def hold(position: ArrayLike, duration: float) -> PolynomialSegment:

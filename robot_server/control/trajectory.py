@@ -295,13 +295,19 @@ class TrajectoryPlanner:
 
     def _check_segment(self, segment: Segment) -> None:
         lim = self.limits
-        lo, hi = segment.extremes(0)
-        _within(lo, lim.lower, lim.upper, Reason.POSITION_LIMIT, "the segment's position")
-        _within(hi, lim.lower, lim.upper, Reason.POSITION_LIMIT, "the segment's position")
-        _within(segment.peak(1), -lim.velocity, lim.velocity, Reason.VELOCITY_LIMIT, "the segment's velocity")
+        checks = [(0, lim.lower, lim.upper, Reason.POSITION_LIMIT, "the segment's position")]
+        checks.append((1, -lim.velocity, lim.velocity, Reason.VELOCITY_LIMIT, "the segment's velocity"))
         if segment.kind != "linear":  # a linear segment's acceleration is infinite at its ends by design
-            peak = segment.peak(2)
-            _within(peak, -lim.acceleration, lim.acceleration, Reason.ACCELERATION_LIMIT, "the segment's acceleration")
+            checks.append(
+                (2, -lim.acceleration, lim.acceleration, Reason.ACCELERATION_LIMIT, "the segment's acceleration")
+            )
+        for order, lower, upper, reason, what in checks:
+            lo, hi = segment.bounds(order)  # cheap; the exact extremes only when the bounds do not settle it
+            if np.all(lo >= lower) and np.all(hi <= upper):
+                continue
+            lo, hi = segment.extremes(order)
+            _within(lo, lower, upper, reason, what)
+            _within(hi, lower, upper, reason, what)
 
     def _plan_simple(self, point: Point, target: Array, first: bool) -> Segment | None:
         start = self._end
