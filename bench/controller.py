@@ -23,7 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from codec import machine
 
-from robot_server.control import ControlLoop, Controller, ControllerConfig, Point, Policy, SimulatedClock
+from robot_server.control import Controller, ControllerConfig, ControlLoop, Point, Policy, SimulatedClock
 from robot_server.loader import load_model
 
 
@@ -39,8 +39,10 @@ def main() -> None:
     args = parser.parse_args()
     seconds = 10.0 if args.quick else 60.0
     model = load_model("jibot_zxs")
-    print(f"# controller benchmark: {machine()}; model {model.name}, {model.dof} joints, "
-          f"servo 1 ms, interpolation 4 ms, {seconds:.0f} s simulated per policy")
+    print(
+        f"# controller benchmark: {machine()}; model {model.name}, {model.dof} joints, "
+        f"servo 1 ms, interpolation 4 ms, {seconds:.0f} s simulated per policy"
+    )
     print()
     print("| policy | real-time factor | per servo tick (us) | planning per point (us) | points run |")
     print("|---|---|---|---|---|")
