@@ -12,7 +12,6 @@ from .controller import (
     ControlLoop,
     LoopStats,
     Tick,
-    rest_point,
     run_simulated,
 )
 from .recorder import QUANTITIES, Recorder
@@ -42,7 +41,6 @@ __all__ = [
     "ControllerConfig",
     "LoopStats",
     "Tick",
-    "rest_point",
     "run_simulated",
     "QUANTITIES",
     "Recorder",

@@ -35,18 +35,25 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import ArrayLike
 
 from simple_message.constants import SpecialSeq
 
 from ..model import RobotModel
-from .clock import Clock
+from .clock import Clock, SimulatedClock
 from .recorder import Recorder
 from .segments import PlanningError, RuckigSegment, Segment, hold
 from .servo import ServoDrives
 from .trajectory import Limits, Point, PointRejected, Policy, Reason, State, TrajectoryPlanner
 
-__all__ = ["Controller", "ControllerConfig", "ControlLoop", "LoopStats", "Tick", "FOLLOWING_ERROR_ALARM"]
+__all__ = [
+    "Controller",
+    "ControllerConfig",
+    "ControlLoop",
+    "LoopStats",
+    "Tick",
+    "FOLLOWING_ERROR_ALARM",
+    "run_simulated",
+]
 
 log = logging.getLogger(__name__)
 
@@ -140,6 +147,10 @@ class Controller:
     @property
     def dof(self) -> int:
         return self.model.dof
+
+    @property
+    def servo_ticks_per_interpolation(self) -> int:
+        return self._sub
 
     @property
     def queue_fill(self) -> int:
@@ -414,7 +425,7 @@ class ControlLoop:
         """Run for ``duration`` seconds of controller time (None: until :meth:`stop`)."""
         ctl, clock, recorder = self.controller, self.clock, self.recorder
         period = ctl.config.interpolation_period
-        sub = ctl._sub
+        sub = ctl.servo_ticks_per_interpolation
         origin = clock.now()
         periods = None if duration is None else round(duration / period)
         stats = self.stats
@@ -447,14 +458,4 @@ class ControlLoop:
 
 async def run_simulated(controller: Controller, seconds: float, recorder: Recorder | None = None) -> LoopStats:
     """Convenience: run ``controller`` for ``seconds`` on a :class:`.SimulatedClock`."""
-    from .clock import SimulatedClock
-
     return await ControlLoop(controller, SimulatedClock(controller.time), recorder).run(seconds)
-
-
-def rest_point(sequence: int, position: ArrayLike) -> Point:
-    """A JOINT_TRAJ_PT-style point at ``position`` with no timing (handy for a trajectory's start)."""
-    return Point(sequence, np.array(position, dtype=float))
-
-
-__all__ += ["run_simulated", "rest_point"]
