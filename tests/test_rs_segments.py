@@ -205,3 +205,18 @@ def test_ruckig_ignores_position_limits_so_we_check_extremes() -> None:
     _, hi = segment.extremes(0)
     assert math.isclose(hi[0], trajectory.position_extrema[0].max)
     assert hi[0] > 0.2
+
+
+def test_ruckig_brake_phase_from_beyond_the_limits() -> None:
+    """A start faster than the limit makes ruckig prepend a brake; our evaluation includes it."""
+    n = 2
+    limits = (np.full(n, math.pi), np.full(n, 10.0), np.full(n, 500.0))
+    start = (np.zeros(n), np.array([4.0, -1.0]), np.array([9.5, 0.0]))
+    segment = RuckigSegment.plan(start, (np.ones(n), np.zeros(n), np.zeros(n)), *limits)
+    assert segment.trajectory.profiles[0][0].brake.duration > 0.0
+    for t in np.linspace(0, segment.duration, 101):
+        p, v, a = segment.trajectory.at_time(float(t))
+        s = segment.sample(t)
+        close(s.position, p, 1e-9)
+        close(s.velocity, v, 1e-9)
+        close(s.acceleration, a, 1e-9)

@@ -307,31 +307,20 @@ class RuckigSegment(Segment):
         for profiles in trajectory.profiles[0]:
             if profiles.accel.duration > 0.0:  # a post-profile only exists for targets beyond the limits
                 raise PlanningError("ruckig returned a target post-profile: the target state exceeds the limits")
-            brake = profiles.brake
-            t0 = 0.0
-            phase_start, phase_j, phase_a, phase_v, phase_p = [], [], [], [], []
-            for k in range(2):
-                phase_start.append(t0)
-                phase_j.append(brake.j[k])
-                phase_a.append(brake.a[k])
-                phase_v.append(brake.v[k])
-                phase_p.append(brake.p[k])
-                t0 += brake.t[k] if brake.duration > 0.0 else 0.0
-            for k in range(7):
-                phase_start.append(t0)
-                phase_j.append(profiles.j[k])
-                phase_a.append(profiles.a[k])
-                phase_v.append(profiles.v[k])
-                phase_p.append(profiles.p[k])
-                t0 += profiles.t[k]
-            if brake.duration <= 0.0:  # no brake: its phases have zero length and the profile's start state
-                for k in range(2):
-                    phase_j[k], phase_a[k], phase_v[k], phase_p[k] = 0.0, profiles.a[0], profiles.v[0], profiles.p[0]
-            starts.append(phase_start)
-            jerk.append(phase_j)
-            acc.append(phase_a)
-            vel.append(phase_v)
-            pos.append(phase_p)
+            # per phase (duration, jerk, and the acceleration, velocity, position it starts with)
+            parts = [(profiles.brake, 2)] if profiles.brake.duration > 0.0 else []
+            phases = [
+                (x.t[k], x.j[k], x.a[k], x.v[k], x.p[k]) for x, count in [*parts, (profiles, 7)] for k in range(count)
+            ]
+            # every joint gets 9 phases: pad in front with empty ones holding the start state (never selected,
+            # since the next phase starts at the same time)
+            phases = [(0.0, 0.0, *phases[0][2:])] * (9 - len(phases)) + phases
+            begin = np.concatenate([[0.0], np.cumsum([ph[0] for ph in phases])[:-1]])
+            starts.append(begin)
+            jerk.append([ph[1] for ph in phases])
+            acc.append([ph[2] for ph in phases])
+            vel.append([ph[3] for ph in phases])
+            pos.append([ph[4] for ph in phases])
         self._starts = np.array(starts)  # (dof, 9)
         self._jerk, self._a, self._v, self._p = (np.array(x) for x in (jerk, acc, vel, pos))
         self._position_extrema = (

@@ -273,8 +273,11 @@ class TrajectoryPlanner:
             raise PointRejected(
                 Reason.MISSING_FIELDS, "a point needs positions (velocity-only points are not supported)"
             )
-        values = [("positions", point.positions), ("velocities", point.velocities)]
-        values.append(("accelerations", point.accelerations))
+        values = (
+            ("positions", point.positions),
+            ("velocities", point.velocities),
+            ("accelerations", point.accelerations),
+        )
         for what, array in values:
             if array is None:
                 continue
