@@ -362,7 +362,9 @@ class Connection:
     def _write(self, msg: Message) -> None:
         if self.state is ConnectionState.CLOSED:
             raise ConnectionClosed(f"{self.name}: connection closed")
-        frame = encode(msg, self.wire)
+        self._write_frame(encode(msg, self.wire))
+
+    def _write_frame(self, frame: bytes) -> None:
         if frames_log.isEnabledFor(logging.DEBUG):
             frames_log.debug("%s -> %s", self.name, frame.hex())
         self.writer.write(frame)
@@ -387,7 +389,14 @@ class Connection:
         unread is closed. Returns whether the message was queued."""
         if self.state is ConnectionState.CLOSED:
             return False
-        self._write(msg)
+        return self.send_frame_nowait(encode(msg, self.wire))
+
+    def send_frame_nowait(self, frame: bytes) -> bool:
+        """:meth:`send_nowait` of a frame already encoded in this connection's :attr:`wire` format
+        (a broadcast encodes each message once per wire format, not once per peer)."""
+        if self.state is ConnectionState.CLOSED:
+            return False
+        self._write_frame(frame)
         if self.write_buffer_size() > self.max_write_buffer:
             self.abort(ConnectionClosed(f"peer fell {self.write_buffer_size()} bytes behind"))
             return False

@@ -15,6 +15,10 @@ arrival order and answers every SERVICE_REQUEST exactly once, in order (simple-m
   the MotoROS 2002 INVALID/3003 reply); unknown TOPICs and stray SERVICE_REPLYs are ignored (debug);
 * a request with a malformed body or an invalid header (§1.2) is answered FAILURE;
 * a handler that raises is answered FAILURE and logged; the server goes on;
+* a handler may raise :class:`CloseConnection` to close the connection without a reply (MotoROS
+  does so for DISCONNECT and for message types its motion port refuses, §8.1);
+* ``answer_topics``: TOPICs of unknown type go to ``unknown_request`` too (MotoROS answers every
+  message that is not a SERVICE_REPLY, §3);
 * a frame error (bad length prefix) closes only that connection;
 * at most ``max_connections`` connections per server: excess ones are accepted and closed at once,
   with a log line, so the peer sees a clean EOF rather than a hang;
@@ -49,7 +53,7 @@ from .messages import HeaderOnly, Message, Ping
 from .transport import StreamPair, open_fd, open_serial, open_tcp
 from .wire import DEFAULT_FORMAT, WireFormat
 
-__all__ = ["Server", "Session", "Handler", "Client", "ReconnectPolicy", "ReplyStyle"]
+__all__ = ["Server", "Session", "Handler", "Client", "CloseConnection", "ReconnectPolicy", "ReplyStyle"]
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +63,10 @@ HandlerResult = Message | ReplyCode | int | None
 Handler = Callable[[Message, "Session"], HandlerResult | Awaitable[HandlerResult]]
 #: ``hook(message, session)``: runs synchronously as soon as a request arrives.
 ArrivalHook = Callable[[Message, "Session"], None]
+
+
+class CloseConnection(Exception):
+    """Raised by a handler: close this connection at once, without replying."""
 
 
 class Session:
@@ -111,6 +119,7 @@ class Server:
         drain_timeout: float = 2.0,
         max_write_buffer: int = 256 * 1024,
         unknown_request: Handler | None = None,
+        answer_topics: bool = False,
         socket_send_buffer: int | None = None,
     ) -> None:
         self.wire = wire
@@ -126,6 +135,7 @@ class Server:
         self.drain_timeout = drain_timeout
         self.max_write_buffer = max_write_buffer
         self.unknown_request = unknown_request
+        self.answer_topics = answer_topics
         self.sessions: set[Session] = set()
         self._handlers: dict[int, Handler] = {}
         self._arrival: dict[int, ArrivalHook] = {}
@@ -175,8 +185,11 @@ class Server:
             return
         await self.serve_link((reader, writer))
 
-    async def serve_link(self, streams: StreamPair, name: str | None = None) -> None:
-        """Serve one link (an accepted socket, a serial port) until it closes."""
+    async def serve_link(
+        self, streams: StreamPair, name: str | None = None, data: dict[str, Any] | None = None
+    ) -> None:
+        """Serve one link (an accepted socket, a serial port) until it closes. ``data`` starts the
+        session's :attr:`Session.data` (e.g. to mark a serial link that also carries state)."""
         connection = Connection(
             streams,
             self.wire,
@@ -187,6 +200,8 @@ class Server:
             max_write_buffer=self.max_write_buffer,
         )
         session = Session(self, connection, self.request_queue)
+        if data:
+            session.data.update(data)
         connection.on_message = lambda msg: self._arrived(session, msg)
         connection.on_read_end = session.end_of_input
         self.sessions.add(session)
@@ -205,13 +220,13 @@ class Server:
             if self.on_disconnect is not None:
                 self.on_disconnect(session)
 
-    async def serve_serial(self, url: str, **serial_options: Any) -> None:
+    async def serve_serial(self, url: str, *, data: dict[str, Any] | None = None, **serial_options: Any) -> None:
         """Serve one serial link (pyserial URL) until it closes."""
-        await self.serve_link(await open_serial(url, **serial_options), name=f"{self.name} {url}")
+        await self.serve_link(await open_serial(url, **serial_options), name=f"{self.name} {url}", data=data)
 
-    async def serve_fd(self, fd: int, *, name: str = "fd") -> None:
+    async def serve_fd(self, fd: int, *, name: str = "fd", data: dict[str, Any] | None = None) -> None:
         """Serve one link over an open file descriptor (e.g. a pty master)."""
-        await self.serve_link(await open_fd(fd, name=name), name=f"{self.name} {name}")
+        await self.serve_link(await open_fd(fd, name=name), name=f"{self.name} {name}", data=data)
 
     def start_serving(self, coro: Awaitable[None]) -> asyncio.Task[None]:
         """Run a ``serve_*`` coroutine in the background, owned (and closed) by this server."""
@@ -220,9 +235,18 @@ class Server:
         task.add_done_callback(self._tasks.discard)
         return task
 
-    def broadcast(self, msg: Message) -> int:
-        """Send a topic to every connection without waiting; returns how many got it."""
-        return sum(1 for s in list(self.sessions) if s.connection.send_nowait(msg))
+    def broadcast(self, msg: Message, sessions: Iterable[Session] | None = None) -> int:
+        """Send a topic to every connection (or to ``sessions``) without waiting, encoded once per
+        wire format; returns how many got it."""
+        frames: dict[WireFormat, bytes] = {}
+        sent = 0
+        for session in list(self.sessions if sessions is None else sessions):
+            wire = session.connection.wire
+            frame = frames.get(wire)
+            if frame is None:
+                frame = frames[wire] = msg.encode(wire)
+            sent += session.connection.send_frame_nowait(frame)
+        return sent
 
     async def close(self) -> None:
         """Stop listening and close every connection."""
@@ -251,7 +275,11 @@ class Server:
     def _arrived(self, session: Session, msg: Message) -> Awaitable[None] | None:
         if msg.comm_type == CommType.SERVICE_REQUEST:
             hook = self._arrival.get(msg.msg_type)
-            if hook is not None and malformed_error(msg) is None:
+            if (
+                hook is not None
+                and malformed_error(msg) is None
+                and header_error(msg.msg_type, msg.comm_type, msg.reply_code) is None
+            ):
                 try:
                     hook(msg, session)
                 except Exception:
@@ -262,6 +290,10 @@ class Server:
             # Order holds, and a synchronous handler's reply goes out in this very loop iteration.
             out = self._dispatch_now(session, msg)
             if out is None:
+                return None
+            if out is _CLOSE:
+                log.info("%s: closed by the server", session.name)
+                session.connection.abort()
                 return None
             if isinstance(out, Message) and session.connection.write_buffer_size() <= self.max_write_buffer:
                 with contextlib.suppress(ConnectionClosed):
@@ -287,6 +319,10 @@ class Server:
                     await session.connection.send(reply)
             except ConnectionClosed:
                 return
+            except CloseConnection:
+                log.info("%s: closed by the server", session.name)
+                session.connection.abort()
+                return
             finally:
                 session.busy = False
 
@@ -294,10 +330,14 @@ class Server:
         if isinstance(item, _Ready):
             return item.reply
         out = item if isinstance(item, _Later) else self._dispatch_now(session, item)
+        if out is _CLOSE:
+            raise CloseConnection
         if not isinstance(out, _Later):
             return out
         try:
             result = await out.awaitable
+        except CloseConnection:
+            raise
         except Exception:
             return self._handler_failed(session, out.msg)
         return self._finish(out.msg, result)
@@ -317,7 +357,7 @@ class Server:
         if handler is None:
             if msg.msg_type == MsgType.PING:
                 return Ping(comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS) if is_request else None
-            if not is_request:
+            if not is_request and not (self.answer_topics and self.unknown_request is not None):
                 log.debug("%s: ignored %s comm_type %s", session.name, msg.name, msg.comm_type)
                 return None
             if self.unknown_request is None:
@@ -326,6 +366,8 @@ class Server:
             handler = self.unknown_request
         try:
             result = handler(msg, session)
+        except CloseConnection:
+            return _CLOSE
         except Exception:
             return self._handler_failed(session, msg)
         if inspect.isawaitable(result):
@@ -370,6 +412,9 @@ class _Ready:
 
 
 _Item = Message | _Later | _Ready
+
+#: What the handler's CloseConnection turns into on the way to the worker.
+_CLOSE = HeaderOnly(0, reply_code=ReplyCode.INVALID)
 
 
 #: Queued after the last message of a connection whose input ended.

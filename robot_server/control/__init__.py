@@ -13,6 +13,7 @@ from .controller import (
     LoopStats,
     Tick,
     run_simulated,
+    submit_together,
 )
 from .recorder import QUANTITIES, Recorder
 from .segments import (
@@ -42,6 +43,7 @@ __all__ = [
     "LoopStats",
     "Tick",
     "run_simulated",
+    "submit_together",
     "QUANTITIES",
     "Recorder",
     "PlanningError",

@@ -21,6 +21,10 @@ time-optimal jerk-limited motion from the current setpoint (position, velocity a
 to rest, within the velocity, acceleration and jerk limits: no position jump, no unbounded
 deceleration. The next point then starts a new trajectory.
 
+**Drives.** :meth:`Controller.power_off` removes drive power (an emergency stop, servos off):
+motion is abandoned at once, the holding brakes keep every joint where it is, and points are
+refused until :meth:`Controller.power_on`. A stop with deceleration is :meth:`Controller.stop`.
+
 **Alarms.** A following error beyond a joint's limit raises alarm ``4100 + joint number``: the
 queue is emptied, the command is set to the actual position (the drives brake at full torque
 under their own loops) and new points are refused until :meth:`Controller.reset`.
@@ -28,9 +32,11 @@ under their own loops) and new points are refused until :meth:`Controller.reset`
 
 from __future__ import annotations
 
+import copy
 import logging
 import time
 from collections import deque
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -53,6 +59,7 @@ __all__ = [
     "Tick",
     "FOLLOWING_ERROR_ALARM",
     "run_simulated",
+    "submit_together",
 ]
 
 log = logging.getLogger(__name__)
@@ -137,6 +144,8 @@ class Controller:
         self.error_code = 0
         self.error_message = ""
         self.trajectories = 0
+        self._powered = True
+        self._settled = True
 
     # -- state ---------------------------------------------------------------------------------
 
@@ -172,18 +181,33 @@ class Controller:
 
     @property
     def in_motion(self) -> bool:
-        """TRUE from the first commanded motion until the robot has settled after the last point."""
-        if self._queue:
-            return True
-        tick = self.command
+        """TRUE from the first commanded motion until the robot has settled after the last point
+        (every joint within ``settle_position`` of the command and slower than ``settle_velocity``),
+        then FALSE until the next motion: a drive's residual ringing does not flip it back."""
+        return bool(self._queue) or not self._settled
+
+    def _check_settled(self, tick: Tick) -> None:
         cfg = self.config
-        return any(abs(e) > cfg.settle_position for e in tick.following_error) or any(
+        if not any(abs(e) > cfg.settle_position for e in tick.following_error) and not any(
             abs(v) > cfg.settle_velocity for v in tick.actual_velocity
-        )
+        ):
+            self._settled = True
 
     @property
     def downloading(self) -> bool:
         return self._download is not None
+
+    @property
+    def drives_powered(self) -> bool:
+        return self._powered
+
+    @property
+    def remaining(self) -> float:
+        """Seconds of queued motion still to run (0 when nothing is queued)."""
+        if not self._queue:
+            return 0.0
+        end = self._segment_start + sum(segment.duration for segment in self._queue)
+        return max(0.0, end - self.time)
 
     # -- commands ------------------------------------------------------------------------------
 
@@ -195,8 +219,7 @@ class Controller:
         if seq == SpecialSeq.STOP_TRAJECTORY:
             self.stop()
             return
-        if self.in_error:
-            raise PointRejected(Reason.NOT_READY, f"the controller is in alarm {self.error_code}: {self.error_message}")
+        self._check_ready()
         if seq < 0 and seq not in (
             SpecialSeq.START_TRAJECTORY_DOWNLOAD,
             SpecialSeq.START_TRAJECTORY_STREAMING,
@@ -213,7 +236,13 @@ class Controller:
                 raise PointRejected(
                     Reason.QUEUE_FULL, f"the download buffer holds {self.config.download_capacity} points at most"
                 )
-            self._plan_into(point, self._download, first=False)
+            try:
+                self._plan_into(point, self._download, first=False)
+            except PointRejected as exc:
+                # never run a trajectory with a hole in it: the whole download is dropped
+                self._download = None
+                log.warning("download abandoned: point %d refused (%s)", seq, exc)
+                raise
             if seq == SpecialSeq.END_TRAJECTORY:
                 buffer, self._download = self._download, None
                 for segment in buffer:
@@ -222,12 +251,21 @@ class Controller:
             return
         if seq == SpecialSeq.END_TRAJECTORY:
             raise PointRejected(Reason.SEQUENCE, "END_TRAJECTORY (-3) without a download started by -1")
+        for segment in self._plan_streamed(point):
+            self._enqueue(segment)
+
+    def _check_ready(self) -> None:
+        if not self._powered:
+            raise PointRejected(Reason.NOT_READY, "the drives are not powered")
+        if self.in_error:
+            raise PointRejected(Reason.NOT_READY, f"the controller is in alarm {self.error_code}: {self.error_message}")
+
+    def _plan_streamed(self, point: Point) -> list[Segment]:
         if len(self._queue) >= self.config.queue_capacity:
             raise PointRejected(Reason.QUEUE_FULL, f"the point queue is full ({self.config.queue_capacity} points)")
         staged: list[Segment] = []
-        self._plan_into(point, staged, first=seq in (0, SpecialSeq.START_TRAJECTORY_STREAMING))
-        for segment in staged:
-            self._enqueue(segment)
+        self._plan_into(point, staged, first=point.sequence in (0, SpecialSeq.START_TRAJECTORY_STREAMING))
+        return staged
 
     def stop(self) -> float:
         """Abort: decelerate to rest (jerk-limited, within the limits) and empty the queue.
@@ -265,10 +303,31 @@ class Controller:
             log.info("alarm %d reset", self.error_code)
         self.error_code, self.error_message = 0, ""
 
+    def power_off(self) -> None:
+        """Remove drive power: motion is abandoned at once and the brakes hold every joint."""
+        if self._powered:
+            self._abandon()
+            self.servo.brake()
+            self._powered = False
+            log.info("drives off")
+
+    def power_on(self) -> None:
+        """Power the drives: they hold the position the brakes kept."""
+        if not self._powered:
+            self._powered = True
+            log.info("drives on")
+
     # -- stepping ------------------------------------------------------------------------------
 
     def step(self) -> Tick:
         """Advance one servo period; returns the tick's command and actual state."""
+        if not self._powered:
+            self._tick += 1
+            p = list(self.servo.position)
+            zeros = [0.0] * self.dof
+            self.command = tick = Tick(self._tick * self.config.servo_period, p, zeros, zeros, p, zeros, zeros, zeros)
+            self._settled = True
+            return tick
         i = self._tick % self._sub
         if i == 0:
             self._previous = self._next
@@ -295,6 +354,8 @@ class Controller:
             list(servo.acceleration),
             error,
         )
+        if not self._settled and not self._queue:
+            self._check_settled(tick)
         for j, (e, limit) in enumerate(zip(error, servo.following_error_limit, strict=True)):
             if abs(e) > limit:
                 self.raise_alarm(
@@ -330,6 +391,7 @@ class Controller:
         return State(np.array(p), np.array(v), np.array(a))
 
     def _enqueue(self, segment: Segment) -> None:
+        self._settled = False
         if not self._queue:
             self._segment_start = self._planned_until
         self._queue.append(segment)
@@ -380,8 +442,29 @@ class Controller:
         zeros = [0.0] * self.dof
         self._previous = self._next = (actual, zeros, zeros)
         self._hold = actual
+        self._settled = False  # the drives still brake the joints to a halt
         self.servo.hold()
         self.planner.begin(State.rest(np.array(actual)))
+
+
+def submit_together(pairs: Sequence[tuple[Controller, Point]]) -> None:
+    """Streamed points (sequence >= 0) for several controllers that move as one (the motion groups
+    of a MotoROS JOINT_TRAJ_PT_FULL_EX): every point is accepted, or none is and nothing changes."""
+    saved = [(ctl, copy.copy(ctl.planner), ctl.trajectories) for ctl, _ in pairs]
+    staged: list[tuple[Controller, list[Segment]]] = []
+    try:
+        for ctl, point in pairs:
+            if point.sequence < 0:
+                raise PointRejected(Reason.SEQUENCE, f"sequence {point.sequence}: only streamed points move together")
+            ctl._check_ready()
+            staged.append((ctl, ctl._plan_streamed(point)))
+    except PointRejected:
+        for ctl, planner, trajectories in saved:
+            ctl.planner, ctl.trajectories = planner, trajectories
+        raise
+    for ctl, segments in staged:
+        for segment in segments:
+            ctl._enqueue(segment)
 
 
 def _moving(values: np.ndarray) -> bool:
@@ -416,6 +499,10 @@ class ControlLoop:
     clock: Clock
     recorder: Recorder | None = None
     stats: LoopStats = field(default_factory=LoopStats)
+    #: further controllers stepped in lockstep (other motion groups; same periods)
+    others: Sequence[Controller] = ()
+    #: called after every wake-up's ticks (e.g. to hand points over or to wake waiting replies)
+    on_wake: Callable[[], None] | None = None
     _running: bool = field(default=False, init=False)
 
     def stop(self) -> None:
@@ -429,6 +516,11 @@ class ControlLoop:
         origin = clock.now()
         periods = None if duration is None else round(duration / period)
         stats = self.stats
+        controllers = [ctl, *self.others]
+        for other in self.others:
+            if other.config.interpolation_period != period or other.servo_ticks_per_interpolation != sub:
+                raise ValueError("every controller of one loop must have the same interpolation and servo periods")
+        on_wake = self.on_wake
         self._running = True
         wall0 = time.perf_counter()
         k = 0
@@ -446,6 +538,10 @@ class ControlLoop:
                     tick = ctl.step()
                     if recorder is not None:
                         recorder.add(tick)
+                    for other in controllers[1:]:
+                        other.step()
+                if on_wake is not None:
+                    on_wake()
                 stats.ticks += sub
                 stats.wakes += 1
                 k += 1

@@ -98,3 +98,12 @@ class ServoDrives:
     def hold(self) -> None:
         """Forget the velocity-loop integral (after an abort, when the command jumps to the actual position)."""
         self._integral = [0.0] * len(self.motors)
+
+    def brake(self) -> None:
+        """Power removed, holding brakes closed: every joint stands still where it is (an ideal
+        brake: a real axis coasts a few milliradians first) and the loops forget their state."""
+        n = len(self.motors)
+        self.velocity = [0.0] * n
+        self.acceleration = [0.0] * n
+        self.torque = [0.0] * n
+        self._integral = [0.0] * n

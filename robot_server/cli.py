@@ -1,0 +1,191 @@
+"""``robot-server`` (also ``python -m robot_server``): the robot controller emulator as a command.
+
+With no arguments it emulates the paper's robot (``jibot_zxs``) with the generic profile: motion
+server on 127.0.0.1:11000, state server on 127.0.0.1:11002, real time, quintic interpolation. It
+prints one line on stdout when it accepts connections, logs to stderr, and on SIGINT or SIGTERM
+decelerates the robot to rest, closes every connection and exits 0.
+
+Faults are injected by typing commands on its standard input (or piping them in), one per line:
+``estop``, ``drives off``, ``drives on``, ``alarm CODE [TEXT]``, ``reset``, ``stop``,
+``mode auto|manual``, or scheduled with ``--fault SECONDS:COMMAND`` (controller time from start).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import logging
+import signal
+import sys
+import threading
+from collections.abc import Sequence
+
+from .control import Policy
+from .emulator import FAULT_COMMANDS, Emulator, EmulatorConfig, FaultError, apply_fault_command
+from .emulator.server import MAX_STATE_RATE
+from .loader import load_model, shipped_models
+from .model import ModelError
+
+log = logging.getLogger("robot_server.cli")
+
+_EPILOG = "fault commands (stdin, one per line, or --fault SECONDS:COMMAND):\n" + "\n".join(
+    f"  {name:<20} {text}" for name, text in FAULT_COMMANDS.items()
+)
+
+
+def _positive(text: str) -> float:
+    value = float(text)
+    if not value > 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, not {text}")
+    return value
+
+
+def _port(text: str) -> int:
+    value = int(text)
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is 0..65535 (0: any free port), not {text}")
+    return value
+
+
+def _fault(text: str) -> tuple[float, str]:
+    at, sep, command = text.partition(":")
+    try:
+        seconds = float(at)
+    except ValueError:
+        seconds = -1.0
+    if not sep or seconds < 0.0 or not command.strip():
+        raise argparse.ArgumentTypeError(f"expected SECONDS:COMMAND (e.g. 2.5:estop), not {text!r}")
+    return seconds, command
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="robot-server",
+        description="A robot controller emulator speaking ROS-Industrial simple_message.",
+        epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "--model",
+        action="append",
+        metavar="NAME|PATH",
+        help=f"robot model; repeat for more motion groups (shipped: {', '.join(shipped_models())}; default jibot_zxs)",
+    )
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
+    p.add_argument("--motion-port", type=_port, help="default 11000 (generic) or 50240 (motoros); 0: a free port")
+    p.add_argument("--state-port", type=_port, help="default 11002 (generic) or 50241 (motoros)")
+    p.add_argument("--io-port", type=_port, help="motoros only, default 50242")
+    p.add_argument("--profile", choices=("generic", "motoros"), default="generic")
+    p.add_argument("--byte-order", choices=("little", "big", "auto"), default="little")
+    p.add_argument("--float64", action="store_true", help="8-byte reals (the FLOAT64 build)")
+    p.add_argument(
+        "--reply-style",
+        choices=("echo", "header"),
+        default="echo",
+        help="generic replies echo the body (C++ library) or are header-only (ABB)",
+    )
+    p.add_argument("--state-rate", type=_positive, default=40.0, metavar="HZ", help="state topics per second")
+    p.add_argument("--feedback", action="store_true", help="generic: JOINT_FEEDBACK to every state client")
+    p.add_argument("--interpolation", choices=[x.value for x in Policy], default=Policy.QUINTIC.value)
+    p.add_argument("--interpolation-period", type=_positive, default=0.004, metavar="SECONDS")
+    p.add_argument("--servo-period", type=_positive, default=0.001, metavar="SECONDS")
+    p.add_argument("--speedup", type=_positive, default=1.0, metavar="FACTOR", help="run the controller faster")
+    p.add_argument("--serial", metavar="URL", help="also serve one link on this serial port (pyserial URL)")
+    p.add_argument("--fault", type=_fault, action="append", default=[], metavar="SECONDS:COMMAND")
+    p.add_argument("--no-stdin", action="store_true", help="do not read fault commands from stdin")
+    p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    logging.basicConfig(
+        level=args.log_level, stream=sys.stderr, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    try:
+        if args.state_rate > MAX_STATE_RATE:
+            raise ValueError(f"--state-rate is at most {MAX_STATE_RATE:g} Hz")
+        for _, command in args.fault:
+            _check_command(command)
+        config = EmulatorConfig(
+            models=tuple(args.model or ["jibot_zxs"]),
+            profile=args.profile,
+            host=args.host,
+            motion_port=args.motion_port,
+            state_port=args.state_port,
+            io_port=args.io_port,
+            byte_order=args.byte_order,
+            float64=args.float64,
+            reply_style=args.reply_style,
+            state_rate=args.state_rate,
+            feedback=args.feedback,
+            interpolation=Policy(args.interpolation),
+            interpolation_period=args.interpolation_period,
+            servo_period=args.servo_period,
+            speedup=args.speedup,
+            serial=args.serial,
+        )
+        models = [load_model(m) for m in config.models]
+        emulator = Emulator(config, models)
+    except (ValueError, ModelError, OSError) as exc:
+        print(f"robot-server: {exc}", file=sys.stderr)
+        return 2
+    try:
+        return asyncio.run(_serve(emulator, args.fault, read_stdin=not args.no_stdin))
+    except OSError as exc:  # e.g. the port is taken
+        print(f"robot-server: {exc}", file=sys.stderr)
+        return 1
+
+
+def _check_command(command: str) -> None:
+    words = command.split()
+    known = {name.split()[0] for name in FAULT_COMMANDS}
+    if not words or words[0].lower() not in known:
+        raise ValueError(f"unknown fault command {command!r}")
+
+
+async def _serve(emulator: Emulator, faults: list[tuple[float, str]], read_stdin: bool) -> int:
+    loop = asyncio.get_running_loop()
+    done = asyncio.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, done.set)
+    await emulator.start()
+    print(emulator.describe(), flush=True)
+    tasks = [loop.create_task(_scheduled(emulator, at, command)) for at, command in faults]
+    if read_stdin:
+        _read_commands(emulator, loop)
+    try:
+        await done.wait()
+    finally:
+        log.info("shutting down")
+        for task in tasks:
+            task.cancel()
+        await emulator.close()
+    return 0
+
+
+def _apply(emulator: Emulator, command: str) -> None:
+    try:
+        applied = apply_fault_command(emulator.cell, command)
+    except FaultError as exc:
+        log.warning("%s", exc)
+        return
+    log.info("applied: %s", applied)
+
+
+async def _scheduled(emulator: Emulator, at: float, command: str) -> None:
+    await emulator.clock.sleep_until(at)
+    _apply(emulator, command)
+
+
+def _read_commands(emulator: Emulator, loop: asyncio.AbstractEventLoop) -> None:
+    """Fault commands from stdin, read by a daemon thread (works for terminals, pipes and files)."""
+
+    def reader() -> None:
+        with contextlib.suppress(Exception):
+            for line in sys.stdin:
+                if line.strip():
+                    loop.call_soon_threadsafe(_apply, emulator, line)
+
+    threading.Thread(target=reader, name="robot-server stdin", daemon=True).start()

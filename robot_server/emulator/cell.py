@@ -1,0 +1,278 @@
+"""The robot cell: the controllers of its motion groups, the safety state, faults and STATUS.
+
+:class:`RobotCell` is what the protocol servers talk to. It owns one :class:`~..control.Controller`
+per motion group (a robot, a positioner...), stepped together by one control loop, and the state a
+real controller adds around them: the emergency stop, drive power, the operating mode and alarms.
+It computes STATUS (simple-message.md §5) from that state at the moment it is asked, so STATUS is
+never stale. The fault injector of the tests and of the ``robot-server`` command drives it:
+
+========================  =========================================================================
+``estop()``               emergency stop: motion is abandoned at once (category 0: drive power off,
+                          brakes hold), e_stopped TRUE, drives_powered FALSE
+``drives_off()``          drive power off (motion abandoned at once, like an e-stop without the
+                          e-stop); ``drives_on()`` powers them again (refused while e-stopped)
+``alarm(code, text)``     an alarm: motion abandoned where the robot is, in_error TRUE, error_code
+``reset()``               the operator's reset: releases the e-stop, clears alarms, powers the drives
+``stop()``                a controlled stop: jerk-limited deceleration to rest, queue emptied
+``set_mode(mode)``        MANUAL (teach) stops the motion and refuses points; AUTO allows them
+========================  =========================================================================
+
+Until the cause is cleared, new points are refused (:attr:`~..control.Reason.NOT_READY`). Every
+fault and every accepted trajectory is logged at INFO.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Sequence
+
+from simple_message.constants import RobotMode, SpecialSeq, TriState
+from simple_message.messages import Status
+
+from ..control import Controller, ControllerConfig, Point, PointRejected, Reason, submit_together
+from ..model import RobotModel
+
+__all__ = ["RobotCell", "FaultError", "apply_fault_command", "FAULT_COMMANDS"]
+
+log = logging.getLogger(__name__)
+
+
+class FaultError(ValueError):
+    """A fault command that cannot be applied (unknown, malformed, or not possible now)."""
+
+
+class RobotCell:
+    """The motion groups of one controller and its safety state (see the module doc)."""
+
+    def __init__(self, models: Sequence[RobotModel], config: ControllerConfig | None = None) -> None:
+        if not models:
+            raise ValueError("a robot cell needs at least one motion group")
+        self.config = config if config is not None else ControllerConfig()
+        self.groups = [Controller(model, self.config) for model in models]
+        self.e_stopped = False
+        self.mode = RobotMode.AUTO
+        #: counts stops and faults: a point that waited for queue room across one is not run
+        self.interruptions = 0
+        self._waiters: list[asyncio.Future[None]] = []
+        self._was_moving = [False] * len(self.groups)
+        self._points = [0] * len(self.groups)
+        self._started = [0.0] * len(self.groups)
+
+    # -- state -------------------------------------------------------------------------------------
+
+    @property
+    def models(self) -> list[RobotModel]:
+        return [g.model for g in self.groups]
+
+    @property
+    def drives_powered(self) -> bool:
+        return all(g.drives_powered for g in self.groups)
+
+    @property
+    def in_error(self) -> bool:
+        return any(g.in_error for g in self.groups)
+
+    @property
+    def error_code(self) -> int:
+        return next((g.error_code for g in self.groups if g.in_error), 0)
+
+    @property
+    def in_motion(self) -> bool:
+        return any(g.in_motion for g in self.groups)
+
+    @property
+    def motion_possible(self) -> bool:
+        """A new trajectory could run now (drives on, no e-stop, no alarm, AUTO)."""
+        return self.drives_powered and not self.e_stopped and not self.in_error and self.mode == RobotMode.AUTO
+
+    def status(self, *, motion_possible: bool | None = None) -> Status:
+        """STATUS as of now (``motion_possible`` may be narrowed by a profile, e.g. MotoROS's
+        trajectory mode)."""
+        possible = self.motion_possible if motion_possible is None else motion_possible
+        return Status(
+            drives_powered=_tri(self.drives_powered),
+            e_stopped=_tri(self.e_stopped),
+            error_code=self.error_code,
+            in_error=_tri(self.in_error),
+            in_motion=_tri(self.in_motion),
+            mode=self.mode,
+            motion_possible=_tri(possible),
+        )
+
+    # -- points ------------------------------------------------------------------------------------
+
+    def group(self, index: int) -> Controller:
+        if not 0 <= index < len(self.groups):
+            raise PointRejected(Reason.JOINT_COUNT, f"motion group {index} does not exist (0..{len(self.groups) - 1})")
+        return self.groups[index]
+
+    def check_ready(self) -> None:
+        if self.e_stopped:
+            raise PointRejected(Reason.NOT_READY, "the emergency stop is engaged")
+        if self.mode != RobotMode.AUTO:
+            raise PointRejected(Reason.NOT_READY, "the controller is in MANUAL (teach) mode")
+
+    def submit(self, group: int, point: Point) -> None:
+        """Hand one point to a group's controller; raises :class:`PointRejected`."""
+        controller = self.group(group)
+        if point.sequence == SpecialSeq.STOP_TRAJECTORY:  # a stop is always obeyed
+            self._interrupted()
+            controller.submit(point)
+            return
+        self.check_ready()
+        before = controller.trajectories
+        controller.submit(point)
+        self._count(group, before)
+
+    def submit_together(self, points: Sequence[tuple[int, Point]]) -> None:
+        """One streamed point per group, all accepted or none."""
+        self.check_ready()
+        pairs = [(self.group(g), p) for g, p in points]
+        before = [c.trajectories for c, _ in pairs]
+        submit_together(pairs)
+        for (g, _), n in zip(points, before, strict=True):
+            self._count(g, n)
+
+    def _count(self, group: int, trajectories_before: int) -> None:
+        controller = self.groups[group]
+        if controller.trajectories != trajectories_before:
+            self._points[group] = 0
+            self._started[group] = controller.time
+            log.info("group %d: trajectory %d started", group, controller.trajectories)
+        self._points[group] += 1
+
+    # -- faults ------------------------------------------------------------------------------------
+
+    def stop(self) -> float:
+        """Controlled stop of every group; returns the longest deceleration time."""
+        self._interrupted()
+        return max(g.stop() for g in self.groups)
+
+    def estop(self) -> None:
+        log.info("fault: emergency stop engaged")
+        self.e_stopped = True
+        for g in self.groups:
+            g.power_off()
+        self._interrupted()
+
+    def drives_off(self) -> None:
+        log.info("fault: drives off")
+        for g in self.groups:
+            g.power_off()
+        self._interrupted()
+
+    def drives_on(self) -> None:
+        if self.e_stopped:
+            raise FaultError("the drives cannot be powered while the emergency stop is engaged")
+        log.info("drives on")
+        for g in self.groups:
+            g.power_on()
+        self._interrupted()
+
+    def alarm(self, code: int, message: str = "") -> None:
+        if code <= 0:
+            raise FaultError(f"an alarm code must be a positive number, not {code}")
+        log.info("fault: alarm %d %s", code, message)
+        for g in self.groups:
+            g.raise_alarm(code, message or f"alarm {code}")
+        self._interrupted()
+
+    def reset_alarm(self) -> None:
+        if self.in_error:
+            log.info("alarm %d reset", self.error_code)
+        for g in self.groups:
+            g.reset()
+        self._interrupted()
+
+    def reset(self) -> None:
+        """The operator's reset: e-stop released, alarms cleared, drives powered."""
+        log.info("reset: e-stop released, alarms cleared, drives on")
+        self.e_stopped = False
+        self.reset_alarm()
+        self.drives_on()
+
+    def set_mode(self, mode: RobotMode) -> None:
+        if mode not in (RobotMode.AUTO, RobotMode.MANUAL):
+            raise FaultError(f"the mode must be AUTO or MANUAL, not {mode}")
+        log.info("mode %s", mode.name)
+        if mode != RobotMode.AUTO:
+            for g in self.groups:
+                g.stop()
+        self.mode = mode
+        self._interrupted()
+
+    def _interrupted(self) -> None:
+        self.interruptions += 1
+        self.notify()
+
+    # -- waiting -----------------------------------------------------------------------------------
+
+    def notify(self) -> None:
+        """Wake everything waiting in :meth:`changed` (called after every control-loop wake-up)."""
+        moving = [g.in_motion for g in self.groups]
+        for i, (now, before) in enumerate(zip(moving, self._was_moving, strict=True)):
+            if before and not now:
+                g = self.groups[i]
+                log.info(
+                    "group %d: trajectory %d done: %d points, settled after %.3f s",
+                    i,
+                    g.trajectories,
+                    self._points[i],
+                    g.time - self._started[i],
+                )
+        self._was_moving = moving
+        waiters, self._waiters = self._waiters, []
+        for w in waiters:
+            if not w.done():
+                w.set_result(None)
+
+    async def changed(self) -> None:
+        """Wait for the next control-loop wake-up, stop or fault."""
+        future: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self._waiters.append(future)
+        await future
+
+
+def _tri(value: bool) -> int:
+    return TriState.TRUE if value else TriState.FALSE
+
+
+FAULT_COMMANDS = {
+    "estop": "engage the emergency stop (motion abandoned at once, drives off)",
+    "drives off": "remove drive power (motion abandoned at once)",
+    "drives on": "power the drives",
+    "alarm CODE [TEXT]": "raise an alarm (motion abandoned, in_error TRUE, error_code CODE)",
+    "reset": "release the e-stop, clear alarms, power the drives",
+    "stop": "controlled stop (decelerate to rest)",
+    "mode auto|manual": "operating mode; MANUAL refuses points",
+}
+
+
+def apply_fault_command(cell: RobotCell, line: str) -> str:
+    """Apply one fault command (see :data:`FAULT_COMMANDS`); returns what was done.
+    Raises :class:`FaultError` for an unknown or malformed command."""
+    words = line.split()
+    if not words:
+        raise FaultError("empty command")
+    verb, args = words[0].lower(), [w.lower() for w in words[1:]]
+    if verb == "estop" and not args:
+        cell.estop()
+    elif verb == "drives" and args in (["on"], ["off"]):
+        (cell.drives_on if args == ["on"] else cell.drives_off)()
+    elif verb == "alarm" and args:
+        try:
+            code = int(words[1])
+        except ValueError:
+            raise FaultError(f"alarm needs a numeric code, not {words[1]!r}") from None
+        cell.alarm(code, " ".join(words[2:]))
+    elif verb == "reset" and not args:
+        cell.reset()
+    elif verb == "stop" and not args:
+        cell.stop()
+    elif verb == "mode" and args in (["auto"], ["manual"]):
+        cell.set_mode(RobotMode.AUTO if args == ["auto"] else RobotMode.MANUAL)
+    else:
+        known = "; ".join(FAULT_COMMANDS)
+        raise FaultError(f"unknown fault command {line.strip()!r} (known: {known})")
+    return " ".join(words)

@@ -1,0 +1,152 @@
+"""The generic profile: what the ROS-Industrial generic nodes, ABB and the reference library speak.
+
+**Motion port** (simple-message.md §3, §4):
+
+* JOINT_TRAJ_PT and JOINT_TRAJ_PT_FULL (``robot_id`` picks the motion group) as SERVICE_REQUEST:
+  streaming, stop-and-wait. Each point is answered once, in order, SUCCESS when it was queued and
+  FAILURE when the controller refused it (limits, NaN, joint count, start mismatch, alarm...), in
+  which case nothing moved. When the queue is full the reply is *delayed* until there is room: the
+  generic client cannot handle FAILURE (§10 pitfall 6), and waiting is the flow control it does
+  understand. A point that waits across a STOP or a fault is not run and gets FAILURE.
+* The same points as TOPIC: a download, -1 first and -3 last (§4.4); it runs at -3, and a refused
+  point drops the whole download. A TOPIC point outside a download is ignored with a warning (no
+  flow control is possible without replies).
+* STOP (sequence -4): obeyed the moment it is read, ahead of anything queued, also while an
+  earlier point waits for room; then acknowledged in order (§10 pitfall 5).
+* PING: SUCCESS with an empty body. Other requests: FAILURE, header-only (the C++ library's reply).
+
+Replies echo the request body (``reply_style="echo"``, the C++ library) or are header-only
+(``"header"``, ABB's RAPID server), §3.
+
+**State port**: JOINT_POSITION and STATUS at the state rate to every client. JOINT_FEEDBACK (time,
+positions, velocities, accelerations of each group, all four valid bits set) goes to every client
+with ``feedback=True``, and otherwise to the clients that ask for it by sending a JOINT_FEEDBACK
+message (any body; as a SERVICE_REQUEST it is answered SUCCESS) on the state port.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Awaitable, Iterable
+
+from simple_message.constants import CommType, MsgType, ReplyCode, SpecialSeq, ValidFields
+from simple_message.endpoints import Server, Session
+from simple_message.messages import JointFeedback, JointPosition, JointTrajPtFull, Message
+
+from ..control import Point, PointRejected, Reason, point_from_message
+from .cell import RobotCell
+
+__all__ = ["GenericMotion", "GenericState", "FEEDBACK_FIELDS"]
+
+log = logging.getLogger(__name__)
+
+FEEDBACK_FIELDS = ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY | ValidFields.ACCELERATION
+_WANTS_FEEDBACK = "joint_feedback"
+
+
+class GenericMotion:
+    """Motion-port handlers of the generic profile (see the module doc)."""
+
+    def __init__(self, cell: RobotCell) -> None:
+        self.cell = cell
+
+    def install(self, server: Server) -> None:
+        for msg_type in (MsgType.JOINT_TRAJ_PT, MsgType.JOINT_TRAJ_PT_FULL):
+            server.handle(msg_type, self.on_point, on_arrival=self.on_arrival)
+
+    def on_arrival(self, msg: Message, session: Session) -> None:
+        """A STOP acts the moment it is read, before the requests queued ahead of it."""
+        if getattr(msg, "sequence", None) == SpecialSeq.STOP_TRAJECTORY:
+            stop = self.cell.stop()
+            log.info("%s: STOP: decelerating for %.3f s", session.name, stop)
+
+    def on_point(self, msg: Message, session: Session) -> ReplyCode | Awaitable[ReplyCode] | None:
+        is_request = msg.comm_type == CommType.SERVICE_REQUEST
+        if getattr(msg, "sequence", None) == SpecialSeq.STOP_TRAJECTORY:
+            if not is_request:  # a request was obeyed on arrival; a topic is obeyed now
+                self.cell.stop()
+            return ReplyCode.SUCCESS
+        group = msg.robot_id if isinstance(msg, JointTrajPtFull) else 0
+        try:
+            controller = self.cell.group(group)
+            point = point_from_message(msg, controller.dof)
+            if not is_request and not controller.downloading and point.sequence != SpecialSeq.START_TRAJECTORY_DOWNLOAD:
+                log.warning(
+                    "%s: %s TOPIC with sequence %d outside a download (-1 ... -3) ignored",
+                    session.name,
+                    msg.name,
+                    point.sequence,
+                )
+                return None
+        except PointRejected as exc:
+            return self._refused(msg, session, exc)
+        try:
+            self.cell.submit(group, point)
+        except PointRejected as exc:
+            if exc.reason is Reason.QUEUE_FULL and is_request:
+                return self._when_room(group, point, session)
+            return self._refused(msg, session, exc)
+        return ReplyCode.SUCCESS
+
+    @staticmethod
+    def _refused(msg: Message, session: Session, exc: PointRejected) -> ReplyCode | None:
+        log.warning("%s: %s %d refused: %s", session.name, msg.name, getattr(msg, "sequence", 0), exc)
+        return ReplyCode.FAILURE if msg.comm_type == CommType.SERVICE_REQUEST else None
+
+    async def _when_room(self, group: int, point: Point, session: Session) -> ReplyCode:
+        """Hold the reply until the queue has room (the generic client's only flow control)."""
+        cell = self.cell
+        epoch = cell.interruptions
+        while True:
+            await cell.changed()
+            if cell.interruptions != epoch:
+                log.warning(
+                    "%s: point %d waited for room across a stop or fault: not run", session.name, point.sequence
+                )
+                return ReplyCode.FAILURE
+            try:
+                cell.submit(group, point)
+            except PointRejected as exc:
+                if exc.reason is Reason.QUEUE_FULL:
+                    continue
+                log.warning("%s: point %d refused: %s", session.name, point.sequence, exc)
+                return ReplyCode.FAILURE
+            return ReplyCode.SUCCESS
+
+
+class GenericState:
+    """State-port messages of the generic profile (see the module doc)."""
+
+    def __init__(self, cell: RobotCell, *, feedback: bool = False) -> None:
+        self.cell = cell
+        self.feedback = feedback
+
+    def install(self, server: Server) -> None:
+        server.handle(MsgType.JOINT_FEEDBACK, self._subscribe)
+
+    def _subscribe(self, msg: Message, session: Session) -> None:
+        if not session.data.get(_WANTS_FEEDBACK):
+            log.info("%s: JOINT_FEEDBACK requested", session.name)
+        session.data[_WANTS_FEEDBACK] = True
+
+    def publish(self, server: Server, sessions: Iterable[Session]) -> None:
+        cell = self.cell
+        recipients = list(sessions)
+        first = cell.groups[0].command
+        server.broadcast(JointPosition(0, tuple(first.actual_position)), recipients)
+        server.broadcast(cell.status(), recipients)
+        wanting = recipients if self.feedback else [s for s in recipients if s.data.get(_WANTS_FEEDBACK)]
+        if wanting:
+            for index, controller in enumerate(cell.groups):
+                tick = controller.command
+                server.broadcast(
+                    JointFeedback(
+                        index,
+                        FEEDBACK_FIELDS,
+                        tick.time,
+                        tuple(tick.actual_position),
+                        tuple(tick.actual_velocity),
+                        tuple(tick.actual_acceleration),
+                    ),
+                    wanting,
+                )

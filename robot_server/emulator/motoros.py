@@ -1,0 +1,494 @@
+"""The MotoROS profile: a Yaskawa controller running MotoROS 1.9 (simple-message.md §8.1).
+
+**Motion port** (50240). Every message that is not a SERVICE_REPLY is answered with
+MOTO_MOTION_REPLY (2002), header SUCCESS, the outcome in ``result``/``subcode`` (0 = success):
+
+* MOTO_MOTION_CTRL: CHECK_MOTION_READY (TRUE, or FALSE with the NOT_READY subcode), CHECK_QUEUE_CNT
+  (subcode = interpolation increments still queued for the group), STOP_MOTION (controlled stop),
+  START/STOP_SERVOS, RESET_ALARM, START_TRAJ_MODE (refused NOT_READY while e-stopped or in teach
+  mode; otherwise it clears alarms, powers the servos and enables trajectory points, as MotoROS
+  does), STOP_TRAJ_MODE, DISCONNECT (stops, then closes without a reply). Unknown: INVALID/3006.
+* JOINT_TRAJ_PT_FULL, checked in MotoROS's order: motion ready (NOT_READY + subcode), group
+  (3004), TIME, POSITION and VELOCITY all valid (3015), time < 14400 s (3016), sequence >= 0
+  (3005). Sequence 0 starts a trajectory at the current command position (within 30 pulses, else
+  3011); later points are BUSY while the group's buffer is full, as MotoROS's single staging slot
+  in front of its 200-increment queue is: here, while at least 200 interpolation periods of motion
+  are queued. Speeds above the joint limit give 3013, other refusals their data subcode
+  (position 3012, acceleration 3014, time 3016). Like MotoROS, the time is cut to whole
+  milliseconds and segments are cubic in position and velocity (accelerations are not used).
+  Unlike MotoROS, every point is checked completely before it is acknowledged, so a point that
+  would later be skipped is refused instead.
+* JOINT_TRAJ_PT_FULL_EX (2016): one point per group, all accepted or none; BUSY if any group is.
+* SELECT_TOOL (tool 0-63, else 3017), GET_DH_PARAMETERS (the model's D-H table, FAILURE for a
+  model without one), PING (header-only SUCCESS), the IO messages (as on the IO port).
+* Unknown types: INVALID/3003 with group and sequence -1. STATUS, JOINT_FEEDBACK, MOTO_MOTION_REPLY
+  and JOINT_FEEDBACK_EX close the connection without a reply, as in MotoROS.
+* One motion client at a time: a new connection replaces the old one unless the robot is moving,
+  in which case the new one is closed. When the last motion client leaves, the robot stops and
+  trajectory mode ends.
+
+**State port** (50241): every state period (25 ms at the default 40 Hz) JOINT_FEEDBACK per group
+(valid_fields POSITION | VELOCITY; time 0 with the TIME bit clear, as MotoROS), JOINT_FEEDBACK_EX
+when there are two groups or more, and STATUS (motion_possible also needs trajectory mode).
+
+**IO port** (50242): READ/WRITE_SINGLE_IO, READ/WRITE_GROUP_IO, READ/WRITE_MREGISTER on an
+:class:`~.io_table.IoTable`, replies with the IO result codes and header FAILURE on error; an
+unknown type gets MotoROS's odd error reply (type 2002 carrying result and subcode at the start of
+a 60-byte body).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Iterable
+
+from simple_message.constants import (
+    CommType,
+    InvalidSubcode,
+    IoResult,
+    MotoCommand,
+    MotoResult,
+    MsgType,
+    NotReadySubcode,
+    ReplyCode,
+    RobotMode,
+    ValidFields,
+)
+from simple_message.endpoints import CloseConnection, Server, Session
+from simple_message.messages import (
+    DhLink,
+    ExGroup,
+    GetDhParametersReply,
+    JointFeedback,
+    JointFeedbackEx,
+    JointTrajPtFull,
+    JointTrajPtFullEx,
+    Message,
+    MotoMotionCtrl,
+    MotoMotionReply,
+    Ping,
+    RawMessage,
+    ReadGroupIo,
+    ReadGroupIoReply,
+    ReadMRegister,
+    ReadMRegisterReply,
+    ReadSingleIo,
+    ReadSingleIoReply,
+    SelectTool,
+    WriteGroupIo,
+    WriteGroupIoReply,
+    WriteMRegister,
+    WriteMRegisterReply,
+    WriteSingleIo,
+    WriteSingleIoReply,
+)
+
+from ..control import Point, PointRejected, Reason, point_from_message
+from .cell import FaultError, RobotCell
+from .io_table import IoTable
+
+__all__ = [
+    "MotorosMotion",
+    "MotorosState",
+    "MotorosIo",
+    "MOTOROS_START_TOLERANCE",
+    "MOTOROS_QUEUE_INCREMENTS",
+    "MOTOROS_MAX_TIME",
+]
+
+log = logging.getLogger(__name__)
+
+#: ``Q_SIZE``: interpolation increments MotoROS buffers per group (CtrlGroup.h)
+MOTOROS_QUEUE_INCREMENTS = 200
+#: ``MAX_TRAJECTORY_TIME_LENGTH`` (s)
+MOTOROS_MAX_TIME = 14400.0
+#: ``START_MAX_PULSE_DEVIATION`` is 30 pulses; a typical Yaskawa axis resolves about 1000 pulses
+#: per degree, so 30 pulses is about 5.2e-4 rad (the exact figure depends on the axis).
+MOTOROS_START_TOLERANCE = math.radians(30 / 1000)
+
+_REQUIRED = ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY
+_SUBCODES = {
+    Reason.START_MISMATCH: InvalidSubcode.DATA_START_POS,
+    Reason.POSITION_LIMIT: InvalidSubcode.DATA_POSITION,
+    Reason.VELOCITY_LIMIT: InvalidSubcode.DATA_SPEED,
+    Reason.ACCELERATION_LIMIT: InvalidSubcode.DATA_ACCEL,
+    Reason.TIMING: InvalidSubcode.DATA_TIME,
+    Reason.MISSING_FIELDS: InvalidSubcode.DATA_INSUFFICIENT,
+    Reason.SEQUENCE: InvalidSubcode.SEQUENCE,
+    Reason.JOINT_COUNT: InvalidSubcode.DATA,
+    Reason.NOT_FINITE: InvalidSubcode.DATA,
+}
+#: types MotoROS knows but refuses on its motion port: the connection is closed (§8.1)
+_CLOSING_TYPES = (MsgType.STATUS, MsgType.JOINT_FEEDBACK, MsgType.MOTO_MOTION_REPLY, MsgType.JOINT_FEEDBACK_EX)
+
+
+class _Refused(Exception):
+    def __init__(self, result: MotoResult, subcode: int = 0) -> None:
+        self.result = result
+        self.subcode = subcode
+
+
+class MotorosMotion:
+    """Motion-port handlers of the MotoROS profile (see the module doc)."""
+
+    def __init__(self, cell: RobotCell, io: IoTable | None = None) -> None:
+        self.cell = cell
+        self.io = MotorosIo(io if io is not None else IoTable())
+        self.traj_mode = False
+        period = cell.config.interpolation_period
+        #: a group is BUSY while this much motion (s) is queued
+        self.buffer_time = MOTOROS_QUEUE_INCREMENTS * period
+        self._server: Server | None = None
+
+    def install(self, server: Server) -> None:
+        self._server = server
+        server.handle(MsgType.MOTO_MOTION_CTRL, self.on_ctrl)
+        server.handle(MsgType.JOINT_TRAJ_PT_FULL, self.on_point)
+        server.handle(MsgType.JOINT_TRAJ_PT_FULL_EX, self.on_point_ex)
+        server.handle(MsgType.SELECT_TOOL, self.on_select_tool)
+        server.handle(MsgType.GET_DH_PARAMETERS, self.on_get_dh)
+        server.handle(MsgType.PING, _ping)
+        for msg_type in _CLOSING_TYPES:
+            server.handle(msg_type, _close)
+        self.io.install(server)
+        server.unknown_request = self.on_unknown
+        server.answer_topics = True
+        server.max_connections = 2  # one client, plus the newcomer that replaces it
+        server.on_connect = self._connected
+        server.on_disconnect = self._disconnected
+
+    # -- connections -------------------------------------------------------------------------------
+
+    def _connected(self, session: Session) -> None:
+        assert self._server is not None
+        others = [s for s in self._server.sessions if s is not session]
+        if not others:
+            return
+        if self.cell.in_motion:
+            log.warning("%s: refused: the robot is moving under another motion client", session.name)
+            session.connection.abort()
+            return
+        for old in others:
+            log.info("%s: replaced by a new motion client", old.name)
+            old.connection.abort()
+
+    def _disconnected(self, session: Session) -> None:
+        assert self._server is not None
+        if not self._server.sessions and (self.traj_mode or self.cell.in_motion):
+            log.info("%s: the motion client left: stopping, trajectory mode off", session.name)
+            self.cell.stop()
+            self.traj_mode = False
+
+    # -- readiness ---------------------------------------------------------------------------------
+
+    def not_ready(self) -> NotReadySubcode | None:
+        """Why trajectory points cannot run now (MotoROS's NOT_READY subcode), or None."""
+        cell = self.cell
+        if cell.in_error:
+            return NotReadySubcode.ALARM
+        if cell.e_stopped:
+            return NotReadySubcode.ESTOP
+        if cell.mode != RobotMode.AUTO:
+            return NotReadySubcode.NOT_PLAY
+        if not cell.drives_powered:
+            return NotReadySubcode.SERVO_OFF
+        if not self.traj_mode:
+            return NotReadySubcode.NOT_STARTED
+        return None
+
+    @property
+    def motion_ready(self) -> bool:
+        return self.not_ready() is None
+
+    # -- MOTO_MOTION_CTRL --------------------------------------------------------------------------
+
+    def on_ctrl(self, msg: Message, session: Session) -> Message:
+        assert isinstance(msg, MotoMotionCtrl)
+        try:
+            result, subcode = self._ctrl(msg, session)
+        except _Refused as refused:
+            result, subcode = refused.result, refused.subcode
+        return MotoMotionReply(msg.group_no, msg.sequence, msg.command, result, subcode)
+
+    def _ctrl(self, msg: MotoMotionCtrl, session: Session) -> tuple[MotoResult, int]:
+        cell = self.cell
+        command = msg.command
+        if command == MotoCommand.CHECK_MOTION_READY:
+            reason = self.not_ready()
+            return (MotoResult.TRUE, 0) if reason is None else (MotoResult.FALSE, reason)
+        if command == MotoCommand.CHECK_QUEUE_CNT:
+            group = self._group(msg.group_no)
+            period = cell.config.interpolation_period
+            return MotoResult.SUCCESS, math.ceil(cell.groups[group].remaining / period - 1e-9)
+        if command == MotoCommand.STOP_MOTION:
+            cell.stop()
+            return MotoResult.SUCCESS, 0
+        if command == MotoCommand.START_SERVOS:
+            try:
+                cell.drives_on()
+            except FaultError:
+                raise _Refused(MotoResult.NOT_READY, NotReadySubcode.ESTOP) from None
+            return MotoResult.SUCCESS, 0
+        if command == MotoCommand.STOP_SERVOS:
+            cell.drives_off()
+            return MotoResult.SUCCESS, 0
+        if command == MotoCommand.RESET_ALARM:
+            cell.reset_alarm()
+            return MotoResult.SUCCESS, 0
+        if command == MotoCommand.START_TRAJ_MODE:
+            if cell.e_stopped:
+                raise _Refused(MotoResult.NOT_READY, NotReadySubcode.ESTOP)
+            if cell.mode != RobotMode.AUTO:
+                raise _Refused(MotoResult.NOT_READY, NotReadySubcode.NOT_PLAY)
+            if cell.in_error:
+                cell.reset_alarm()
+            if not cell.drives_powered:
+                cell.drives_on()
+            if not self.traj_mode:
+                log.info("%s: trajectory mode on", session.name)
+            self.traj_mode = True
+            return MotoResult.SUCCESS, 0
+        if command == MotoCommand.STOP_TRAJ_MODE:
+            cell.stop()
+            if self.traj_mode:
+                log.info("%s: trajectory mode off", session.name)
+            self.traj_mode = False
+            return MotoResult.SUCCESS, 0
+        if command == MotoCommand.DISCONNECT:
+            cell.stop()
+            self.traj_mode = False
+            raise CloseConnection
+        raise _Refused(MotoResult.INVALID, InvalidSubcode.COMMAND)
+
+    def _group(self, group: int) -> int:
+        if not 0 <= group < len(self.cell.groups):
+            raise _Refused(MotoResult.INVALID, InvalidSubcode.GROUPNO)
+        return group
+
+    # -- trajectory points -------------------------------------------------------------------------
+
+    def on_point(self, msg: Message, session: Session) -> Message:
+        assert isinstance(msg, JointTrajPtFull)
+        group = msg.robot_id
+        try:
+            point = self._check(
+                group, msg.sequence, msg.valid_fields, msg.time, positions=msg.positions, velocities=msg.velocities
+            )
+            if point.sequence > 0 and self._busy(group):
+                raise _Refused(MotoResult.BUSY)
+            self._submit([(group, point)], session)
+            result, subcode = MotoResult.SUCCESS, 0
+        except _Refused as refused:
+            result, subcode = refused.result, refused.subcode
+        return MotoMotionReply(group, msg.sequence, MsgType.JOINT_TRAJ_PT_FULL, result, subcode)
+
+    def on_point_ex(self, msg: Message, session: Session) -> Message:
+        assert isinstance(msg, JointTrajPtFullEx)
+        group = 0
+        try:
+            groups = msg.valid_groups
+            if (
+                not 1 <= msg.number_of_valid_groups <= len(self.cell.groups)
+                or len(groups) != msg.number_of_valid_groups
+            ):
+                raise _Refused(MotoResult.INVALID, InvalidSubcode.DATA)
+            points = []
+            for g in groups:
+                group = g.group_no
+                points.append(
+                    (
+                        group,
+                        self._check(
+                            group, msg.sequence, g.valid_fields, g.time, positions=g.positions, velocities=g.velocities
+                        ),
+                    )
+                )
+            if len({g for g, _ in points}) != len(points):
+                raise _Refused(MotoResult.INVALID, InvalidSubcode.GROUPNO)
+            if msg.sequence > 0 and any(self._busy(g) for g, _ in points):
+                raise _Refused(MotoResult.BUSY)
+            self._submit(points, session)
+            result, subcode = MotoResult.SUCCESS, 0
+        except _Refused as refused:
+            result, subcode = refused.result, refused.subcode
+        return MotoMotionReply(group, msg.sequence, MsgType.JOINT_TRAJ_PT_FULL_EX, result, subcode)
+
+    def _check(
+        self,
+        group: int,
+        sequence: int,
+        valid_fields: int,
+        time: float,
+        *,
+        positions: Iterable[float],
+        velocities: Iterable[float],
+    ) -> Point:
+        """MotoROS's checks, in its order, up to the point itself."""
+        reason = self.not_ready()
+        if reason is not None:
+            raise _Refused(MotoResult.NOT_READY, reason)
+        self._group(group)
+        if valid_fields & _REQUIRED != _REQUIRED:
+            raise _Refused(MotoResult.INVALID, InvalidSubcode.DATA_INSUFFICIENT)
+        if not time < MOTOROS_MAX_TIME:  # also NaN
+            raise _Refused(MotoResult.INVALID, InvalidSubcode.DATA_TIME)
+        if sequence < 0:
+            raise _Refused(MotoResult.INVALID, InvalidSubcode.SEQUENCE)
+        if sequence == 0 and self.cell.groups[group].moving:
+            raise _Refused(MotoResult.BUSY)  # a new trajectory waits until the last one has run
+        controller = self.cell.groups[group]
+        message = JointTrajPtFull(
+            group,
+            sequence,
+            ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY,
+            math.floor(time * 1000.0) / 1000.0 if math.isfinite(time) else time,  # (int)(time*1000) ms
+            tuple(positions),
+            tuple(velocities),
+        )
+        try:
+            return point_from_message(message, controller.dof)
+        except PointRejected as exc:
+            raise _refusal(exc) from None
+
+    def _busy(self, group: int) -> bool:
+        controller = self.cell.groups[group]
+        return controller.remaining >= self.buffer_time or controller.queue_fill >= controller.queue_capacity
+
+    def _submit(self, points: list[tuple[int, Point]], session: Session) -> None:
+        try:
+            if len(points) == 1:
+                self.cell.submit(*points[0])
+            else:
+                self.cell.submit_together(points)
+        except PointRejected as exc:
+            log.warning("%s: point %d refused: %s", session.name, points[0][1].sequence, exc)
+            raise _refusal(exc) from None
+
+    # -- other motion-port messages ----------------------------------------------------------------
+
+    def on_select_tool(self, msg: Message, session: Session) -> Message:
+        assert isinstance(msg, SelectTool)
+        result, subcode = MotoResult.SUCCESS, 0
+        if not 0 <= msg.group_no < len(self.cell.groups):
+            result, subcode = MotoResult.INVALID, InvalidSubcode.GROUPNO
+        elif not 0 <= msg.tool <= 63:
+            result, subcode = MotoResult.INVALID, InvalidSubcode.DATA_TOOLNO
+        return MotoMotionReply(msg.group_no, msg.sequence, MsgType.SELECT_TOOL, result, subcode)
+
+    def on_get_dh(self, msg: Message, session: Session) -> Message:
+        groups = []
+        for model in self.cell.models:
+            rows = [joint.dh for joint in model.joints]
+            if any(row is None for row in rows) or len(rows) > 8:
+                log.info("%s: GET_DH_PARAMETERS: model %s has no D-H table", session.name, model.name)
+                return GetDhParametersReply(reply_code=ReplyCode.FAILURE)
+            groups.append(tuple(DhLink(*row) for row in rows if row is not None))
+        return GetDhParametersReply(tuple(groups))
+
+    def on_unknown(self, msg: Message, session: Session) -> Message:
+        log.info("%s: unknown message type %d: INVALID/3003", session.name, msg.msg_type)
+        return MotoMotionReply(-1, -1, msg.msg_type, MotoResult.INVALID, InvalidSubcode.MSGTYPE)
+
+
+def _refusal(exc: PointRejected) -> _Refused:
+    if exc.reason is Reason.QUEUE_FULL:
+        return _Refused(MotoResult.BUSY)
+    if exc.reason is Reason.NOT_READY:
+        return _Refused(MotoResult.NOT_READY, NotReadySubcode.UNSPECIFIED)
+    return _Refused(MotoResult.INVALID, _SUBCODES.get(exc.reason, InvalidSubcode.DATA))
+
+
+def _ping(msg: Message, session: Session) -> Message:
+    return Ping(comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS)
+
+
+def _close(msg: Message, session: Session) -> None:
+    log.warning("%s: %s is not accepted on the motion port: closing, as MotoROS does", session.name, msg.name)
+    raise CloseConnection
+
+
+class MotorosIo:
+    """IO handlers (IO port, and the motion port too), on an :class:`IoTable`."""
+
+    def __init__(self, table: IoTable) -> None:
+        self.table = table
+
+    def install(self, server: Server) -> None:
+        server.handle(MsgType.READ_SINGLE_IO, self.on_io)
+        server.handle(MsgType.WRITE_SINGLE_IO, self.on_io)
+        server.handle(MsgType.READ_GROUP_IO, self.on_io)
+        server.handle(MsgType.WRITE_GROUP_IO, self.on_io)
+        server.handle(MsgType.READ_MREGISTER, self.on_io)
+        server.handle(MsgType.WRITE_MREGISTER, self.on_io)
+
+    def install_port(self, server: Server) -> None:
+        """The IO port itself: these handlers plus MotoROS's error reply for anything else."""
+        self.install(server)
+        server.unknown_request = self.on_unknown
+        server.answer_topics = True
+        server.max_connections = 1
+
+    def on_io(self, msg: Message, session: Session) -> Message:
+        table = self.table
+        reply: Message
+        if isinstance(msg, ReadSingleIo):
+            value, code = table.read_bit(msg.address)
+            reply = ReadSingleIoReply(value, code, reply_code=_code(code))
+        elif isinstance(msg, WriteSingleIo):
+            code = table.write_bit(msg.address, msg.value)
+            reply = WriteSingleIoReply(code, reply_code=_code(code))
+        elif isinstance(msg, ReadGroupIo):
+            value, code = table.read_group(msg.address)
+            reply = ReadGroupIoReply(value, code, reply_code=_code(code))
+        elif isinstance(msg, WriteGroupIo):
+            code = table.write_group(msg.address, msg.value)
+            reply = WriteGroupIoReply(code, reply_code=_code(code))
+        elif isinstance(msg, ReadMRegister):
+            value, code = table.read_register(msg.register_number)
+            reply = ReadMRegisterReply(value, code, reply_code=_code(code))
+        elif isinstance(msg, WriteMRegister):
+            code = table.write_register(msg.register_number, msg.value)
+            reply = WriteMRegisterReply(code, reply_code=_code(code))
+        else:  # pragma: no cover - only registered for the types above
+            raise TypeError(msg.name)
+        if code != IoResult.OK:
+            log.info("%s: %s: %s", session.name, msg.name, code.name)
+        return reply
+
+    def on_unknown(self, msg: Message, session: Session) -> Message:
+        """``Ros_SimpleMsg_IoReply``: type 2002, but result and subcode at the start of the body."""
+        log.info("%s: unknown message type %d on the IO port: INVALID/3003", session.name, msg.msg_type)
+        body = session.wire.struct("ii").pack(MotoResult.INVALID, InvalidSubcode.MSGTYPE) + bytes(52)
+        return RawMessage(
+            MsgType.MOTO_MOTION_REPLY, body, comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS
+        )
+
+
+def _code(result: IoResult) -> ReplyCode:
+    return ReplyCode.SUCCESS if result == IoResult.OK else ReplyCode.FAILURE
+
+
+class MotorosState:
+    """State-port messages of the MotoROS profile (see the module doc)."""
+
+    def __init__(self, cell: RobotCell, motion: MotorosMotion) -> None:
+        self.cell = cell
+        self.motion = motion
+
+    def install(self, server: Server) -> None:
+        server.max_connections = 4
+
+    def publish(self, server: Server, sessions: Iterable[Session]) -> None:
+        cell = self.cell
+        recipients = list(sessions)
+        fields = ValidFields.POSITION | ValidFields.VELOCITY
+        groups = []
+        for index, controller in enumerate(cell.groups):
+            tick = controller.command
+            position, velocity = tuple(tick.actual_position), tuple(tick.actual_velocity)
+            groups.append(ExGroup(index, fields, 0.0, position, velocity))
+            server.broadcast(JointFeedback(index, fields, 0.0, position, velocity), recipients)
+        if len(groups) >= 2:
+            server.broadcast(JointFeedbackEx(len(groups), tuple(groups)), recipients)
+        server.broadcast(cell.status(motion_possible=cell.motion_possible and self.motion.traj_mode), recipients)

@@ -1,0 +1,297 @@
+"""The emulator process: a :class:`RobotCell` on a control loop behind simple_message servers.
+
+:class:`Emulator` wires the pieces together: the cell's control loop on a real-time clock (sped up
+by ``speedup``), the profile's motion server, the state server publishing at ``state_rate`` on
+absolute deadlines of the wall clock (so its period does not drift and does not depend on the
+number of clients), the MotoROS IO server, and optionally one serial link that carries motion and
+state together. Use it from tests and programs::
+
+    async with Emulator(EmulatorConfig(motion_port=0, state_port=0)) as emu:
+        print(emu.ports)          # {"motion": ..., "state": ...}
+        emu.cell.estop()          # fault injection
+
+``close()`` stops the robot with a controlled deceleration, waits (bounded) until it has settled,
+then closes every connection.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import logging
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from simple_message.constants import Port
+from simple_message.endpoints import ReplyStyle, Server, Session
+from simple_message.wire import ByteOrder, WireFormat
+
+from ..control import ControllerConfig, ControlLoop, Policy, RealTimeClock
+from ..loader import load_model
+from ..model import RobotModel
+from .cell import RobotCell
+from .generic import GenericMotion, GenericState
+from .io_table import IoTable
+from .motoros import MOTOROS_START_TOLERANCE, MotorosIo, MotorosMotion, MotorosState
+
+__all__ = ["Emulator", "EmulatorConfig", "PeriodStats", "Profile"]
+
+log = logging.getLogger(__name__)
+
+Profile = Literal["generic", "motoros"]
+ByteOrderChoice = Literal["little", "big", "auto"]
+_STATE_LINK = "carries_state"
+_PORTS: dict[str, dict[str, int]] = {
+    "generic": {"motion": Port.MOTION, "state": Port.STATE},
+    "motoros": {"motion": Port.MOTOROS_MOTION, "state": Port.MOTOROS_STATE, "io": Port.MOTOROS_IO},
+}
+MAX_STATE_RATE = 1000.0
+
+
+@dataclass(frozen=True)
+class EmulatorConfig:
+    """Everything the ``robot-server`` command sets (SI units; ports ``None`` = the profile's
+    well-known port, 0 = a free one)."""
+
+    #: one model (shipped name or file) per motion group
+    models: tuple[str | Path, ...] = ("jibot_zxs",)
+    profile: Profile = "generic"
+    host: str = "127.0.0.1"
+    motion_port: int | None = None
+    state_port: int | None = None
+    io_port: int | None = None
+    byte_order: ByteOrderChoice = "little"
+    float64: bool = False
+    reply_style: ReplyStyle = "echo"
+    state_rate: float = 40.0
+    #: generic profile: JOINT_FEEDBACK to every state client (else only to those that ask)
+    feedback: bool = False
+    interpolation: Policy = Policy.QUINTIC
+    interpolation_period: float = 0.004
+    servo_period: float = 0.001
+    speedup: float = 1.0
+    #: serve one link over this serial port (pyserial URL) as well
+    serial: str | None = None
+    #: generic profile: connections per port (the MotoROS profile has its own limits)
+    max_connections: int = 64
+
+    def __post_init__(self) -> None:
+        if self.profile not in _PORTS:
+            raise ValueError(f"unknown profile {self.profile!r} (generic or motoros)")
+        if self.byte_order not in ("little", "big", "auto"):
+            raise ValueError(f"unknown byte order {self.byte_order!r} (little, big or auto)")
+        if self.reply_style not in ("echo", "header"):
+            raise ValueError(f"unknown reply style {self.reply_style!r} (echo or header)")
+        if not 0.0 < self.state_rate <= MAX_STATE_RATE:
+            raise ValueError(f"the state rate must be in (0, {MAX_STATE_RATE:g}] Hz, not {self.state_rate}")
+        if not self.speedup > 0.0:
+            raise ValueError(f"the speed-up factor must be > 0, not {self.speedup}")
+        if not self.models:
+            raise ValueError("at least one model is needed")
+        object.__setattr__(self, "interpolation", Policy(self.interpolation))
+
+    @property
+    def wire(self) -> WireFormat:
+        order = ByteOrder.BIG if self.byte_order == "big" else ByteOrder.LITTLE
+        return WireFormat(order, 8 if self.float64 else 4)
+
+    def port(self, name: str) -> int | None:
+        """The port to bind for ``name`` (motion, state, io), or None if the profile has none."""
+        default = _PORTS[self.profile].get(name)
+        if default is None:
+            return None
+        chosen = {"motion": self.motion_port, "state": self.state_port, "io": self.io_port}[name]
+        return default if chosen is None else chosen
+
+
+@dataclass
+class PeriodStats:
+    """How punctually the state topics went out (wall clock)."""
+
+    period: float
+    sent: int = 0
+    max_lateness: float = 0.0
+    skipped: int = 0
+    lateness: list[float] = field(default_factory=list, repr=False)
+    keep: int = 100_000
+
+    def add(self, lateness: float) -> None:
+        self.sent += 1
+        self.max_lateness = max(self.max_lateness, lateness)
+        if len(self.lateness) < self.keep:
+            self.lateness.append(lateness)
+
+
+class Emulator:
+    """A robot controller emulator serving simple_message (see the module doc)."""
+
+    def __init__(self, config: EmulatorConfig | None = None, models: Sequence[RobotModel] | None = None) -> None:
+        self.config = config = config if config is not None else EmulatorConfig()
+        if models is None:
+            models = [load_model(m) for m in config.models]
+        motoros = config.profile == "motoros"
+        controller_config = ControllerConfig(
+            policy=config.interpolation,
+            interpolation_period=config.interpolation_period,
+            servo_period=config.servo_period,
+        )
+        if motoros:
+            controller_config = dataclasses.replace(controller_config, start_tolerance=MOTOROS_START_TOLERANCE)
+        self.cell = RobotCell(models, controller_config)
+        self.io_table = IoTable()
+        wire = config.wire
+        auto = config.byte_order == "auto"
+        limit = config.max_connections
+        self.motion_server = Server(
+            wire, name="motion", autodetect=auto, reply_style=config.reply_style, max_connections=limit
+        )
+        self.state_server = Server(wire, name="state", autodetect=auto, max_connections=limit)
+        self.io_server: Server | None = None
+        self._publish: Callable[[Server, Iterable[Session]], None]
+        if motoros:
+            self.motion: GenericMotion | MotorosMotion = MotorosMotion(self.cell, self.io_table)
+            self.motion.install(self.motion_server)
+            state = MotorosState(self.cell, self.motion)
+            state.install(self.state_server)
+            self._publish = state.publish
+            self.io_server = Server(wire, name="io", autodetect=auto)
+            MotorosIo(self.io_table).install_port(self.io_server)
+        else:
+            self.motion = GenericMotion(self.cell)
+            self.motion.install(self.motion_server)
+            generic_state = GenericState(self.cell, feedback=config.feedback)
+            generic_state.install(self.state_server)
+            self._publish = generic_state.publish
+        self.clock = RealTimeClock(config.speedup)
+        self.control = ControlLoop(
+            self.cell.groups[0], self.clock, others=self.cell.groups[1:], on_wake=self.cell.notify
+        )
+        self.state_stats = PeriodStats(1.0 / config.state_rate)
+        self.ports: dict[str, int] = {}
+        self._tasks: list[asyncio.Task[None]] = []
+        self._started = False
+        self._closed = False
+
+    # -- lifecycle ---------------------------------------------------------------------------------
+
+    async def start(self) -> Emulator:
+        """Bind the ports, start the control loop and the state topics."""
+        if self._started:
+            return self
+        self._started = True
+        cfg = self.config
+        servers = {"motion": self.motion_server, "state": self.state_server, "io": self.io_server}
+        for name, server in servers.items():
+            port = cfg.port(name)
+            if server is not None and port is not None:
+                self.ports[name] = await server.serve_tcp(cfg.host, port)
+        loop = asyncio.get_running_loop()
+        self._tasks.append(loop.create_task(self._run_control(), name="emulator control loop"))
+        self._tasks.append(loop.create_task(self._run_state(), name="emulator state topics"))
+        if cfg.serial is not None:
+            self.motion_server.start_serving(self.motion_server.serve_serial(cfg.serial, data={_STATE_LINK: True}))
+        return self
+
+    async def serve_fd(self, fd: int, name: str = "pty") -> None:
+        """Serve one link over an open descriptor (a pty), carrying motion and state like ``--serial``."""
+        await self.motion_server.serve_fd(fd, name=name, data={_STATE_LINK: True})
+
+    async def _run_control(self) -> None:
+        try:
+            await self.control.run()
+        except Exception:  # pragma: no cover - a bug; the servers must not hang on it
+            log.exception("the control loop failed: e-stop")
+            self.cell.estop()
+            raise
+
+    async def _run_state(self) -> None:
+        loop = asyncio.get_running_loop()
+        period = self.state_stats.period
+        origin = loop.time()
+        k = 0
+        while True:
+            k += 1
+            deadline = origin + k * period
+            delay = deadline - loop.time()
+            if delay > 0.0:
+                await asyncio.sleep(delay)
+            now = loop.time()
+            late = now - deadline
+            if late > period:  # fell behind (a stalled machine): skip, never burst
+                missed = int(late // period)
+                self.state_stats.skipped += missed
+                k += missed
+            self.state_stats.add(late - (late // period) * period if late > period else late)
+            try:
+                self.publish_state()
+            except Exception:  # pragma: no cover - a bug must not end the topics
+                log.exception("publishing state failed")
+
+    def state_sessions(self) -> list[Session]:
+        """Everyone who gets state topics: state-port clients and serial links."""
+        extra = [s for s in self.motion_server.sessions if s.data.get(_STATE_LINK)]
+        return [*self.state_server.sessions, *extra]
+
+    def publish_state(self) -> None:
+        """Send one round of state topics now."""
+        sessions = self.state_sessions()
+        if not sessions:
+            return
+        if self.config.byte_order == "auto":
+            spoken = [s.connection.wire for s in self.motion_server.sessions if s.connection.decoder.detected]
+            if spoken:  # clients that never speak get the order the motion port was spoken in
+                for s in sessions:
+                    if not s.connection.decoder.detected:
+                        s.connection.wire = spoken[-1]
+        self._publish(self.state_server, sessions)
+
+    async def close(self, settle_timeout: float = 10.0) -> None:
+        """Stop the robot (controlled), wait until it has settled (at most ``settle_timeout`` s of
+        wall time), then close every connection."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._started and self.cell.in_motion:
+            duration = self.cell.stop()
+            log.info("shutting down: decelerating to rest (%.3f s)", duration)
+            with contextlib.suppress(TimeoutError):
+                await self.wait_until(lambda: not self.cell.in_motion, settle_timeout)
+        self.control.stop()
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        for server in (self.motion_server, self.state_server, self.io_server):
+            if server is not None:
+                await server.close()
+        log.info("emulator closed")
+
+    async def __aenter__(self) -> Emulator:
+        return await self.start()
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    # -- helpers -----------------------------------------------------------------------------------
+
+    async def wait_until(self, predicate: Callable[[], bool], timeout: float) -> None:
+        """Wait until ``predicate()`` holds, checked after every control-loop wake-up."""
+        async with asyncio.timeout(timeout):
+            while not predicate():
+                await self.cell.changed()
+
+    def describe(self) -> str:
+        """The one-line summary printed when the emulator is ready."""
+        cfg = self.config
+        ports = ", ".join(f"{name} {cfg.host}:{port}" for name, port in self.ports.items())
+        if cfg.serial:
+            ports += f", serial {cfg.serial}"
+        order = "auto-detected byte order" if cfg.byte_order == "auto" else f"{cfg.byte_order}-endian"
+        timing = "real time" if cfg.speedup == 1.0 else f"{cfg.speedup:g}x real time"
+        models = " + ".join(g.model.name for g in self.cell.groups)
+        return (
+            f"robot-server ready: {cfg.profile} profile, {models}, {ports}, {order} float{64 if cfg.float64 else 32}, "
+            f"{cfg.interpolation.value} interpolation, {timing}"
+        )
