@@ -16,6 +16,7 @@ import argparse
 import asyncio
 import contextlib
 import logging
+import os
 import signal
 import sys
 import threading
@@ -90,6 +91,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--interpolation", choices=[x.value for x in Policy], default=Policy.QUINTIC.value)
     p.add_argument("--interpolation-period", type=_positive, default=0.004, metavar="SECONDS")
     p.add_argument("--servo-period", type=_positive, default=0.001, metavar="SECONDS")
+    p.add_argument("--queue-size", type=int, default=64, metavar="POINTS", help="streamed points the controller queues")
     p.add_argument("--speedup", type=_positive, default=1.0, metavar="FACTOR", help="run the controller faster")
     p.add_argument("--serial", metavar="URL", help="also serve one link on this serial port (pyserial URL)")
     p.add_argument("--fault", type=_fault, action="append", default=[], metavar="SECONDS:COMMAND")
@@ -124,6 +126,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             interpolation_period=args.interpolation_period,
             servo_period=args.servo_period,
             speedup=args.speedup,
+            queue_capacity=args.queue_size,
             serial=args.serial,
         )
         models = [load_model(m) for m in config.models]
@@ -183,9 +186,15 @@ def _read_commands(emulator: Emulator, loop: asyncio.AbstractEventLoop) -> None:
     """Fault commands from stdin, read by a daemon thread (works for terminals, pipes and files)."""
 
     def reader() -> None:
-        with contextlib.suppress(Exception):
-            for line in sys.stdin:
-                if line.strip():
-                    loop.call_soon_threadsafe(_apply, emulator, line)
+        # os.read on the descriptor, not sys.stdin: a daemon thread blocked inside the buffered
+        # reader holds its lock, and interpreter shutdown then aborts on that lock
+        pending = b""
+        with contextlib.suppress(OSError, RuntimeError):
+            while chunk := os.read(0, 4096):
+                pending += chunk
+                *lines, pending = pending.split(b"\n")
+                for line in lines:
+                    if line.strip():
+                        loop.call_soon_threadsafe(_apply, emulator, line.decode(errors="replace"))
 
     threading.Thread(target=reader, name="robot-server stdin", daemon=True).start()

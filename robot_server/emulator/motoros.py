@@ -13,9 +13,11 @@ MOTO_MOTION_REPLY (2002), header SUCCESS, the outcome in ``result``/``subcode`` 
   (3005). Sequence 0 starts a trajectory at the current command position (within 30 pulses, else
   3011); later points are BUSY while the group's buffer is full, as MotoROS's single staging slot
   in front of its 200-increment queue is: here, while at least 200 interpolation periods of motion
-  are queued. Speeds above the joint limit give 3013, other refusals their data subcode
-  (position 3012, acceleration 3014, time 3016). Like MotoROS, the time is cut to whole
-  milliseconds and segments are cubic in position and velocity (accelerations are not used).
+  are queued (0.8 s at the default 4 ms; the real FS100 capture's BUSY pattern matches 200 x 2 ms,
+  so run with ``--interpolation-period 0.002`` to imitate an FS100). Speeds above the joint limit
+  give 3013, other refusals their data subcode (position 3012, acceleration 3014, time 3016).
+  Like MotoROS, the time is cut to whole milliseconds and segments are cubic in position and
+  velocity (accelerations are not used).
   Unlike MotoROS, every point is checked completely before it is acknowledged, so a point that
   would later be skipped is refused instead.
 * JOINT_TRAJ_PT_FULL_EX (2016): one point per group, all accepted or none; BUSY if any group is.

@@ -73,6 +73,8 @@ class EmulatorConfig:
     interpolation_period: float = 0.004
     servo_period: float = 0.001
     speedup: float = 1.0
+    #: points the controller queues (streaming); a full queue delays the generic reply
+    queue_capacity: int = 64
     #: serve one link over this serial port (pyserial URL) as well
     serial: str | None = None
     #: generic profile: connections per port (the MotoROS profile has its own limits)
@@ -137,6 +139,7 @@ class Emulator:
             policy=config.interpolation,
             interpolation_period=config.interpolation_period,
             servo_period=config.servo_period,
+            queue_capacity=config.queue_capacity,
         )
         if motoros:
             controller_config = dataclasses.replace(controller_config, start_tolerance=MOTOROS_START_TOLERANCE)
