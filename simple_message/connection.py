@@ -233,8 +233,9 @@ class Connection:
             return
         self.state = ConnectionState.CLOSED
         self.close_reason = reason
-        if reason is None:
-            log.info("%s: disconnected", self.name)
+        if reason is None or _hang_up(reason):
+            # the peer hung up (cleanly or not): normal life of a connection, not a warning
+            log.info("%s: disconnected%s", self.name, f" ({reason})" if reason else "")
             self.writer.close()
         else:
             log.warning("%s: disconnected: %s", self.name, reason)
@@ -281,7 +282,8 @@ class Connection:
             reason = exc
         if self.on_read_end is not None and self.state is not ConnectionState.CLOSED:
             if reason is not None:
-                log.warning("%s: %s; answering what was read, then closing", self.name, reason)
+                level = logging.INFO if _hang_up(reason) else logging.WARNING
+                log.log(level, "%s: %s; answering what was read, then closing", self.name, reason)
             self.on_read_end(reason)
         else:
             self._shutdown(reason)
@@ -472,6 +474,11 @@ def _type_name(msg_type: int) -> str:
         return MsgType(msg_type).name
     except ValueError:
         return f"type {msg_type}"
+
+
+def _hang_up(reason: BaseException) -> bool:
+    """The peer went away (normal life of a connection, not a warning)."""
+    return isinstance(reason, BrokenPipeError | ConnectionResetError)
 
 
 def malformed_error(msg: Message) -> MalformedMessage | None:
