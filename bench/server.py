@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import itertools
 import os
 import re
 import statistics
@@ -95,8 +96,7 @@ async def jitter(clients: int, seconds: float) -> tuple[float, float, float, int
         await server.stop()
     deviations = []
     for s in stamps:
-        s = s[5:]  # connection set-up
-        deviations += [abs((b - a) - 0.004) for a, b in zip(s, s[1:], strict=False)]
+        deviations += [abs((b - a) - 0.004) for a, b in itertools.pairwise(s[5:])]  # [5:]: connection set-up
     deviations.sort()
     p99 = deviations[int(0.99 * (len(deviations) - 1))]
     return statistics.median(deviations), p99, deviations[-1], len(deviations)
