@@ -177,7 +177,7 @@ async def test_fifty_state_clients_all_get_every_topic() -> None:
         for peer in peers:
             kinds = [(await peer.frame()).msg_type for _ in range(6)]
             assert kinds.count(JOINT_POSITION) == 3 and kinds.count(STATUS) == 3
-        assert emu.state_stats.skipped == 0
+        assert len(emu.state_server.sessions) == 50  # nobody was dropped (the period is in bench/server.py)
 
 
 # -- malformed input -----------------------------------------------------------------------------------

@@ -1,0 +1,223 @@
+"""Joint trajectories: time-stamped waypoints, and their CSV and JSON files.
+
+A :class:`Trajectory` is what a planner hands over and what the driver sends: ``times`` (s, from
+the start, strictly increasing, the first 0), ``positions`` (n x dof, rad or m) and, optionally,
+``velocities`` and ``accelerations`` of the same shape. Units are SI.
+
+**CSV** (one waypoint per line, a header line naming the columns)::
+
+    time,q1,q2,...,qN[,v1,...,vN][,a1,...,aN]
+
+joint names may replace ``q1``...: the columns are ``time``, then ``<name>`` for positions,
+``<name>.velocity`` and ``<name>.acceleration``. Lines starting with ``#`` are comments.
+
+**JSON**::
+
+    {"joint_names": [...], "points": [{"time": 0.0, "positions": [...], "velocities": [...],
+     "accelerations": [...]}, ...]}
+
+``velocities`` and ``accelerations`` are optional, but all points must have them or none.
+Every reader error is a :class:`TrajectoryError` naming the file, and the line or point.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["Trajectory", "TrajectoryError"]
+
+Array = NDArray[np.float64]
+
+
+class TrajectoryError(ValueError):
+    """A trajectory that cannot be used: malformed file, non-increasing times, wrong shapes..."""
+
+
+@dataclass(frozen=True, eq=False)
+class Trajectory:
+    """Time-stamped joint waypoints (see the module doc)."""
+
+    times: Array
+    positions: Array
+    velocities: Array | None = None
+    accelerations: Array | None = None
+    joint_names: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        times = np.asarray(self.times, dtype=float).reshape(-1)
+        positions = np.atleast_2d(np.asarray(self.positions, dtype=float))
+        n = times.size
+        if n == 0:
+            raise TrajectoryError("a trajectory needs at least one point")
+        if positions.shape[0] != n:
+            raise TrajectoryError(f"{n} times but {positions.shape[0]} positions")
+        dof = positions.shape[1]
+        object.__setattr__(self, "times", times)
+        object.__setattr__(self, "positions", positions)
+        for name in ("velocities", "accelerations"):
+            value = getattr(self, name)
+            if value is not None:
+                array = np.atleast_2d(np.asarray(value, dtype=float))
+                if array.shape != positions.shape:
+                    raise TrajectoryError(f"{name} have shape {array.shape}, positions {positions.shape}")
+                object.__setattr__(self, name, array)
+        for name in ("times", "positions", "velocities", "accelerations"):
+            value = getattr(self, name)
+            if value is not None and not np.all(np.isfinite(value)):
+                raise TrajectoryError(f"{name} contain NaN or infinity")
+        if abs(times[0]) > 1e-12:
+            raise TrajectoryError(f"the first point's time must be 0, not {times[0]}")
+        if n > 1 and not np.all(np.diff(times) > 0.0):
+            k = int(np.argmax(np.diff(times) <= 0.0)) + 1
+            raise TrajectoryError(f"times must increase: point {k} at {times[k]} s follows {times[k - 1]} s")
+        names = tuple(self.joint_names) or tuple(f"q{i + 1}" for i in range(dof))
+        if len(names) != dof or len(set(names)) != dof:
+            raise TrajectoryError(f"{len(names)} joint names for {dof} joints (names must be distinct)")
+        object.__setattr__(self, "joint_names", names)
+
+    @property
+    def dof(self) -> int:
+        return int(self.positions.shape[1])
+
+    def __len__(self) -> int:
+        return int(self.times.size)
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1])
+
+    # -- files -------------------------------------------------------------------------------------
+
+    @classmethod
+    def load(cls, path: str | Path) -> Trajectory:
+        """Read a ``.csv`` or ``.json`` file."""
+        path = Path(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise TrajectoryError(f"{path}: {exc.strerror or exc}") from None
+        try:
+            if path.suffix.lower() == ".json":
+                return cls._from_json(text)
+            return cls._from_csv(text)
+        except TrajectoryError as exc:
+            raise TrajectoryError(f"{path}: {exc}") from None
+
+    def save(self, path: str | Path) -> None:
+        """Write a ``.csv`` or ``.json`` file (by its suffix)."""
+        path = Path(path)
+        path.write_text(self.to_json() if path.suffix.lower() == ".json" else self.to_csv(), encoding="utf-8")
+
+    def to_csv(self) -> str:
+        header = ["time", *self.joint_names]
+        columns = [self.times[:, None], self.positions]
+        if self.velocities is not None:
+            header += [f"{n}.velocity" for n in self.joint_names]
+            columns.append(self.velocities)
+        if self.accelerations is not None:
+            header += [f"{n}.acceleration" for n in self.joint_names]
+            columns.append(self.accelerations)
+        rows = np.hstack(columns)
+        lines = [",".join(header)] + [",".join(repr(float(x)) for x in row) for row in rows]
+        return "\n".join(lines) + "\n"
+
+    def to_json(self) -> str:
+        points: list[dict[str, Any]] = []
+        for k in range(len(self)):
+            point: dict[str, Any] = {"time": float(self.times[k]), "positions": self.positions[k].tolist()}
+            if self.velocities is not None:
+                point["velocities"] = self.velocities[k].tolist()
+            if self.accelerations is not None:
+                point["accelerations"] = self.accelerations[k].tolist()
+            points.append(point)
+        return json.dumps({"joint_names": list(self.joint_names), "points": points}, indent=1) + "\n"
+
+    @classmethod
+    def _from_csv(cls, text: str) -> Trajectory:
+        lines = [(i + 1, line) for i, line in enumerate(text.splitlines()) if line.strip() and not line.startswith("#")]
+        if not lines:
+            raise TrajectoryError("empty file")
+        header = next(csv.reader([lines[0][1]]))
+        header = [h.strip() for h in header]
+        if not header or header[0] != "time":
+            raise TrajectoryError(f"line {lines[0][0]}: the first column must be 'time', not {header[:1]}")
+        names = [h for h in header[1:] if not h.endswith((".velocity", ".acceleration"))]
+        velocity = [f"{n}.velocity" for n in names]
+        acceleration = [f"{n}.acceleration" for n in names]
+        expected = ["time", *names]
+        has_v = velocity[0] in header if names else False
+        has_a = acceleration[0] in header if names else False
+        expected += velocity if has_v else []
+        expected += acceleration if has_a else []
+        if not names or header != expected:
+            raise TrajectoryError(
+                f"line {lines[0][0]}: columns must be time, the joints, then optionally <joint>.velocity "
+                f"and <joint>.acceleration for every joint, in that order"
+            )
+        rows = []
+        for number, line in lines[1:]:
+            cells = next(csv.reader([line]))
+            if len(cells) != len(header):
+                raise TrajectoryError(f"line {number}: {len(cells)} values, the header has {len(header)}")
+            try:
+                rows.append([float(c) for c in cells])
+            except ValueError:
+                raise TrajectoryError(f"line {number}: not a number in {line.strip()!r}") from None
+        if not rows:
+            raise TrajectoryError("no waypoints")
+        data = np.array(rows)
+        n = len(names)
+        return cls(
+            data[:, 0],
+            data[:, 1 : 1 + n],
+            data[:, 1 + n : 1 + 2 * n] if has_v else None,
+            data[:, 1 + n * (2 if has_v else 1) :] if has_a else None,
+            tuple(names),
+        )
+
+    @classmethod
+    def _from_json(cls, text: str) -> Trajectory:
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise TrajectoryError(f"not valid JSON: {exc}") from None
+        if not isinstance(data, dict) or not isinstance(data.get("points"), list) or not data["points"]:
+            raise TrajectoryError('expected {"points": [...]} with at least one point')
+        points = data["points"]
+        fields: dict[str, list[Any]] = {"time": [], "positions": [], "velocities": [], "accelerations": []}
+        for k, point in enumerate(points):
+            if not isinstance(point, dict) or "time" not in point or "positions" not in point:
+                raise TrajectoryError(f"point {k}: needs 'time' and 'positions'")
+            for key, values in fields.items():
+                if key in point:
+                    values.append(point[key])
+        for key in ("velocities", "accelerations"):
+            if fields[key] and len(fields[key]) != len(points):
+                raise TrajectoryError(f"{key} are given for some points but not all")
+        try:
+            times = np.array(fields["time"], dtype=float)
+            positions = np.array(fields["positions"], dtype=float)
+            velocities = np.array(fields["velocities"], dtype=float) if fields["velocities"] else None
+            accelerations = np.array(fields["accelerations"], dtype=float) if fields["accelerations"] else None
+        except (TypeError, ValueError):
+            raise TrajectoryError("times and joint values must be numbers, every point with as many joints") from None
+        names = data.get("joint_names") or ()
+        if not isinstance(names, list | tuple) or not all(isinstance(n, str) for n in names):
+            raise TrajectoryError("joint_names must be a list of strings")
+        return cls(times, positions, velocities, accelerations, tuple(names))
+
+    @classmethod
+    def from_points(cls, times: ArrayLike, positions: ArrayLike, **kwargs: Any) -> Trajectory:
+        """Convenience constructor from plain lists."""
+        return cls(np.asarray(times, dtype=float), np.asarray(positions, dtype=float), **kwargs)
+
+    def sample_period(self) -> float:
+        """The smallest time step (s), or 0 for a single point."""
+        return float(np.min(np.diff(self.times))) if len(self) > 1 else 0.0

@@ -1,0 +1,79 @@
+"""Trajectory files: CSV and JSON round trips, and clear errors for bad files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from client.trajectory import Trajectory, TrajectoryError
+
+
+def sample(velocities: bool = True, accelerations: bool = True) -> Trajectory:
+    t = np.array([0.0, 0.5, 1.25])
+    q = np.array([[0.0, 0.1, 0.2], [0.3, 0.4, 0.5], [0.6, -0.7, 0.8]])
+    return Trajectory(
+        t, q, q * 2 if velocities else None, q * 3 if accelerations else None, joint_names=("s", "l", "u")
+    )
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".json"])
+@pytest.mark.parametrize("fields", [(True, True), (True, False), (False, False)])
+def test_round_trip(tmp_path: Path, suffix: str, fields: tuple[bool, bool]) -> None:
+    original = sample(*fields)
+    path = tmp_path / f"t{suffix}"
+    original.save(path)
+    back = Trajectory.load(path)
+    assert back.joint_names == ("s", "l", "u")
+    np.testing.assert_array_equal(back.times, original.times)
+    np.testing.assert_array_equal(back.positions, original.positions)
+    for name in ("velocities", "accelerations"):
+        a, b = getattr(back, name), getattr(original, name)
+        assert (a is None) == (b is None)
+        if a is not None:
+            np.testing.assert_array_equal(a, b)
+
+
+def test_csv_format_is_documented_columns(tmp_path: Path) -> None:
+    text = sample(True, False).to_csv()
+    assert text.splitlines()[0] == "time,s,l,u,s.velocity,l.velocity,u.velocity"
+    path = tmp_path / "plain.csv"
+    path.write_text("# a comment\ntime,q1,q2\n0,0,0\n1.5,0.25,-0.5\n")
+    t = Trajectory.load(path)
+    assert t.dof == 2 and t.duration == 1.5 and t.velocities is None
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "words"),
+    [
+        ("a.csv", "", "empty"),
+        ("b.csv", "t,q1\n0,0\n", "'time'"),
+        ("c.csv", "time,q1\n0,0\n1,x\n", "line 3"),
+        ("d.csv", "time,q1\n0,0\n1\n", "line 3"),
+        ("e.csv", "time,q1\n0,0\n0,1\n", "increase"),
+        ("f.csv", "time,q1\n0.5,0\n1,1\n", "must be 0"),
+        ("g.csv", "time,q1\n0,nan\n", "NaN"),
+        ("h.json", "{", "JSON"),
+        ("i.json", '{"points": []}', "at least one"),
+        ("j.json", '{"points": [{"time": 0}]}', "point 0"),
+        (
+            "k.json",
+            '{"points": [{"time": 0, "positions": [0], "velocities": [0]}, {"time": 1, "positions": [1]}]}',
+            "some points",
+        ),
+        ("l.json", '{"points": [{"time": 0, "positions": [0, 1]}, {"time": 1, "positions": [1]}]}', "as many joints"),
+        ("m.csv", "time,q1,q2.velocity\n0,0,0\n", "columns"),
+    ],
+)
+def test_bad_files_name_the_file_and_the_place(tmp_path: Path, name: str, content: str, words: str) -> None:
+    path = tmp_path / name
+    path.write_text(content)
+    with pytest.raises(TrajectoryError, match=words) as info:
+        Trajectory.load(path)
+    assert name in str(info.value)
+
+
+def test_missing_file() -> None:
+    with pytest.raises(TrajectoryError, match="nosuchfile"):
+        Trajectory.load("/nonexistent/nosuchfile.csv")
