@@ -401,7 +401,7 @@ class RobotDriver:
             except DriverError:
                 raise ExecutionAborted(f"no joint state for {self.watchdog} s (watchdog)", confirmed) from None
             error = float(np.max(np.abs(state.positions[: goal.size] - goal)))
-            if self.path_tolerance is not None and state.status is not None:
+            if self.path_tolerance is not None:
                 deviation = _path_deviation(trajectory, state.positions[: goal.size])
                 if deviation > self.path_tolerance:
                     raise ExecutionAborted(

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 __all__ = ["Trajectory", "TrajectoryError"]
 
@@ -212,12 +212,3 @@ class Trajectory:
         if not isinstance(names, list | tuple) or not all(isinstance(n, str) for n in names):
             raise TrajectoryError("joint_names must be a list of strings")
         return cls(times, positions, velocities, accelerations, tuple(names))
-
-    @classmethod
-    def from_points(cls, times: ArrayLike, positions: ArrayLike, **kwargs: Any) -> Trajectory:
-        """Convenience constructor from plain lists."""
-        return cls(np.asarray(times, dtype=float), np.asarray(positions, dtype=float), **kwargs)
-
-    def sample_period(self) -> float:
-        """The smallest time step (s), or 0 for a single point."""
-        return float(np.min(np.diff(self.times))) if len(self) > 1 else 0.0

@@ -21,7 +21,7 @@ import contextlib
 import dataclasses
 import logging
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -117,14 +117,10 @@ class PeriodStats:
     sent: int = 0
     max_lateness: float = 0.0
     skipped: int = 0
-    lateness: list[float] = field(default_factory=list, repr=False)
-    keep: int = 100_000
 
     def add(self, lateness: float) -> None:
         self.sent += 1
         self.max_lateness = max(self.max_lateness, lateness)
-        if len(self.lateness) < self.keep:
-            self.lateness.append(lateness)
 
 
 class Emulator:
