@@ -309,6 +309,7 @@ class Controller:
             self._abandon()
             self.servo.brake()
             self._powered = False
+            self._settled = True  # the brakes hold every joint: nothing moves from this instant
             log.info("drives off")
 
     def power_on(self) -> None:
