@@ -11,8 +11,8 @@ says in_motion FALSE (like ROS's FollowJointTrajectory action, §5):
 
 * generic profile, ``mode="stream"``: JOINT_TRAJ_PT SERVICE_REQUESTs, sequence 0..n-1, one in
   flight; each reply must be SUCCESS; durations are the waypoint time differences (0 for the first
-  point, which must be where the robot is) and the velocity ratio the fastest joint's share of its
-  limit (when the model is known);
+  point, which must be where the robot is) and the velocity ratio the critical joint's peak speed
+  as a share of its limit (when the model is known; see :meth:`RobotDriver._ratio`);
 * generic profile, ``mode="download"``: TOPICs with sequence -1, 1..n-2, -3 (a single point is sent
   twice, as the reference downloader does);
 * MotoROS profile: CHECK_MOTION_READY (and START_TRAJ_MODE if needed), then JOINT_TRAJ_PT_FULL with
@@ -21,8 +21,11 @@ says in_motion FALSE (like ROS's FollowJointTrajectory action, §5):
 
 It raises :class:`ExecutionAborted` (with :attr:`~ExecutionAborted.confirmed`, the last point the
 controller acknowledged, so a caller can resume from there) on a refused point, a lost
-connection, a state watchdog expiry (no joint state for ``watchdog`` s), or a path deviation beyond
-``path_tolerance``; before raising it tries to stop the robot. Cancelling ``execute`` stops it too.
+connection, a state watchdog expiry (no joint state for ``watchdog`` s), a path deviation beyond
+``path_tolerance``, a robot standing still short of the goal for ``stall_timeout`` s after every
+point was sent (how a dropped download shows: TOPIC points have no reply), or no goal within
+``goal_timeout`` s after the trajectory's end; before raising it tries to stop the robot.
+Cancelling ``execute`` stops it too.
 """
 
 from __future__ import annotations
@@ -70,6 +73,9 @@ from .trajectory import Trajectory
 __all__ = ["RobotDriver", "DriverError", "ExecutionAborted", "JointState", "Profile", "Mode"]
 
 log = logging.getLogger(__name__)
+
+#: a rest-to-rest quintic's peak speed over its mean speed
+_QUINTIC_PEAK = 1.875
 
 Array = NDArray[np.float64]
 
@@ -125,6 +131,7 @@ class RobotDriver:
         goal_tolerance: float = 0.01,
         path_tolerance: float | None = None,
         goal_timeout: float = 60.0,
+        stall_timeout: float = 1.0,
     ) -> None:
         self.profile = Profile(profile)
         motoros = self.profile is Profile.MOTOROS
@@ -138,6 +145,7 @@ class RobotDriver:
         self.goal_tolerance = goal_tolerance
         self.path_tolerance = path_tolerance
         self.goal_timeout = goal_timeout
+        self.stall_timeout = stall_timeout
         policy = ReconnectPolicy(initial_delay=0.1, max_delay=2.0)
         self.motion = Client.tcp(
             host, self.motion_port, wire, reconnect=policy, name=f"motion {host}:{self.motion_port}"
@@ -301,15 +309,15 @@ class RobotDriver:
             await asyncio.shield(self.stop())
 
     def _ratio(self, trajectory: Trajectory, k: int) -> float:
+        """The velocity ratio of segment ``k``: the critical joint's peak speed as a share of its
+        limit, the peak taken as a rest-to-rest quintic's (1.875 x the segment's mean speed; a
+        controller joins JOINT_TRAJ_PT points at rest). 0 without a model, for the first point
+        and for a pause."""
         if self.model is None or k == 0:
             return 0.0
-        vmax = self.model.max_velocity
-        if trajectory.velocities is not None:
-            speed = np.abs(trajectory.velocities[k])
-        else:
-            dt = trajectory.times[k] - trajectory.times[k - 1]
-            speed = np.abs(trajectory.positions[k] - trajectory.positions[k - 1]) / dt
-        return float(np.clip(np.max(speed / vmax), 0.0, 1.0))
+        dt = trajectory.times[k] - trajectory.times[k - 1]
+        mean = np.abs(trajectory.positions[k] - trajectory.positions[k - 1]) / dt
+        return float(np.clip(np.max(_QUINTIC_PEAK * mean / self.model.max_velocity), 0.0, 1.0))
 
     def _point(self, trajectory: Trajectory, k: int, sequence: int, comm_type: int) -> JointTrajPt:
         duration = 0.0 if k == 0 else float(trajectory.times[k] - trajectory.times[k - 1])
@@ -392,6 +400,7 @@ class RobotDriver:
     async def _wait_goal(self, trajectory: Trajectory, confirmed: int) -> JointState:
         goal = trajectory.positions[-1]
         deadline = time.monotonic() + trajectory.duration + self.goal_timeout
+        stalled_since: float | None = None
         while True:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
@@ -399,6 +408,8 @@ class RobotDriver:
             try:
                 state = await self.wait_state(min(self.watchdog, remaining))
             except DriverError:
+                if remaining < self.watchdog:
+                    raise ExecutionAborted("the robot did not reach the goal in time", confirmed) from None
                 raise ExecutionAborted(f"no joint state for {self.watchdog} s (watchdog)", confirmed) from None
             error = float(np.max(np.abs(state.positions[: goal.size] - goal)))
             if self.path_tolerance is not None:
@@ -410,10 +421,25 @@ class RobotDriver:
             status = state.status
             if status is not None and status.in_error == TriState.TRUE:
                 raise ExecutionAborted(f"the controller is in error {status.error_code}", confirmed)
-            if error <= self.goal_tolerance and status is not None and status.in_motion != TriState.TRUE:
+            at_goal = error <= self.goal_tolerance
+            if at_goal and status is not None and status.in_motion != TriState.TRUE:
                 if status.in_motion == TriState.UNKNOWN:
                     log.warning("goal reached, but the controller reports in_motion UNKNOWN")
                 return state
+            # standing still short of the goal: the controller dropped the trajectory (a refused
+            # download point has no reply to say so) or someone stopped the robot
+            if not at_goal and status is not None and status.in_motion == TriState.FALSE:
+                now = time.monotonic()
+                if stalled_since is None:
+                    stalled_since = now
+                elif now - stalled_since > self.stall_timeout:
+                    raise ExecutionAborted(
+                        f"the robot stands still {error:.4g} from the goal (in_motion FALSE for "
+                        f"{self.stall_timeout} s): the controller dropped or stopped the trajectory",
+                        confirmed,
+                    )
+            else:
+                stalled_since = None
 
 
 def _differences(trajectory: Trajectory) -> Array:

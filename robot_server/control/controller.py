@@ -498,6 +498,7 @@ class ControlLoop:
 
     controller: Controller
     clock: Clock
+    #: records controller ticks while set (it may be set and cleared while the loop runs)
     recorder: Recorder | None = None
     stats: LoopStats = field(default_factory=LoopStats)
     #: further controllers stepped in lockstep (other motion groups; same periods)
@@ -511,7 +512,7 @@ class ControlLoop:
 
     async def run(self, duration: float | None = None) -> LoopStats:
         """Run for ``duration`` seconds of controller time (None: until :meth:`stop`)."""
-        ctl, clock, recorder = self.controller, self.clock, self.recorder
+        ctl, clock = self.controller, self.clock
         period = ctl.config.interpolation_period
         sub = ctl.servo_ticks_per_interpolation
         origin = clock.now()
@@ -535,6 +536,7 @@ class ControlLoop:
                     stats.max_lateness = max(stats.max_lateness, lateness)
                     if lateness > period:
                         stats.overruns += 1
+                recorder = self.recorder  # may be attached or detached between wake-ups
                 for _ in range(sub):
                     tick = ctl.step()
                     if recorder is not None:

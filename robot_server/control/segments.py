@@ -361,7 +361,7 @@ class RuckigSegment(Segment):
         trajectory = ruckig.Trajectory(n)
         try:
             result = ruckig.Ruckig(n).calculate(inp, trajectory)
-        except RuntimeError as exc:  # ruckig raises for invalid input
+        except (RuntimeError, ruckig.RuckigError) as exc:  # ruckig raises for input it cannot plan
             raise PlanningError(f"ruckig: {exc}") from None
         if result not in (ruckig.Result.Working, ruckig.Result.Finished):
             raise PlanningError(f"ruckig could not plan this motion ({result.name})")

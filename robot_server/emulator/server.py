@@ -29,7 +29,7 @@ from simple_message.constants import Port
 from simple_message.endpoints import ReplyStyle, Server, Session
 from simple_message.wire import ByteOrder, WireFormat
 
-from ..control import ControllerConfig, ControlLoop, Policy, RealTimeClock
+from ..control import Clock, ControllerConfig, ControlLoop, Policy, RealTimeClock, SimulatedClock
 from ..loader import load_model
 from ..model import RobotModel
 from .cell import RobotCell
@@ -73,6 +73,11 @@ class EmulatorConfig:
     interpolation_period: float = 0.004
     servo_period: float = 0.001
     speedup: float = 1.0
+    #: run the controller on a simulated clock: as fast as the computer can (for tests and
+    #: experiments; the state topics still go out on wall-clock time). Stream points only
+    #: with care: time runs on while a client waits for replies, so a stream runs dry
+    #: between points; a download is queued whole and runs as planned.
+    simulated: bool = False
     #: points the controller queues (streaming); a full queue delays the generic reply
     queue_capacity: int = 64
     #: serve one link over this serial port (pyserial URL) as well
@@ -164,7 +169,7 @@ class Emulator:
             generic_state = GenericState(self.cell, feedback=config.feedback)
             generic_state.install(self.state_server)
             self._publish = generic_state.publish
-        self.clock = RealTimeClock(config.speedup)
+        self.clock: Clock = SimulatedClock() if config.simulated else RealTimeClock(config.speedup)
         self.control = ControlLoop(
             self.cell.groups[0], self.clock, others=self.cell.groups[1:], on_wake=self.cell.notify
         )
@@ -289,6 +294,8 @@ class Emulator:
             ports += f", serial {cfg.serial}"
         order = "auto-detected byte order" if cfg.byte_order == "auto" else f"{cfg.byte_order}-endian"
         timing = "real time" if cfg.speedup == 1.0 else f"{cfg.speedup:g}x real time"
+        if cfg.simulated:
+            timing = "simulated time"
         models = " + ".join(g.model.name for g in self.cell.groups)
         return (
             f"robot-server ready: {cfg.profile} profile, {models}, {ports}, {order} float{64 if cfg.float64 else 32}, "

@@ -1,0 +1,466 @@
+"""The paper's experiment (its Fig. 6): the flange traces the edges of a rectangle, planned as
+sparse Cartesian waypoints, executed under each interpolation policy of the controller.
+
+:func:`run_demo` plans the rectangle with :class:`~.planner.Planner` (straight lines through the
+corners, one waypoint every ``spacing`` metres, on one IK branch), then for each policy (``linear``
+= not interpolated, ``cubic``, ``quintic``, ``ruckig``) runs an embedded emulator with that policy
+on free loopback ports, drives the robot to the first corner with a joint move, and sends the
+rectangle's waypoints as JOINT_TRAJ_PT (streamed; downloaded on a simulated clock, where a stream
+would run dry between points). The emulator records every servo tick of the rectangle, and
+:func:`analyse` turns that record into one table row.
+
+If a controller already answers on the given ports, the rectangle runs there once instead (its
+interpolation is its own business) and the row is computed from the joint states it publishes.
+
+**The table** (all from the controller's record, or from the published joint states):
+
+* cycle time: from the first commanded motion until the robot is at the last corner for good
+  (every joint within 1 mrad of it from then on);
+* peak joint acceleration and jerk: finite differences of the commanded positions at the
+  interpolation instants (what the drives are asked to do, including a step's impulse);
+* acceleration discontinuities: events where some joint's acceleration changes, between two
+  interpolation instants, by more than its jerk limit allows in that time;
+* path deviation: the largest distance of the actual flange (forward kinematics of the actual
+  joint positions) from the rectangle's edges, in mm;
+* following error: the largest command - actual joint difference, in mrad.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import csv
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from robot_server.control import Policy, Recorder
+from robot_server.emulator import Emulator, EmulatorConfig
+from robot_server.kinematics import closed_form, fk, fk_batch
+from robot_server.loader import load_model
+from robot_server.model import RobotModel
+from simple_message.wire import DEFAULT_FORMAT, WireFormat
+
+from .driver import DriverError, Mode, Profile, RobotDriver
+from .planner import Motion, Planner, PlanningError, pose
+from .trajectory import Trajectory
+
+__all__ = ["DemoConfig", "DemoRow", "DemoResult", "analyse", "plan_rectangle", "run_demo", "format_table"]
+
+log = logging.getLogger(__name__)
+
+Array = NDArray[np.float64]
+
+#: where the rectangle's centre is: the flange pose at this configuration of the paper's robot (a
+#: tilted tool, well away from the wrist, shoulder and elbow singularities)
+CENTRE_CONFIGURATION = (0.0, 0.3, -0.2, 0.0, 0.9, 0.0)
+#: "arrived" for the cycle time: every joint this close to the goal (rad) from then on
+SETTLED_POSITION = 1e-3
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """What the demo does (SI units)."""
+
+    model: str = "jibot_zxs"
+    width: float = 0.16  # m, along the base y axis
+    height: float = 0.10  # m, along the base x axis
+    speed: float = 0.06  # m/s, the flange's top speed along an edge
+    acceleration: float = 0.5  # m/s^2
+    spacing: float = 0.025  # m between sparse waypoints
+    policies: tuple[Policy, ...] = (Policy.LINEAR, Policy.CUBIC, Policy.QUINTIC, Policy.RUCKIG)
+    output: Path = Path("demo-output")
+    #: embedded emulator: a simulated clock (as fast as possible) instead of real time
+    simulated: bool = False
+    speedup: float = 1.0
+    #: an external controller to try first (None: always the embedded emulator)
+    host: str | None = "127.0.0.1"
+    motion_port: int | None = None
+    state_port: int | None = None
+    profile: Profile = Profile.GENERIC
+    wire: WireFormat = DEFAULT_FORMAT
+    plot: bool = True
+
+
+@dataclass(frozen=True)
+class DemoRow:
+    policy: str
+    cycle_time: float  # s
+    peak_acceleration: float  # rad/s^2
+    peak_jerk: float  # rad/s^3
+    discontinuities: int
+    path_deviation: float  # m
+    following_error: float | None  # rad (None: not known from joint states alone)
+    source: str  # "controller record" or "joint states"
+
+
+@dataclass
+class DemoResult:
+    rows: list[DemoRow]
+    waypoints: Trajectory
+    files: list[Path] = field(default_factory=list)
+    figure: Path | None = None
+    external: str | None = None  # the controller used, if not the embedded emulator
+
+
+# -- planning ----------------------------------------------------------------------------------------
+
+
+def rectangle_corners(model: RobotModel, width: float, height: float) -> tuple[Array, Array]:
+    """The rectangle's five corners (back to the first) and the tool orientation."""
+    centre = fk(model, CENTRE_CONFIGURATION)
+    c = centre[:3, 3]
+    offsets = np.array(
+        [
+            (-height / 2, -width / 2, 0),
+            (height / 2, -width / 2, 0),
+            (height / 2, width / 2, 0),
+            (-height / 2, width / 2, 0),
+        ]
+    )
+    corners = c + np.vstack([offsets, offsets[:1]])
+    return corners, centre[:3, :3]
+
+
+def plan_rectangle(model: RobotModel, config: DemoConfig) -> tuple[Array, Motion, Array]:
+    """Start configuration (first corner), the planned rectangle, and its corners."""
+    ik = closed_form(model)
+    if ik is None:
+        raise PlanningError(f"the demo needs a model with closed-form IK; {model.name} has none")
+    corners, rotation = rectangle_corners(model, config.width, config.height)
+    first = ik.solve(pose(corners[0], rotation), CENTRE_CONFIGURATION)
+    if first is None:
+        raise PlanningError(f"{model.name} cannot reach the rectangle's first corner")
+    planner = _planner(model, config)
+    motion = planner.linear_moves(first.q, [pose(p, rotation) for p in corners[1:]])
+    return np.array(first.q), motion, corners
+
+
+def _planner(model: RobotModel, config: DemoConfig) -> Planner:
+    # a joint move is one segment; the scales leave room for a rest-to-rest quintic (peak speed
+    # 1.875 x the mean) over the time a jerk-limited profile takes
+    return Planner(
+        model,
+        velocity_scale=0.3,
+        acceleration_scale=0.3,
+        jerk_scale=0.3,
+        max_speed=config.speed,
+        max_acceleration=config.acceleration,
+        waypoint_spacing=config.spacing,
+        joint_spacing=2 * math.pi,
+    )
+
+
+# -- analysis ----------------------------------------------------------------------------------------
+
+
+def distance_to_path(points: Array, corners: Array) -> Array:
+    """Distance of each point ``(N, 3)`` from the polyline through ``corners``."""
+    a, b = corners[:-1], corners[1:]
+    d = b - a
+    best = np.full(points.shape[0], np.inf)
+    for k in range(a.shape[0]):
+        rel = points - a[k]
+        u = np.clip(rel @ d[k] / float(d[k] @ d[k]), 0.0, 1.0)
+        best = np.minimum(best, np.linalg.norm(rel - u[:, None] * d[k], axis=1))
+    return best
+
+
+def analyse(
+    policy: str,
+    model: RobotModel,
+    corners: Array,
+    *,
+    times: Array,
+    command: Array,
+    actual: Array,
+    following_error: Array | None,
+    source: str = "controller record",
+) -> DemoRow:
+    """One table row from a record: ``times`` (s) at a constant period, ``command`` and ``actual``
+    joint positions ``(N, dof)`` (the command at the controller's interpolation instants)."""
+    if times.size < 4:
+        raise ValueError("the record is too short to analyse")
+    dt = float(np.median(np.diff(times)))
+    goal = command[-1]
+    moved = np.flatnonzero(np.max(np.abs(command - command[0]), axis=1) > 1e-9)
+    start = times[moved[0] - 1] if moved.size and moved[0] > 0 else times[0]
+    unsettled = np.max(np.abs(actual - goal), axis=1) > SETTLED_POSITION
+    late = np.flatnonzero(unsettled)
+    end = times[min(late[-1] + 1, times.size - 1)] if late.size else times[0]
+    velocity = np.diff(command, axis=0) / dt
+    acceleration = np.diff(velocity, axis=0) / dt
+    jerk = np.diff(acceleration, axis=0) / dt
+    jumps = np.any(np.abs(np.diff(acceleration, axis=0)) > model.max_jerk * dt * (1 + 1e-6), axis=1)
+    # one discontinuity is a run of consecutive jumps (an impulse shows up as two)
+    events = int(np.count_nonzero(jumps[1:] & ~jumps[:-1]) + (1 if jumps.size and jumps[0] else 0))
+    flange = fk_batch(model, actual)[:, :3, 3]
+    return DemoRow(
+        policy=policy,
+        cycle_time=float(end - start),
+        peak_acceleration=float(np.max(np.abs(acceleration))),
+        peak_jerk=float(np.max(np.abs(jerk))) if jerk.size else 0.0,
+        discontinuities=events,
+        path_deviation=float(np.max(distance_to_path(flange, corners))),
+        following_error=None if following_error is None else float(np.max(np.abs(following_error))),
+        source=source,
+    )
+
+
+def _interpolation_rows(record: Recorder, servo_period: float, ticks_per_interpolation: int) -> NDArray[np.bool_]:
+    index = np.rint(record.time() / servo_period).astype(np.int64)
+    rows: NDArray[np.bool_] = index % ticks_per_interpolation == 0
+    return rows
+
+
+def format_table(rows: Sequence[DemoRow]) -> str:
+    """The table as aligned text."""
+    header = (
+        "policy",
+        "cycle time (s)",
+        "peak acc (rad/s²)",
+        "peak jerk (rad/s³)",
+        "acc discontinuities",
+        "path deviation (mm)",
+        "following error (mrad)",
+    )
+    lines = [
+        (
+            r.policy,
+            f"{r.cycle_time:.3f}",
+            f"{r.peak_acceleration:.2f}",
+            f"{r.peak_jerk:.1f}",
+            str(r.discontinuities),
+            f"{r.path_deviation * 1000:.3f}",
+            "n/a" if r.following_error is None else f"{r.following_error * 1000:.3f}",
+        )
+        for r in rows
+    ]
+    widths = [max(len(h), *(len(line[i]) for line in lines)) for i, h in enumerate(header)]
+    out = ["  ".join(h.rjust(w) if i else h.ljust(w) for i, (h, w) in enumerate(zip(header, widths, strict=True)))]
+    out += [
+        "  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(line, widths, strict=True)))
+        for line in lines
+    ]
+    return "\n".join(out)
+
+
+# -- running -----------------------------------------------------------------------------------------
+
+
+async def _approach(driver: RobotDriver, planner: Planner, start: Array, mode: Mode) -> None:
+    state = await driver.wait_state()
+    here = np.clip(state.positions, planner.model.lower, planner.model.upper)
+    if float(np.max(np.abs(here - start))) <= 1e-4:
+        return
+    # one segment: the controller joins points rest to rest, so a joint move's intermediate
+    # points would only make it stop and go
+    await driver.execute(planner.joint_move(here, start).sparse(), mode)
+
+
+@dataclass(frozen=True)
+class _Plan:
+    model: RobotModel
+    start: Array  # the first corner's configuration
+    waypoints: Trajectory
+    corners: Array
+
+
+async def _embedded_run(config: DemoConfig, plan: _Plan, policy: Policy) -> tuple[DemoRow, Recorder]:
+    model, waypoints = plan.model, plan.waypoints
+    emulator_config = EmulatorConfig(
+        models=(config.model,),
+        motion_port=0,
+        state_port=0,
+        interpolation=policy,
+        simulated=config.simulated,
+        speedup=config.speedup,
+        state_rate=100.0,
+    )
+    mode = Mode.DOWNLOAD if config.simulated else Mode.STREAM
+    async with Emulator(emulator_config, [model]) as emu:
+        driver = RobotDriver(
+            "127.0.0.1",
+            emu.ports["motion"],
+            emu.ports["state"],
+            model=model,
+            goal_tolerance=SETTLED_POSITION,
+            watchdog=2.0,
+        )
+        async with driver:
+            await _approach(driver, _planner(model, config), plan.start, mode)
+            controller = emu.cell.groups[0]
+            ticks = round((waypoints.duration + 30.0) / controller.config.servo_period)
+            record = Recorder(model.dof, capacity=ticks)
+            emu.control.recorder = record
+            try:
+                await driver.execute(waypoints, mode)
+                # let the record reach the settled robot (the goal is seen a state period late at most)
+                await emu.wait_until(lambda: not controller.in_motion, 10.0)
+            finally:
+                emu.control.recorder = None
+    rows = _interpolation_rows(record, controller.config.servo_period, controller.servo_ticks_per_interpolation)
+    row = analyse(
+        policy.value,
+        plan.model,
+        plan.corners,
+        times=record.time()[rows],
+        command=record.get("command_position")[rows],
+        actual=record.get("actual_position")[rows],
+        following_error=record.get("following_error"),
+    )
+    return row, record
+
+
+async def _external_run(driver: RobotDriver, config: DemoConfig, plan: _Plan) -> tuple[DemoRow, Array, Array]:
+    await _approach(driver, _planner(plan.model, config), plan.start, Mode.STREAM)
+    times: list[float] = []
+    positions: list[Array] = []
+
+    async def watch() -> None:
+        async for state in driver.states():
+            times.append(state.received)
+            positions.append(state.positions)
+
+    watcher = asyncio.get_running_loop().create_task(watch())
+    try:
+        await driver.execute(plan.waypoints, Mode.STREAM)
+    finally:
+        watcher.cancel()
+        with contextlib.suppress(asyncio.CancelledError, DriverError):
+            await watcher
+    t = np.array(times) - times[0]
+    q = np.array(positions)
+    row = analyse(
+        "controller's own",
+        plan.model,
+        plan.corners,
+        times=t,
+        command=q,
+        actual=q,
+        following_error=None,
+        source="joint states",
+    )
+    return row, t, q
+
+
+async def _probe(config: DemoConfig, model: RobotModel) -> RobotDriver | None:
+    if config.host is None:
+        return None
+    driver = RobotDriver(
+        config.host,
+        config.motion_port,
+        config.state_port,
+        profile=config.profile,
+        wire=config.wire,
+        model=model,
+        goal_tolerance=SETTLED_POSITION * 5,
+    )
+    try:
+        await driver.connect(timeout=1.0)
+    except DriverError as exc:
+        log.info("no controller at %s (%s): using the embedded emulator", config.host, exc)
+        return None
+    return driver
+
+
+async def run_demo(config: DemoConfig, progress: Callable[[str], None] = print) -> DemoResult:
+    """Plan and run the experiment (see the module doc); writes CSV files (and a figure)."""
+    model = load_model(config.model)
+    start, motion, corners = plan_rectangle(model, config)
+    waypoints = motion.sparse()
+    plan = _Plan(model, start, waypoints, corners)
+    out = Path(config.output)
+    result = DemoResult([], waypoints)
+    result.files.append(_save_waypoints(out, waypoints))
+    perimeter = 2 * (config.width + config.height)
+    progress(
+        f"rectangle {config.width * 1000:g} x {config.height * 1000:g} mm on {model.name}: {len(waypoints)} waypoints "
+        f"every {config.spacing * 1000:g} mm along {perimeter * 1000:g} mm, {waypoints.duration:.2f} s as planned"
+    )
+    external = await _probe(config, model)
+    if external is not None:
+        result.external = f"{external.host}:{external.motion_port}"
+        progress(f"a controller answers at {result.external}: running the rectangle there")
+        async with contextlib.AsyncExitStack() as stack:
+            stack.push_async_callback(external.close)
+            row, t, q = await _external_run(external, config, plan)
+        result.rows.append(row)
+        trace = out / "demo_controller.csv"
+        _save_states(trace, t, q, model.joint_names)
+        result.files.append(trace)
+        return result
+    records: dict[str, Recorder] = {}
+    for policy in config.policies:
+        clock = (
+            "simulated clock" if config.simulated else ("real time" if config.speedup == 1 else f"{config.speedup:g}x")
+        )
+        progress(f"{policy.value}: embedded emulator ({clock}) ...")
+        begun = time.perf_counter()
+        row, record = await _embedded_run(config, plan, policy)
+        result.rows.append(row)
+        records[policy.value] = record
+        trace = out / f"demo_{policy.value}.csv"
+        record.to_csv(trace, model.joint_names)
+        result.files.append(trace)
+        progress(f"{policy.value}: done in {time.perf_counter() - begun:.1f} s, trace {trace}")
+    if config.plot:
+        result.figure = _figure(records, waypoints, model, out)
+    return result
+
+
+def _save_waypoints(out: Path, waypoints: Trajectory) -> Path:
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "demo_waypoints.csv"
+    waypoints.save(path)
+    return path
+
+
+def _save_states(path: Path, times: Array, positions: Array, names: Sequence[str]) -> None:
+    with open(path, "w", newline="") as stream:
+        writer = csv.writer(stream)
+        writer.writerow(["time", *names])
+        for t, q in zip(times.tolist(), positions.tolist(), strict=True):
+            writer.writerow([repr(t), *(repr(x) for x in q)])
+
+
+def _figure(records: dict[str, Recorder], waypoints: Trajectory, model: RobotModel, out: Path) -> Path | None:
+    """Fig. 6 of the paper: one joint before (linear, not interpolated) and after (quintic)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    before, after = records.get("linear"), records.get("quintic")
+    if before is None or after is None:
+        return None
+    joint = int(np.argmax(np.ptp(waypoints.positions, axis=0)))
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(8, 8))
+    for label, record in (("before interpolation (linear)", before), ("after interpolation (quintic)", after)):
+        t = record.time() - record.time()[0]
+        for ax, quantity in zip(axes, ("command_position", "command_velocity", "command_acceleration"), strict=True):
+            values = record.get(quantity)[:, joint]
+            if quantity != "command_position":  # the drive's view: differences of the commanded positions
+                p = record.get("command_position")[:, joint]
+                dt = float(np.median(np.diff(t)))
+                values = np.gradient(p, dt) if quantity == "command_velocity" else np.gradient(np.gradient(p, dt), dt)
+            ax.plot(t, values, label=label, linewidth=0.8)
+    for ax, unit in zip(axes, ("position (rad)", "velocity (rad/s)", "acceleration (rad/s²)"), strict=True):
+        ax.set_ylabel(unit)
+        ax.grid(True, alpha=0.3)
+    axes[0].plot(waypoints.times, waypoints.positions[:, joint], "k.", label="waypoints")
+    axes[0].legend(loc="best", fontsize=8)
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle(f"{model.joint_names[joint]} tracing the rectangle, before and after interpolation")
+    path = out / "demo_fig6.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
