@@ -261,7 +261,7 @@ async def _approach(driver: RobotDriver, planner: Planner, start: Array, mode: M
         return
     # one segment: the controller joins points rest to rest, so a joint move's intermediate
     # points would only make it stop and go
-    await driver.execute(planner.joint_move(here, start).sparse(), mode)
+    await driver.execute(planner.joint_move(here, start).sparse(rest_to_rest=True), mode)
 
 
 @dataclass(frozen=True)

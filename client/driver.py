@@ -132,6 +132,7 @@ class RobotDriver:
         path_tolerance: float | None = None,
         goal_timeout: float = 60.0,
         stall_timeout: float = 1.0,
+        serial: str | None = None,
     ) -> None:
         self.profile = Profile(profile)
         motoros = self.profile is Profile.MOTOROS
@@ -147,10 +148,17 @@ class RobotDriver:
         self.goal_timeout = goal_timeout
         self.stall_timeout = stall_timeout
         policy = ReconnectPolicy(initial_delay=0.1, max_delay=2.0)
-        self.motion = Client.tcp(
-            host, self.motion_port, wire, reconnect=policy, name=f"motion {host}:{self.motion_port}"
-        )
-        self.state = Client.tcp(host, self.state_port, wire, reconnect=policy, name=f"state {host}:{self.state_port}")
+        self.serial = serial
+        if serial is not None:  # one link carries motion and state (robot-server --serial)
+            self.motion = Client.serial(serial, wire, reconnect=policy, name=f"link {serial}")
+            self.state = self.motion
+        else:
+            self.motion = Client.tcp(
+                host, self.motion_port, wire, reconnect=policy, name=f"motion {host}:{self.motion_port}"
+            )
+            self.state = Client.tcp(
+                host, self.state_port, wire, reconnect=policy, name=f"state {host}:{self.state_port}"
+            )
         self._latest: JointState | None = None
         self._status: Status | None = None
         self._changed = asyncio.Event()
@@ -161,14 +169,13 @@ class RobotDriver:
     async def connect(self, timeout: float = 10.0) -> RobotDriver:
         """Connect both ports and wait for the first joint state."""
         try:
-            await self.motion.start(timeout)
             subscription = self.state.subscribe(64, (MsgType.JOINT_POSITION, MsgType.JOINT_FEEDBACK, MsgType.STATUS))
-            await self.state.start(timeout)
+            await self.motion.start(timeout)
+            if self.state is not self.motion:
+                await self.state.start(timeout)
         except (TimeoutError, ConnectionClosed, OSError) as exc:
             await self.close()
-            raise DriverError(
-                f"cannot connect to {self.host} ports {self.motion_port}/{self.state_port}: {exc}"
-            ) from None
+            raise DriverError(f"cannot connect to {self.address}: {exc or 'timed out'}") from None
         self._reader = asyncio.get_running_loop().create_task(self._read_state(subscription), name="driver state")
         await self.wait_state(timeout)
         return self
@@ -179,7 +186,14 @@ class RobotDriver:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._reader
         await self.motion.close()
-        await self.state.close()
+        if self.state is not self.motion:
+            await self.state.close()
+
+    @property
+    def address(self) -> str:
+        if self.serial is not None:
+            return self.serial
+        return f"{self.host} ports {self.motion_port}/{self.state_port}"
 
     async def __aenter__(self) -> RobotDriver:
         return await self.connect()
@@ -226,7 +240,7 @@ class RobotDriver:
                     if self._latest is not None and self._status is not None:
                         return self._latest
         except TimeoutError:
-            raise DriverError(f"no joint state and STATUS from {self.host}:{self.state_port}") from None
+            raise DriverError(f"no joint state and STATUS from {self.address}") from None
 
     async def states(self) -> AsyncIterator[JointState]:
         """Every joint state as it arrives (raises DriverError when none comes for the watchdog period)."""

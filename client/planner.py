@@ -47,6 +47,10 @@ Array = NDArray[np.float64]
 
 #: how often a piece's limits are checked after planning (s)
 _CHECK_DT = 0.002
+#: a rest-to-rest segment's peak speed and acceleration over D/T and D/T^2 (the worse of the cubic's
+#: and the quintic's: 1.875 and 6)
+_REST_SPEED = 1.875
+_REST_ACCELERATION = 6.0
 #: how many times a piece is slowed down before giving up
 _RETRIES = 12
 
@@ -178,11 +182,16 @@ class _Piece:
 class Motion:
     """A planned, time-parameterized joint motion: pieces one after the other, at rest between."""
 
-    def __init__(self, pieces: Sequence[_Piece], joint_names: Sequence[str]) -> None:
+    def __init__(
+        self, pieces: Sequence[_Piece], joint_names: Sequence[str], velocity: Array, acceleration: Array
+    ) -> None:
         if not pieces:
             raise PlanningError("a motion needs at least one piece")
         self._pieces = list(pieces)
         self.joint_names = tuple(joint_names)
+        #: the joint limits it was planned within
+        self.velocity = velocity
+        self.acceleration = acceleration
 
     @property
     def duration(self) -> float:
@@ -211,13 +220,27 @@ class Motion:
                     out[k][mask] = values
         return out[0], out[1], out[2]
 
-    def sparse(self) -> Trajectory:
+    def sparse(self, rest_to_rest: bool = False) -> Trajectory:
         """The knots (Cartesian waypoints, or a joint move's few points) with times, velocities and
-        accelerations: what a planner hands to a controller."""
+        accelerations: what a planner hands to a controller.
+
+        With ``rest_to_rest`` the knots are retimed for a controller that joins points at rest
+        (JOINT_TRAJ_PT, simple-message.md §4.3): each segment lasts at least as long as a
+        rest-to-rest cubic or quintic needs to stay within the planner's velocity and acceleration
+        limits, and the points carry no velocities (the controller would not use them)."""
         times = [0.0]
         for piece in self._pieces:
             times.extend((piece.start + piece.knot_times()[1:]).tolist())
-        return self._trajectory(np.array(times))
+        trajectory = self._trajectory(np.array(times))
+        if not rest_to_rest or len(trajectory) < 2:
+            return trajectory
+        distance = np.abs(np.diff(trajectory.positions, axis=0))
+        needed = np.maximum(
+            _REST_SPEED * distance / self.velocity, np.sqrt(_REST_ACCELERATION * distance / self.acceleration)
+        ).max(axis=1)
+        durations = np.maximum(np.diff(trajectory.times), needed)
+        retimed = np.concatenate([[0.0], np.cumsum(durations)])
+        return Trajectory(retimed, trajectory.positions, None, None, self.joint_names)
 
     def dense(self, dt: float = 0.01) -> Trajectory:
         """Samples every ``dt`` seconds (and at the end)."""
@@ -296,7 +319,7 @@ class Planner:
     def joint_move(self, start: ArrayLike, goal: ArrayLike) -> Motion:
         """A straight line in joint space from ``start`` to ``goal``, at rest at both ends."""
         q0, q1 = self._configuration(start, "start"), self._configuration(goal, "goal")
-        return Motion([self._joint_piece(q0, q1, 0.0)], self.model.joint_names)
+        return self._motion([self._joint_piece(q0, q1, 0.0)])
 
     def linear_moves(self, start: ArrayLike, poses: Sequence[ArrayLike]) -> Motion:
         """Straight flange lines from the pose at ``start`` through each of ``poses`` in turn,
@@ -321,7 +344,7 @@ class Planner:
             q, current = piece.q[-1], goal
         if not pieces:
             raise PlanningError("linear_moves needs at least one pose")
-        return Motion(pieces, self.model.joint_names)
+        return self._motion(pieces)
 
     def then(self, first: Motion, second: Motion) -> Motion:
         """``second`` after ``first`` (it must start where ``first`` ends)."""
@@ -329,9 +352,12 @@ class Planner:
         if gap > 1e-9:
             raise PlanningError(f"the second motion starts {gap:.3g} rad away from where the first ends")
         shifted = [_shift(p, first.duration) for p in second._pieces]
-        return Motion([*first._pieces, *shifted], self.model.joint_names)
+        return self._motion([*first._pieces, *shifted])
 
     # -- pieces ------------------------------------------------------------------------------------
+
+    def _motion(self, pieces: Sequence[_Piece]) -> Motion:
+        return Motion(pieces, self.model.joint_names, self.velocity, self.acceleration)
 
     def _configuration(self, q: ArrayLike, what: str) -> Array:
         values = np.asarray(q, dtype=float).reshape(-1)

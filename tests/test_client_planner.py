@@ -182,3 +182,20 @@ def test_quaternions_round_trip_and_slerp() -> None:
     b = rotation_to_quaternion(quaternion_to_rotation([np.cos(0.5), 0, 0, np.sin(0.5)]))
     half = quaternion_to_rotation(slerp(a, b, 0.5))
     assert np.allclose(half, quaternion_to_rotation([np.cos(0.25), 0, 0, np.sin(0.25)]), atol=1e-12)
+
+
+def test_rest_to_rest_retiming_keeps_every_segment_within_the_limits() -> None:
+    start, poses, _ = rectangle()
+    planner = Planner(MODEL, velocity_scale=0.3, acceleration_scale=0.3, max_speed=0.25, max_acceleration=2.0)
+    motion = planner.linear_moves(start, poses)
+    plain, retimed = motion.sparse(), motion.sparse(rest_to_rest=True)
+    assert np.array_equal(plain.positions, retimed.positions)
+    assert retimed.velocities is None and retimed.accelerations is None
+    d = np.abs(np.diff(retimed.positions, axis=0))
+    t = np.diff(retimed.times)[:, None]
+    # a rest-to-rest cubic (peak 1.5 D/T, 6 D/T^2) and quintic (1.875 D/T, 5.77 D/T^2) both fit
+    assert np.all(1.875 * d / t <= 0.3 * MODEL.max_velocity * (1 + 1e-9))
+    assert np.all(6.0 * d / t**2 <= 0.3 * MODEL.max_acceleration * (1 + 1e-9))
+    # fast enough for the continuous profile, too fast for stopping at every point: retimed longer
+    assert np.all(np.diff(retimed.times) >= np.diff(plain.times) - 1e-12)
+    assert retimed.duration > plain.duration

@@ -1,0 +1,7 @@
+"""``python -m client``: the ``robot-client`` command."""
+
+import sys
+
+from .cli import main
+
+sys.exit(main())

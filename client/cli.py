@@ -1,0 +1,393 @@
+"""``robot-client`` (also ``python -m client``): drive a simple_message controller from the shell.
+
+Commands: ``ping``, ``status``, ``monitor``, ``move``, ``run FILE``, ``stop``, ``record FILE`` and
+``demo`` (the paper's experiment; it starts an embedded emulator when no controller answers).
+Angles in radians, lengths in metres. Exit status 0 on success, 1 when the robot or controller
+failed (with one line saying why on stderr), 2 for bad arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import csv
+import json
+import logging
+import math
+import sys
+import time
+from collections.abc import Awaitable, Callable, Sequence
+from pathlib import Path
+from typing import TextIO
+
+import numpy as np
+
+from robot_server.control import Policy
+from robot_server.kinematics import fk
+from robot_server.loader import load_model, shipped_models
+from robot_server.model import ModelError, RobotModel, rpy_matrix
+from simple_message.constants import RobotMode, TriState
+from simple_message.errors import SimpleMessageError
+from simple_message.messages import Status
+from simple_message.wire import ByteOrder, WireFormat
+
+from .demo import DemoConfig, format_table, run_demo
+from .driver import DriverError, JointState, Mode, Profile, RobotDriver
+from .planner import Planner, PlanningError, pose
+from .trajectory import Trajectory, TrajectoryError
+
+__all__ = ["main", "parser"]
+
+log = logging.getLogger("client.cli")
+
+
+class CommandError(Exception):
+    """A failure to report in one line (exit status 1)."""
+
+
+def _positive(text: str) -> float:
+    value = float(text)
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f"must be > 0, not {text}")
+    return value
+
+
+def _port(text: str) -> int:
+    value = int(text)
+    if not 1 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is 1..65535, not {text}")
+    return value
+
+
+def parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--host", default="127.0.0.1", help="controller address (default 127.0.0.1)")
+    common.add_argument("--motion-port", type=_port, help="default 11000 (generic) or 50240 (motoros)")
+    common.add_argument("--state-port", type=_port, help="default 11002 (generic) or 50241 (motoros)")
+    common.add_argument("--profile", choices=[p.value for p in Profile], default=Profile.GENERIC.value)
+    common.add_argument("--byte-order", choices=("little", "big"), default="little")
+    common.add_argument("--float64", action="store_true", help="8-byte reals (the FLOAT64 build)")
+    common.add_argument("--serial", metavar="URL", help="one serial link for motion and state (pyserial URL)")
+    common.add_argument(
+        "--model", default="jibot_zxs", metavar="NAME|PATH", help=f"robot model ({', '.join(shipped_models())})"
+    )
+    common.add_argument("--timeout", type=_positive, default=5.0, metavar="SECONDS", help="connect and reply timeout")
+    common.add_argument("--log-level", default="WARNING", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+
+    p = argparse.ArgumentParser(
+        prog="robot-client",
+        description="Drive a robot controller (or the emulator) over ROS-Industrial simple_message.",
+        epilog="Angles in radians, lengths in metres. Run 'robot-client COMMAND -h' for a command's options.",
+    )
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    ping = sub.add_parser("ping", parents=[common], help="round-trip time of PING requests")
+    ping.add_argument("--count", type=int, default=5)
+    sub.add_parser("status", parents=[common], help="print the joint state and STATUS once (JSON)")
+    monitor = sub.add_parser("monitor", parents=[common], help="live joint state and STATUS, with rates")
+    monitor.add_argument("--duration", type=_positive, help="seconds (default: until Ctrl-C)")
+    move = sub.add_parser("move", parents=[common], help="move to a joint configuration or a Cartesian pose")
+    target = move.add_mutually_exclusive_group(required=True)
+    target.add_argument("--joints", type=float, nargs="+", metavar="Q", help="joint values (rad)")
+    target.add_argument(
+        "--pose",
+        type=float,
+        nargs="+",
+        metavar="V",
+        help="flange X Y Z (m) [ROLL PITCH YAW] (rad); a straight line, keeping the orientation if none given",
+    )
+    move.add_argument("--speed", type=float, default=0.3, help="share of the joint limits (0..1, default 0.3)")
+    move.add_argument("--mode", choices=[m.value for m in Mode], default=Mode.STREAM.value)
+    run = sub.add_parser("run", parents=[common], help="execute a trajectory file (.csv or .json)")
+    run.add_argument("file", type=Path)
+    run.add_argument("--mode", choices=[m.value for m in Mode], default=Mode.STREAM.value)
+    sub.add_parser("stop", parents=[common], help="stop the robot now")
+    record = sub.add_parser("record", parents=[common], help="record the joint states to a CSV file")
+    record.add_argument("file", type=Path)
+    record.add_argument("--duration", type=_positive, help="seconds (default: until Ctrl-C)")
+    demo = sub.add_parser("demo", parents=[common], help="the paper's experiment: a rectangle under each policy")
+    demo.add_argument("--output", type=Path, default=Path("demo-output"), help="directory for CSV traces and figure")
+    demo.add_argument("--short", action="store_true", help="a small rectangle (quick)")
+    demo.add_argument("--simulated", action="store_true", help="embedded emulator on a simulated clock (fastest)")
+    demo.add_argument("--speedup", type=_positive, default=1.0, help="embedded emulator faster than real time")
+    demo.add_argument("--embedded", action="store_true", help="do not look for a controller first")
+    demo.add_argument(
+        "--policies", nargs="+", choices=[x.value for x in Policy], default=[x.value for x in Policy], metavar="POLICY"
+    )
+    demo.add_argument("--no-plot", action="store_true", help="no figure even if matplotlib is installed")
+    return p
+
+
+# -- commands -----------------------------------------------------------------------------------------
+
+
+def _wire(args: argparse.Namespace) -> WireFormat:
+    return WireFormat(ByteOrder.BIG if args.byte_order == "big" else ByteOrder.LITTLE, 8 if args.float64 else 4)
+
+
+def _driver(args: argparse.Namespace, model: RobotModel) -> RobotDriver:
+    return RobotDriver(
+        args.host,
+        args.motion_port,
+        args.state_port,
+        profile=args.profile,
+        wire=_wire(args),
+        model=model,
+        reply_timeout=args.timeout,
+        serial=args.serial,
+    )
+
+
+def _name(kind: type[TriState] | type[RobotMode], value: int) -> str:
+    try:
+        return kind(value).name
+    except ValueError:  # a value outside the enumeration: show it as it came
+        return str(value)
+
+
+def _status_dict(status: Status | None) -> dict[str, object] | None:
+    if status is None:
+        return None
+    return {
+        "drives_powered": _name(TriState, status.drives_powered),
+        "e_stopped": _name(TriState, status.e_stopped),
+        "error_code": status.error_code,
+        "in_error": _name(TriState, status.in_error),
+        "in_motion": _name(TriState, status.in_motion),
+        "mode": _name(RobotMode, status.mode),
+        "motion_possible": _name(TriState, status.motion_possible),
+    }
+
+
+def _state_dict(state: JointState) -> dict[str, object]:
+    out: dict[str, object] = {"positions": [round(x, 6) for x in state.positions.tolist()]}
+    if state.velocities is not None:
+        out["velocities"] = [round(x, 6) for x in state.velocities.tolist()]
+    out["status"] = _status_dict(state.status)
+    return out
+
+
+async def _ping(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
+    times = [await driver.ping() for _ in range(max(1, args.count))]
+    for i, t in enumerate(times):
+        print(f"PING {i + 1}: {t * 1000:.3f} ms", file=out)
+    print(
+        f"{len(times)} replies, min/median/max {min(times) * 1000:.3f}/{np.median(times) * 1000:.3f}/"
+        f"{max(times) * 1000:.3f} ms",
+        file=out,
+    )
+
+
+async def _status(driver: RobotDriver, _args: argparse.Namespace, out: TextIO) -> None:
+    state = await driver.wait_state()
+    print(json.dumps(_state_dict(state)), file=out)
+
+
+async def _for(seconds: float | None, body: Callable[[], Awaitable[None]]) -> None:
+    with contextlib.suppress(TimeoutError):
+        async with asyncio.timeout(seconds):
+            await body()
+
+
+async def _monitor(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
+    count, window = 0, time.monotonic()
+
+    async def body() -> None:
+        nonlocal count, window
+        async for state in driver.states():
+            count += 1
+            now = time.monotonic()
+            if now - window >= 1.0:
+                rate = count / (now - window)
+                status = _status_dict(state.status) or {}
+                q = " ".join(f"{x:+.4f}" for x in state.positions.tolist())
+                print(
+                    f"{rate:6.1f} Hz  q=[{q}]  in_motion={status.get('in_motion')} in_error={status.get('in_error')}"
+                    f" e_stopped={status.get('e_stopped')} drives={status.get('drives_powered')}",
+                    file=out,
+                    flush=True,
+                )
+                count, window = 0, now
+
+    await _for(args.duration, body)
+
+
+async def _record(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
+    names = driver.model.joint_names if driver.model is not None else ()
+    rows: list[list[str]] = []
+    origin = time.monotonic()
+
+    async def body() -> None:
+        async for state in driver.states():
+            row = [repr(state.received - origin), *(repr(x) for x in state.positions.tolist())]
+            if state.velocities is not None:
+                row += [repr(x) for x in state.velocities.tolist()]
+            rows.append(row)
+
+    try:
+        await _for(args.duration, body)
+    finally:
+        _write_record(args.file, names, rows)
+        print(f"{len(rows)} joint states written to {args.file}", file=out)
+
+
+def _write_record(path: Path, names: Sequence[str], rows: list[list[str]]) -> None:
+    width = max((len(r) for r in rows), default=1 + len(names))
+    header = ["time", *(f"position_{n}" for n in names)]
+    if width > len(header):
+        header += [f"velocity_{n}" for n in names][: width - len(header)]
+    with open(path, "w", newline="") as stream:
+        writer = csv.writer(stream)
+        writer.writerow(header)
+        writer.writerows(rows)
+
+
+async def _execute(driver: RobotDriver, trajectory: Trajectory, mode: str, out: TextIO) -> None:
+    """Run a trajectory with a progress line (on a terminal) and a final report."""
+    total = trajectory.duration
+    start = time.monotonic()
+    goal = trajectory.positions[-1]
+
+    async def progress() -> None:
+        async for state in driver.states():
+            elapsed = time.monotonic() - start
+            share = min(1.0, elapsed / total) if total > 0 else 1.0
+            error = float(np.max(np.abs(state.positions[: goal.size] - goal)))
+            bar = "#" * int(share * 30)
+            out.write(f"\r[{bar:<30}] {elapsed:6.2f}/{total:.2f} s  {error:.4f} rad from goal")
+            out.flush()
+
+    shown = out.isatty()
+    task = asyncio.get_running_loop().create_task(progress()) if shown else None
+    try:
+        final = await driver.execute(trajectory, mode)
+    finally:
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, DriverError):
+                await task
+            out.write("\n")
+    error = float(np.max(np.abs(final.positions[: goal.size] - goal)))
+    print(
+        f"done: {len(trajectory)} points in {time.monotonic() - start:.2f} s (planned {total:.2f} s), "
+        f"{error:.2e} rad from the goal",
+        file=out,
+    )
+
+
+async def _move(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
+    model = driver.model
+    assert model is not None
+    if not 0.0 < args.speed <= 1.0:
+        raise CommandError(f"--speed must be in (0, 1], not {args.speed}")
+    here = (await driver.wait_state()).positions[: model.dof]
+    here = np.clip(here, model.lower, model.upper)
+    planner = Planner(
+        model,
+        velocity_scale=args.speed,
+        acceleration_scale=args.speed,
+        jerk_scale=args.speed,
+        joint_spacing=2 * math.pi,  # JOINT_TRAJ_PT points are joined at rest: one segment
+    )
+    if args.joints is not None:
+        if len(args.joints) != model.dof:
+            raise CommandError(f"--joints needs {model.dof} values for {model.name}, not {len(args.joints)}")
+        motion = planner.joint_move(here, args.joints)
+    else:
+        values = args.pose
+        if len(values) not in (3, 6):
+            raise CommandError("--pose takes X Y Z or X Y Z ROLL PITCH YAW")
+        rotation = fk(model, here)[:3, :3] if len(values) == 3 else rpy_matrix(*values[3:])
+        motion = planner.linear_moves(here, [pose(values[:3], rotation)])
+    # the generic profile sends JOINT_TRAJ_PT, which controllers join at rest
+    await _execute(driver, motion.sparse(rest_to_rest=driver.profile is Profile.GENERIC), args.mode, out)
+
+
+async def _run(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
+    try:
+        trajectory = Trajectory.load(args.file)
+    except (TrajectoryError, OSError) as exc:
+        raise CommandError(str(exc)) from None
+    await _execute(driver, trajectory, args.mode, out)
+
+
+async def _stop(driver: RobotDriver, _args: argparse.Namespace, out: TextIO) -> None:
+    await driver.stop()
+    print("stopped", file=out)
+
+
+_COMMANDS = {
+    "ping": _ping,
+    "status": _status,
+    "monitor": _monitor,
+    "move": _move,
+    "run": _run,
+    "stop": _stop,
+    "record": _record,
+}
+
+
+async def _with_driver(args: argparse.Namespace, model: RobotModel, out: TextIO) -> None:
+    driver = _driver(args, model)
+    await driver.connect(args.timeout)
+    try:
+        await _COMMANDS[args.command](driver, args, out)
+    finally:
+        await driver.close()
+
+
+async def _demo(args: argparse.Namespace, out: TextIO) -> None:
+    size = {"width": 0.06, "height": 0.04} if args.short else {}
+    config = DemoConfig(
+        model=args.model,
+        output=args.output,
+        simulated=args.simulated,
+        speedup=args.speedup,
+        host=None if args.embedded else args.host,
+        motion_port=args.motion_port,
+        state_port=args.state_port,
+        profile=Profile(args.profile),
+        wire=_wire(args),
+        policies=tuple(Policy(p) for p in args.policies),
+        plot=not args.no_plot,
+        **size,
+    )
+    result = await run_demo(config, progress=lambda line: print(line, file=out, flush=True))
+    print(file=out)
+    print(format_table(result.rows), file=out)
+    print(file=out)
+    print(f"traces: {', '.join(str(f) for f in result.files)}", file=out)
+    if result.figure is not None:
+        print(f"figure: {result.figure}", file=out)
+    elif config.plot and result.external is None:
+        print("figure: not drawn (install the plot extra: pip install 'simple-message-stack[plot]')", file=out)
+
+
+def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
+    args = parser().parse_args(argv)
+    stream = out if out is not None else sys.stdout
+    logging.basicConfig(
+        level=args.log_level, stream=sys.stderr, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    if args.serial is not None and args.command == "demo":
+        print(
+            "robot-client: demo runs over TCP (its embedded emulator too); --serial is not supported", file=sys.stderr
+        )
+        return 2
+    try:
+        model = load_model(args.model)
+    except (ModelError, OSError, ValueError) as exc:
+        print(f"robot-client: {exc}", file=sys.stderr)
+        return 2
+    try:
+        if args.command == "demo":
+            asyncio.run(_demo(args, stream))
+        else:
+            asyncio.run(_with_driver(args, model, stream))
+    except KeyboardInterrupt:
+        print("robot-client: interrupted", file=sys.stderr)
+        return 130
+    except (CommandError, DriverError, PlanningError, SimpleMessageError, OSError) as exc:
+        print(f"robot-client: {exc}", file=sys.stderr)
+        return 1
+    return 0
