@@ -278,8 +278,6 @@ async def _execute(driver: RobotDriver, trajectory: Trajectory, mode: str, out: 
 async def _move(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
     model = driver.model
     assert model is not None
-    if not 0.0 < args.speed <= 1.0:
-        raise CommandError(f"--speed must be in (0, 1], not {args.speed}")
     here = (await driver.wait_state()).positions[: model.dof]
     here = np.clip(here, model.lower, model.upper)
     planner = Planner(
@@ -290,13 +288,9 @@ async def _move(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> N
         joint_spacing=2 * math.pi,  # JOINT_TRAJ_PT points are joined at rest: one segment
     )
     if args.joints is not None:
-        if len(args.joints) != model.dof:
-            raise CommandError(f"--joints needs {model.dof} values for {model.name}, not {len(args.joints)}")
         motion = planner.joint_move(here, args.joints)
     else:
         values = args.pose
-        if len(values) not in (3, 6):
-            raise CommandError("--pose takes X Y Z or X Y Z ROLL PITCH YAW")
         rotation = fk(model, here)[:3, :3] if len(values) == 3 else rpy_matrix(*values[3:])
         motion = planner.linear_moves(here, [pose(values[:3], rotation)])
     # the generic profile sends JOINT_TRAJ_PT, which controllers join at rest
@@ -363,6 +357,20 @@ async def _demo(args: argparse.Namespace, out: TextIO) -> None:
         print("figure: not drawn (install the plot extra: pip install 'simple-message-stack[plot]')", file=out)
 
 
+def _check_arguments(args: argparse.Namespace, model: RobotModel) -> None:
+    """Usage errors found before connecting (exit status 2)."""
+    if args.command != "move":
+        return
+    if not 0.0 < args.speed <= 1.0:
+        raise ValueError(f"--speed must be in (0, 1], not {args.speed}")
+    if args.joints is not None and len(args.joints) != model.dof:
+        raise ValueError(f"--joints needs {model.dof} values for {model.name}, not {len(args.joints)}")
+    if args.pose is not None and len(args.pose) not in (3, 6):
+        raise ValueError("--pose takes X Y Z or X Y Z ROLL PITCH YAW")
+    if not all(math.isfinite(x) for x in (args.joints or args.pose)):
+        raise ValueError("move targets must be finite numbers")
+
+
 def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     args = parser().parse_args(argv)
     stream = out if out is not None else sys.stdout
@@ -376,6 +384,7 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
         return 2
     try:
         model = load_model(args.model)
+        _check_arguments(args, model)
     except (ModelError, OSError, ValueError) as exc:
         print(f"robot-client: {exc}", file=sys.stderr)
         return 2

@@ -175,7 +175,7 @@ class RobotDriver:
                 await self.state.start(timeout)
         except (TimeoutError, ConnectionClosed, OSError) as exc:
             await self.close()
-            raise DriverError(f"cannot connect to {self.address}: {exc or 'timed out'}") from None
+            raise DriverError(f"cannot connect to {self.address}: {str(exc) or 'timed out'}") from None
         self._reader = asyncio.get_running_loop().create_task(self._read_state(subscription), name="driver state")
         await self.wait_state(timeout)
         return self

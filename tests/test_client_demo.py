@@ -1,0 +1,61 @@
+"""The paper's experiment, short form on a simulated clock: its table must show what the paper says."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from client.demo import DemoConfig, analyse, format_table, run_demo
+from robot_server.loader import load_model
+
+pytestmark = pytest.mark.slow
+
+MODEL = load_model("jibot_zxs")
+
+
+async def test_short_demo_table(tmp_path: Path) -> None:
+    lines: list[str] = []
+    config = DemoConfig(width=0.06, height=0.04, simulated=True, host=None, output=tmp_path, plot=False)
+    result = await run_demo(config, progress=lines.append)
+    rows = {row.policy: row for row in result.rows}
+    assert list(rows) == ["linear", "cubic", "quintic", "ruckig"]
+    waypoints = len(result.waypoints)
+    assert waypoints >= 9  # 200 mm of edges, a waypoint every 25 mm
+    # the paper's point: without interpolation the acceleration jumps at (nearly) every waypoint ...
+    assert rows["linear"].discontinuities >= waypoints - 4
+    # ... the rest-to-rest cubic still jumps at the waypoints, the quintic never does
+    assert rows["cubic"].discontinuities >= waypoints // 2
+    assert rows["quintic"].discontinuities == 0
+    # ruckig keeps the jerk limit; linear's velocity steps are huge accelerations
+    assert rows["ruckig"].peak_jerk <= MODEL.max_jerk.max() * (1 + 1e-6)
+    assert rows["ruckig"].discontinuities == 0
+    assert rows["linear"].peak_acceleration > 3 * rows["quintic"].peak_acceleration
+    for row in result.rows:
+        assert 0.0 < row.path_deviation < 2e-3  # within 2 mm of the rectangle
+        assert row.following_error is not None and 0.0 < row.following_error < 0.05
+        assert row.cycle_time == pytest.approx(result.waypoints.duration, abs=0.5)
+    # the files: planned waypoints and one trace per policy, with their headers
+    names = {f.name for f in result.files}
+    assert names == {"demo_waypoints.csv", "demo_linear.csv", "demo_cubic.csv", "demo_quintic.csv", "demo_ruckig.csv"}
+    with (tmp_path / "demo_quintic.csv").open() as stream:
+        header = next(csv.reader(stream))
+    assert header[0] == "time" and "actual_position_joint_1" in header
+    table = format_table(result.rows)
+    assert table.splitlines()[0].startswith("policy") and len(table.splitlines()) == 5
+    assert any("embedded emulator" in line for line in lines)
+
+
+def test_analyse_counts_steps_and_impulses() -> None:
+    """A synthetic record: one velocity step (an impulse of acceleration) is one discontinuity."""
+    dt = 0.004
+    t = np.arange(500) * dt
+    v = np.where(t < 1.0, 0.1, 0.2)
+    q = np.cumsum(v)[:, None] * dt * np.ones((1, 6))
+    corners = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    row = analyse("synthetic", MODEL, corners, times=t, command=q, actual=q, following_error=None)
+    assert row.discontinuities == 1
+    assert row.peak_acceleration == pytest.approx(0.1 / dt, rel=1e-6)
+    assert row.following_error is None
