@@ -19,6 +19,13 @@ says in_motion FALSE (like ROS's FollowJointTrajectory action, §5):
   time, positions and velocities (central differences when the trajectory has none); BUSY is
   retried with a growing back-off; anything else aborts.
 
+**Reconnection.** The connections reconnect by themselves. If the motion link is down when a
+point is about to be sent, the driver with ``resume=True`` waits for the reconnection and goes on
+from that point (MotoROS: only if the controller still reports ready), logging a warning that says
+where it resumed; with ``resume=False`` (the default) it aborts. If the link drops while a point
+awaits its reply, the controller may or may not have that point, so the driver never resends it
+(it could run twice): it aborts, says so, and stops the robot once the link is back.
+
 It raises :class:`ExecutionAborted` (with :attr:`~ExecutionAborted.confirmed`, the last point the
 controller acknowledged, so a caller can resume from there) on a refused point, a lost
 connection, a state watchdog expiry (no joint state for ``watchdog`` s), a path deviation beyond
@@ -42,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from robot_server.model import RobotModel
-from simple_message.connection import Subscription
+from simple_message.connection import ConnectionState, Subscription
 from simple_message.constants import (
     CommType,
     MotoCommand,
@@ -54,7 +61,13 @@ from simple_message.constants import (
     ValidFields,
 )
 from simple_message.endpoints import Client, ReconnectPolicy
-from simple_message.errors import ConnectionClosed, RequestFailed, RequestTimeout, SimpleMessageError
+from simple_message.errors import (
+    ConnectionClosed,
+    NotConnected,
+    RequestFailed,
+    RequestTimeout,
+    SimpleMessageError,
+)
 from simple_message.messages import (
     JointFeedback,
     JointPosition,
@@ -103,6 +116,14 @@ class ExecutionAborted(DriverError):
         self.confirmed = confirmed
 
 
+class _NotSent(DriverError):
+    """The motion connection was down before the request was written: the controller never saw it."""
+
+
+class _InFlight(DriverError):
+    """The motion connection dropped while a request awaited its reply: the controller may have it."""
+
+
 @dataclass(frozen=True)
 class JointState:
     """The robot's latest state: positions (and velocities if the controller sends them) of
@@ -133,6 +154,7 @@ class RobotDriver:
         goal_timeout: float = 60.0,
         stall_timeout: float = 1.0,
         serial: str | None = None,
+        resume: bool = False,
     ) -> None:
         self.profile = Profile(profile)
         motoros = self.profile is Profile.MOTOROS
@@ -147,6 +169,7 @@ class RobotDriver:
         self.path_tolerance = path_tolerance
         self.goal_timeout = goal_timeout
         self.stall_timeout = stall_timeout
+        self.resume = resume
         policy = ReconnectPolicy(initial_delay=0.1, max_delay=2.0)
         self.serial = serial
         if serial is not None:  # one link carries motion and state (robot-server --serial)
@@ -259,9 +282,17 @@ class RobotDriver:
         try:
             return await self.motion.request(msg, self.reply_timeout)
         except RequestTimeout:
+            # simple_message replies carry no request id: a reply arriving later could be taken
+            # for the next request's, so the link is reset (it reconnects by itself)
+            connection = self.motion.connection
+            if connection is not None:
+                log.warning("no reply to %s within %s s: resetting the motion link", msg.name, self.reply_timeout)
+                await connection.close()
             raise DriverError(f"no reply to {msg.name} within {self.reply_timeout} s") from None
+        except NotConnected as exc:
+            raise _NotSent(f"motion connection down: {exc}") from None
         except ConnectionClosed as exc:
-            raise DriverError(f"motion connection lost: {exc}") from None
+            raise _InFlight(f"motion connection lost: {exc}") from None
 
     async def _moto(self, command: MotoCommand) -> MotoMotionReply:
         reply = await self._request(MotoMotionCtrl(0, 0, command))
@@ -288,6 +319,11 @@ class RobotDriver:
         """Run ``trajectory`` and wait for the goal (see the module doc). Returns the final state."""
         mode = Mode(mode)
         state = await self.wait_state()
+        if self.motion.state is not ConnectionState.CONNECTED:  # e.g. being reset after a lost reply
+            try:
+                await self.motion.wait_for(ConnectionState.CONNECTED, self.reply_timeout)
+            except (TimeoutError, ConnectionClosed):
+                raise DriverError(f"the motion link to {self.address} is down") from None
         if self.model is not None and trajectory.dof != self.model.dof:
             raise DriverError(f"the trajectory has {trajectory.dof} joints, the robot {self.model.dof}")
         if trajectory.dof != state.positions.size and self.model is None:
@@ -319,8 +355,15 @@ class RobotDriver:
             raise ExecutionAborted(str(exc), confirmed) from None
 
     async def _stop_quietly(self) -> None:
-        with contextlib.suppress(DriverError, SimpleMessageError):
-            await asyncio.shield(self.stop())
+        """Stop after an abort; if the motion link is down, wait (bounded) for it to come back."""
+
+        async def stop() -> None:
+            if self.motion.state is not ConnectionState.CONNECTED:
+                await self.motion.wait_for(ConnectionState.CONNECTED, self.reply_timeout)
+            await self.stop()
+
+        with contextlib.suppress(DriverError, SimpleMessageError, TimeoutError):
+            await asyncio.shield(stop())
 
     def _ratio(self, trajectory: Trajectory, k: int) -> float:
         """The velocity ratio of segment ``k``: the critical joint's peak speed as a share of its
@@ -345,15 +388,35 @@ class RobotDriver:
 
     async def _send_stream(self, trajectory: Trajectory) -> int:
         confirmed = -1
-        for k in range(len(trajectory)):
+        k = 0
+        while k < len(trajectory):
             try:
                 await self._request(self._point(trajectory, k, k, CommType.SERVICE_REQUEST))
             except RequestFailed:
                 raise ExecutionAborted(f"the controller refused point {k}", confirmed) from None
+            except _NotSent as exc:
+                await self._reconnected(k, confirmed, exc)
+                continue  # point k was never written: send it on the new connection
+            except _InFlight as exc:
+                raise ExecutionAborted(_in_flight(k, exc), confirmed) from None
             except DriverError as exc:
                 raise ExecutionAborted(f"point {k}: {exc}", confirmed) from None
             confirmed = k
+            k += 1
         return confirmed
+
+    async def _reconnected(self, k: int, confirmed: int, cause: DriverError) -> None:
+        """Point ``k`` was not sent because the motion link is down: with ``resume``, wait for
+        the reconnection and carry on from ``k`` (saying so); otherwise abort."""
+        if not self.resume:
+            raise ExecutionAborted(f"{cause} before point {k} was sent; not resuming (resume=False)", confirmed)
+        try:
+            await self.motion.wait_for(ConnectionState.CONNECTED, self.reply_timeout)
+        except (TimeoutError, ConnectionClosed):
+            raise ExecutionAborted(
+                f"{cause}; no reconnection within {self.reply_timeout} s, point {k} was never sent", confirmed
+            ) from None
+        log.warning("motion connection re-established: resuming at point %d (points 0..%d confirmed)", k, confirmed)
 
     async def _send_download(self, trajectory: Trajectory) -> int:
         n = len(trajectory)
@@ -374,7 +437,7 @@ class RobotDriver:
         await self._request(Ping())
         return n - 1
 
-    async def _send_motoros(self, trajectory: Trajectory) -> int:
+    async def _motion_ready(self) -> None:
         ready = await self._moto(MotoCommand.CHECK_MOTION_READY)
         if ready.result != MotoResult.TRUE:
             enable = await self._moto(MotoCommand.START_TRAJ_MODE)
@@ -385,6 +448,9 @@ class RobotDriver:
             ready = await self._moto(MotoCommand.CHECK_MOTION_READY)
             if ready.result != MotoResult.TRUE:
                 raise ExecutionAborted(f"the controller is not ready for motion (subcode {ready.subcode})", -1)
+
+    async def _send_motoros(self, trajectory: Trajectory) -> int:
+        await self._motion_ready()
         velocities = trajectory.velocities if trajectory.velocities is not None else _differences(trajectory)
         fields = ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY
         confirmed = -1
@@ -394,7 +460,14 @@ class RobotDriver:
             )
             delay, waited = 0.005, 0.0
             while True:
-                reply = await self._request(point)
+                try:
+                    reply = await self._request(point)
+                except _NotSent as exc:
+                    await self._reconnected(k, confirmed, exc)
+                    await self._ready_after_reconnect(k, confirmed)
+                    continue
+                except _InFlight as exc:
+                    raise ExecutionAborted(_in_flight(k, exc), confirmed) from None
                 if not isinstance(reply, MotoMotionReply):
                     raise ExecutionAborted(f"point {k} answered with {reply.name}", confirmed)
                 if reply.result == MotoResult.SUCCESS:
@@ -410,6 +483,17 @@ class RobotDriver:
                 delay = min(delay * 1.5, 0.05)
             confirmed = k
         return confirmed
+
+    async def _ready_after_reconnect(self, k: int, confirmed: int) -> None:
+        """MotoROS after a reconnection: carry on only if trajectory mode survived (it still says
+        ready); a controller that dropped the trajectory would need a new one from where it stopped."""
+        ready = await self._moto(MotoCommand.CHECK_MOTION_READY)
+        if ready.result != MotoResult.TRUE:
+            raise ExecutionAborted(
+                f"after the reconnection the controller is not ready (subcode {ready.subcode}): it dropped the "
+                f"trajectory, so point {k} is not sent",
+                confirmed,
+            )
 
     async def _wait_goal(self, trajectory: Trajectory, confirmed: int) -> JointState:
         goal = trajectory.positions[-1]
@@ -454,6 +538,13 @@ class RobotDriver:
                     )
             else:
                 stalled_since = None
+
+
+def _in_flight(k: int, exc: DriverError) -> str:
+    return (
+        f"{exc} with point {k} awaiting its reply: the controller may or may not have it, so it is not "
+        "resent (that could repeat it)"
+    )
 
 
 def _differences(trajectory: Trajectory) -> Array:
