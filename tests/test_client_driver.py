@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
+import tty
 from collections.abc import AsyncIterator
 from typing import Any
 
@@ -99,3 +101,26 @@ async def test_estop_during_execution_aborts() -> None:
         emu.cell.estop()
         with pytest.raises(ExecutionAborted):
             await asyncio.wait_for(task, 80.0)
+
+
+async def test_one_serial_link_carries_motion_and_state() -> None:
+    """The driver over a pseudo-terminal pair (pyserial on the slave), the emulator on the master."""
+    master, slave = os.openpty()
+    tty.setraw(slave)  # no echo before pyserial opens it
+    try:
+        config = EmulatorConfig(motion_port=0, state_port=0, state_rate=50.0, speedup=4.0)
+        async with Emulator(config) as emu:
+            serving = asyncio.get_running_loop().create_task(emu.serve_fd(master))
+            driver = RobotDriver(serial=os.ttyname(slave), model=MODEL, reply_timeout=5.0, watchdog=2.0)
+            async with driver:
+                assert driver.state is driver.motion
+                assert await driver.ping() > 0.0
+                final = await driver.execute(line([0.0] * 6, TARGET, 2.0, n=6))
+                assert np.max(np.abs(final.positions - TARGET)) <= driver.goal_tolerance
+            serving.cancel()
+            with contextlib.suppress(asyncio.CancelledError, OSError):
+                await serving
+    finally:
+        os.close(slave)
+        with contextlib.suppress(OSError):
+            os.close(master)
