@@ -445,7 +445,9 @@ def _figure(records: dict[str, Recorder], waypoints: Trajectory, model: RobotMod
     joint = int(np.argmax(np.ptp(waypoints.positions, axis=0)))
     fig, axes = plt.subplots(3, 1, sharex=True, figsize=(8, 8))
     for label, record in (("before interpolation (linear)", before), ("after interpolation (quintic)", after)):
-        t = record.time() - record.time()[0]
+        command = record.get("command_position")
+        moved = np.flatnonzero(np.max(np.abs(command - command[0]), axis=1) > 1e-9)
+        t = record.time() - record.time()[max(0, moved[0] - 1) if moved.size else 0]  # 0: the motion starts
         for ax, quantity in zip(axes, ("command_position", "command_velocity", "command_acceleration"), strict=True):
             values = record.get(quantity)[:, joint]
             if quantity != "command_position":  # the drive's view: differences of the commanded positions
