@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from client.demo import distance_to_path
 from client.planner import (
     Planner,
     PlanningError,
@@ -34,15 +35,6 @@ def rectangle(width: float = 0.16, height: float = 0.10) -> tuple[np.ndarray, li
     return np.array(solution.q), [pose(p, r) for p in corners[1:]], corners
 
 
-def distance_to_polyline(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
-    a, b = corners[:-1], corners[1:]
-    d = b - a
-    rel = points[:, None, :] - a[None]
-    u = np.clip(np.einsum("nkj,kj->nk", rel, d) / np.einsum("kj,kj->k", d, d), 0.0, 1.0)
-    nearest = a[None] + u[..., None] * d[None]
-    return np.min(np.linalg.norm(points[:, None, :] - nearest, axis=2), axis=1)
-
-
 def branch_slots(q: np.ndarray, poses: np.ndarray) -> np.ndarray:
     """Which of the closed-form solver's 8 branch slots each configuration is (its own numbering)."""
     ik = closed_form(MODEL)
@@ -59,7 +51,7 @@ def test_rectangle_waypoints_on_the_ideal_path_and_one_branch() -> None:
     motion = Planner(MODEL, max_speed=0.08, max_acceleration=0.5).linear_moves(start, poses)
     sparse = motion.sparse()
     flange = fk_batch(MODEL, sparse.positions)
-    deviation = distance_to_polyline(flange[:, :3, 3], corners)
+    deviation = distance_to_path(flange[:, :3, 3], corners)
     assert deviation.max() < 1e-4  # 0.1 mm
     # the waypoints include every corner, reached exactly
     for corner in corners:
