@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import csv
 import json
 import logging
 import math
@@ -35,7 +34,7 @@ from simple_message.wire import ByteOrder, WireFormat
 from .demo import DemoConfig, format_table, run_demo
 from .driver import DriverError, JointState, Mode, Profile, RobotDriver
 from .planner import Planner, PlanningError, pose
-from .trajectory import Trajectory, TrajectoryError
+from .trajectory import Trajectory, TrajectoryError, save_joint_states
 
 __all__ = ["main", "parser"]
 
@@ -214,32 +213,24 @@ async def _monitor(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -
 
 async def _record(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
     names = driver.model.joint_names if driver.model is not None else ()
-    rows: list[list[str]] = []
+    states: list[JointState] = []
     origin = time.monotonic()
 
     async def body() -> None:
         async for state in driver.states():
-            row = [repr(state.received - origin), *(repr(x) for x in state.positions.tolist())]
-            if state.velocities is not None:
-                row += [repr(x) for x in state.velocities.tolist()]
-            rows.append(row)
+            states.append(state)
 
     try:
         await _for(args.duration, body)
     finally:
-        _write_record(args.file, names, rows)
-        print(f"{len(rows)} joint states written to {args.file}", file=out)
-
-
-def _write_record(path: Path, names: Sequence[str], rows: list[list[str]]) -> None:
-    width = max((len(r) for r in rows), default=1 + len(names))
-    header = ["time", *(f"position_{n}" for n in names)]
-    if width > len(header):
-        header += [f"velocity_{n}" for n in names][: width - len(header)]
-    with open(path, "w", newline="") as stream:
-        writer = csv.writer(stream)
-        writer.writerow(header)
-        writer.writerows(rows)
+        save_joint_states(
+            args.file,
+            names,
+            [s.received - origin for s in states],
+            [s.positions.tolist() for s in states],
+            [None if s.velocities is None else s.velocities.tolist() for s in states],
+        )
+        print(f"{len(states)} joint states written to {args.file}", file=out)
 
 
 async def _execute(driver: RobotDriver, trajectory: Trajectory, mode: str, out: TextIO) -> None:

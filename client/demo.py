@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import csv
 import logging
 import math
 import time
@@ -49,7 +48,7 @@ from simple_message.wire import DEFAULT_FORMAT, WireFormat
 
 from .driver import DriverError, Mode, Profile, RobotDriver
 from .planner import Motion, Planner, PlanningError, pose
-from .trajectory import Trajectory
+from .trajectory import Trajectory, save_joint_states
 
 __all__ = ["DemoConfig", "DemoRow", "DemoResult", "analyse", "plan_rectangle", "run_demo", "format_table"]
 
@@ -189,8 +188,7 @@ def analyse(
         raise ValueError("the record is too short to analyse")
     dt = float(np.median(np.diff(times)))
     goal = command[-1]
-    moved = np.flatnonzero(np.max(np.abs(command - command[0]), axis=1) > 1e-9)
-    start = times[moved[0] - 1] if moved.size and moved[0] > 0 else times[0]
+    start = times[_motion_start(command)]
     unsettled = np.max(np.abs(actual - goal), axis=1) > SETTLED_POSITION
     late = np.flatnonzero(unsettled)
     end = times[min(late[-1] + 1, times.size - 1)] if late.size else times[0]
@@ -211,6 +209,12 @@ def analyse(
         following_error=None if following_error is None else float(np.max(np.abs(following_error))),
         source=source,
     )
+
+
+def _motion_start(command: Array) -> int:
+    """Index of the last sample before the command first moves (0 if it never does)."""
+    moved = np.flatnonzero(np.max(np.abs(command - command[0]), axis=1) > 1e-9)
+    return max(0, int(moved[0]) - 1) if moved.size else 0
 
 
 def _interpolation_rows(record: Recorder, servo_period: float, ticks_per_interpolation: int) -> NDArray[np.bool_]:
@@ -388,12 +392,13 @@ async def run_demo(config: DemoConfig, progress: Callable[[str], None] = print) 
     if external is not None:
         result.external = f"{external.host}:{external.motion_port}"
         progress(f"a controller answers at {result.external}: running the rectangle there")
-        async with contextlib.AsyncExitStack() as stack:
-            stack.push_async_callback(external.close)
+        try:
             row, t, q = await _external_run(external, config, plan)
+        finally:
+            await external.close()
         result.rows.append(row)
         trace = out / "demo_controller.csv"
-        _save_states(trace, t, q, model.joint_names)
+        save_joint_states(trace, model.joint_names, t.tolist(), q.tolist())
         result.files.append(trace)
         return result
     records: dict[str, Recorder] = {}
@@ -422,14 +427,6 @@ def _save_waypoints(out: Path, waypoints: Trajectory) -> Path:
     return path
 
 
-def _save_states(path: Path, times: Array, positions: Array, names: Sequence[str]) -> None:
-    with open(path, "w", newline="") as stream:
-        writer = csv.writer(stream)
-        writer.writerow(["time", *names])
-        for t, q in zip(times.tolist(), positions.tolist(), strict=True):
-            writer.writerow([repr(t), *(repr(x) for x in q)])
-
-
 def _figure(records: dict[str, Recorder], waypoints: Trajectory, model: RobotModel, out: Path) -> Path | None:
     """Fig. 6 of the paper: one joint before (linear, not interpolated) and after (quintic)."""
     try:
@@ -446,8 +443,7 @@ def _figure(records: dict[str, Recorder], waypoints: Trajectory, model: RobotMod
     fig, axes = plt.subplots(3, 1, sharex=True, figsize=(8, 8))
     for label, record in (("before interpolation (linear)", before), ("after interpolation (quintic)", after)):
         command = record.get("command_position")
-        moved = np.flatnonzero(np.max(np.abs(command - command[0]), axis=1) > 1e-9)
-        t = record.time() - record.time()[max(0, moved[0] - 1) if moved.size else 0]  # 0: the motion starts
+        t = record.time() - record.time()[_motion_start(command)]  # 0: the motion starts
         for ax, quantity in zip(axes, ("command_position", "command_velocity", "command_acceleration"), strict=True):
             values = record.get(quantity)[:, joint]
             if quantity != "command_position":  # the drive's view: differences of the commanded positions

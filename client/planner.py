@@ -136,9 +136,15 @@ class _Piece:
     q: Array  # (m, dof)
     dq: Array  # dq/ds
     ddq: Array  # d2q/ds2
-    knots: Array  # indices into the grid of the sparse waypoints
+    knots: NDArray[np.int64]  # indices into the grid of the sparse waypoints
     profile: RuckigSegment | None  # None: zero length (a pause of no time)
     start: float  # time at which the piece starts
+
+    @classmethod
+    def still(cls, q: Array, start: float) -> _Piece:
+        """A zero-length piece at configuration ``q`` (no time, one knot)."""
+        zeros = np.zeros((1, q.size))
+        return cls(np.zeros(1), q[None, :], zeros, zeros, np.zeros(1, int), None, start)
 
     @property
     def duration(self) -> float:
@@ -370,13 +376,11 @@ class Planner:
     def _joint_piece(self, q0: Array, q1: Array, start: float) -> _Piece:
         span = float(np.max(np.abs(q1 - q0)))
         if span == 0.0:
-            return _Piece(
-                np.zeros(1), q0[None, :], np.zeros((1, q0.size)), np.zeros((1, q0.size)), np.zeros(1, int), None, start
-            )
+            return _Piece.still(q0, start)
         m = max(2, math.ceil(span / self.step) + 1)
         s = np.linspace(0.0, span, m)
         q = q0 + np.outer(s / span, q1 - q0)
-        knots = np.linspace(0, m - 1, max(2, math.ceil(span / self.joint_spacing) + 1)).round().astype(int)
+        knots = _knots(m, span, self.joint_spacing)
         dq = np.repeat(((q1 - q0) / span)[None, :], m, 0)
         return self._timed(s, q, dq, np.zeros_like(q), knots, start, cartesian=False)
 
@@ -387,15 +391,7 @@ class Planner:
         # the path parameter is the flange's travel; a rotation counts as travel of a point 0.1 m away
         length = max(float(np.linalg.norm(p1 - p0)), 0.1 * _angle_between(r0, r1))
         if length < 1e-9:
-            return _Piece(
-                np.zeros(1),
-                seed[None, :],
-                np.zeros((1, seed.size)),
-                np.zeros((1, seed.size)),
-                np.zeros(1, int),
-                None,
-                start,
-            )
+            return _Piece.still(seed, start)
         m = max(2, math.ceil(length / self.step) + 1)
         u = np.linspace(0.0, 1.0, m)
         poses = np.empty((m, 4, 4))
@@ -407,7 +403,7 @@ class Planner:
         h = s[1] - s[0]
         dq = np.gradient(q, h, axis=0)
         ddq = np.gradient(dq, h, axis=0)
-        knots = np.linspace(0, m - 1, max(2, math.ceil(length / self.waypoint_spacing) + 1)).round().astype(int)
+        knots = _knots(m, length, self.waypoint_spacing)
         return self._timed(s, q, dq, ddq, knots, start, cartesian=True)
 
     def _track_branch(self, poses: Array, seed: Array, index: int) -> Array:
@@ -446,7 +442,7 @@ class Planner:
         return out
 
     def _timed(  # noqa: PLR0917 - the parts of one piece
-        self, s: Array, q: Array, dq: Array, ddq: Array, knots: Array, start: float, cartesian: bool
+        self, s: Array, q: Array, dq: Array, ddq: Array, knots: NDArray[np.int64], start: float, cartesian: bool
     ) -> _Piece:
         """Plan the jerk-limited profile ``s(t)`` keeping every joint within the scaled limits."""
         slope = np.max(np.abs(dq), axis=0)  # per joint, max |dq/ds|
@@ -491,6 +487,12 @@ class Planner:
         ratio_v = np.max(np.abs(v) / self.velocity)
         ratio_a = np.max(np.abs(a) / self.acceleration)
         return float(max(ratio_v, ratio_a))
+
+
+def _knots(m: int, length: float, spacing: float) -> NDArray[np.int64]:
+    """Indices into an ``m``-sample grid of a path ``length`` long: waypoints at most ``spacing`` apart."""
+    count = max(2, math.ceil(length / spacing) + 1)
+    return np.linspace(0, m - 1, count).round().astype(np.int64)
 
 
 def _shift(piece: _Piece, offset: float) -> _Piece:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import csv
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,7 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Trajectory", "TrajectoryError"]
+__all__ = ["Trajectory", "TrajectoryError", "save_joint_states"]
 
 Array = NDArray[np.float64]
 
@@ -212,3 +213,28 @@ class Trajectory:
         if not isinstance(names, list | tuple) or not all(isinstance(n, str) for n in names):
             raise TrajectoryError("joint_names must be a list of strings")
         return cls(times, positions, velocities, accelerations, tuple(names))
+
+
+def save_joint_states(
+    path: str | Path,
+    joint_names: Sequence[str],
+    times: Sequence[float],
+    positions: Sequence[Sequence[float]],
+    velocities: Sequence[Sequence[float] | None] | None = None,
+) -> None:
+    """Recorded joint states as CSV: ``time,position_<name>...[,velocity_<name>...]`` (SI units),
+    one state per line as received (times need not be strictly increasing, unlike a trajectory's).
+    Velocity columns are written when every state has velocities."""
+    with_velocity = velocities is not None and len(velocities) > 0 and all(v is not None for v in velocities)
+    header = ["time", *(f"position_{n}" for n in joint_names)]
+    if with_velocity:
+        header += [f"velocity_{n}" for n in joint_names]
+    with open(path, "w", newline="") as stream:
+        writer = csv.writer(stream)
+        writer.writerow(header)
+        for k, (t, q) in enumerate(zip(times, positions, strict=True)):
+            row = [repr(float(t)), *(repr(float(x)) for x in q)]
+            if with_velocity:
+                assert velocities is not None
+                row += [repr(float(x)) for x in velocities[k] or ()]
+            writer.writerow(row)
