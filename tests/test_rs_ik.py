@@ -24,6 +24,8 @@ from robot_server.kinematics import (
     singularity_measure,
 )
 from robot_server.kinematics.__main__ import main as kinematics_main
+from robot_server.kinematics._trace import SCALAR_OPS
+from robot_server.kinematics.numeric import damped_step
 from robot_server.loader import load_model, shipped_models
 from robot_server.model import RobotModel
 
@@ -288,6 +290,42 @@ def test_numeric_ik_reports_failure_with_the_best_residual() -> None:
     assert result.attempts == 3 and all(math.isfinite(v) for v in result.q)
     with pytest.raises(IKFailed, match="best residual"):
         ik(model, far)
+
+
+def rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    x, y, z = axis / np.linalg.norm(axis)
+    k = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
+
+
+def test_rotation_error_is_exact_up_to_and_at_pi() -> None:
+    rng = np.random.default_rng(3)
+    base = rotation(rng.normal(size=3), 0.7)
+    flat = np.hstack([base, np.zeros((3, 1))]).ravel().tolist()
+    for angle in [0.0, 1e-13, 1e-7, 0.3, 2.0, math.pi - 1e-3, math.pi - 1e-7, math.pi - 1e-12, math.pi]:
+        for _ in range(20):
+            axis = rng.normal(size=3)
+            axis /= np.linalg.norm(axis)
+            error = np.array(rotation_error((rotation(axis, angle) @ base).tolist(), flat))
+            assert np.linalg.norm(error) == pytest.approx(angle, abs=1e-9)
+            if angle > 1e-12:
+                cosine = float(error @ axis) / np.linalg.norm(error)
+                if angle > math.pi - 1e-6:  # +axis and -axis are (nearly) the same rotation
+                    cosine = abs(cosine)
+                assert cosine > 1.0 - 1e-6
+
+
+@pytest.mark.parametrize(("rows", "cols"), [(6, 6), (6, 4), (6, 7), (3, 6)])
+def test_damped_step_matches_the_normal_equations(rows: int, cols: int) -> None:
+    rng = np.random.default_rng(rows * 10 + cols)
+    for damping in (1e-9, 1e-3, 0.5):
+        jac = rng.normal(size=(rows, cols))
+        e = rng.normal(size=rows)
+        step = damped_step(SCALAR_OPS, jac.tolist(), e.tolist(), damping)
+        expected = np.linalg.solve(jac.T @ jac + damping * np.eye(cols), jac.T @ e)
+        assert np.allclose(step, expected, rtol=1e-6, atol=1e-9)
+    rank_one = np.outer(rng.normal(size=rows), rng.normal(size=cols))  # singular: still finite
+    assert all(math.isfinite(x) for x in damped_step(SCALAR_OPS, rank_one.tolist(), [1.0] * rows, 1e-9))
 
 
 # -- the command --------------------------------------------------------------------------------

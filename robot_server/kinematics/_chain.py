@@ -38,10 +38,12 @@ def _motion(ops: Any, kind: JointType, axis: Any, theta: Any) -> Block:
         return [[1.0, 0.0, 0.0, x * theta], [0.0, 1.0, 0.0, y * theta], [0.0, 0.0, 1.0, z * theta]]
     c, s = ops.cos(theta), ops.sin(theta)
     v = 1.0 - c
+    # c + k^2 (1 - c) is exactly 1 about a coordinate axis (k = +-1): say so, do not compute it
+    xx, yy, zz = (1.0 if k * k == 1.0 else c + k * k * v for k in (x, y, z))
     return [
-        [c + x * x * v, x * y * v - z * s, x * z * v + y * s, 0.0],
-        [y * x * v + z * s, c + y * y * v, y * z * v - x * s, 0.0],
-        [z * x * v - y * s, z * y * v + x * s, c + z * z * v, 0.0],
+        [xx, x * y * v - z * s, x * z * v + y * s, 0.0],
+        [y * x * v + z * s, yy, y * z * v - x * s, 0.0],
+        [z * x * v - y * s, z * y * v + x * s, zz, 0.0],
     ]
 
 

@@ -13,6 +13,7 @@ Control flow may depend on the model (plain numbers), never on a placeholder; a 
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from collections.abc import Callable, Sequence
@@ -54,14 +55,20 @@ class Tracer:
         return var
 
     def compile(
-        self, name: str, inputs: Sequence[str], outputs: Sequence[Any], label: str, release: bool = False
+        self, name: str, inputs: Sequence[str], outputs: Sequence[Any], label: str, batch: bool = False
     ) -> Callable[..., Any]:
-        """A function ``name(*inputs, ops)`` returning the tuple of ``outputs``. With ``release``,
-        each intermediate is deleted after its last use: for numpy batches, where keeping a
-        thousand dead arrays alive costs more than the arithmetic (fresh memory every line)."""
+        """A function ``name(*inputs, ops)`` returning the tuple of ``outputs``.
+
+        With ``batch`` (numpy arrays), each intermediate is deleted after its last use: keeping a
+        thousand dead arrays alive costs more than the arithmetic (fresh memory every line).
+        Without it (floats only), ``where(c, a, b)`` becomes Python's ``a if c else b``: no call,
+        and only the chosen side is computed."""
         returned = ", ".join(_text(o) for o in outputs)
         lines = _live(self.lines, set(_NAME.findall(returned)))
-        if release:
+        if not batch:
+            lines = [_WHERE.sub(r"(\2 if \1 else \3)", line) for line in lines]
+        lines = _inline(lines, set(_NAME.findall(returned)))
+        if batch:
             lines = _with_releases(lines, set(_NAME.findall(returned)))
         text = "\n".join(lines)
         body = [f"def {name}({', '.join(inputs)}, ops):"]
@@ -76,7 +83,9 @@ class Tracer:
         return function
 
 
-_OPS = ("sqrt", "atan2", "cos", "sin", "acos", "where", "quartic")
+#: a recorded ``where`` (its arguments are names or numbers)
+_WHERE = re.compile(r"\bwhere\(([^,()]+), ([^,()]+), ([^,()]+)\)")
+_OPS = ("sqrt", "atan2", "cos", "sin", "acos", "where", "maximum", "quartic")
 _NAME = re.compile(r"\bv\d+\b")
 
 
@@ -90,6 +99,41 @@ def _live(lines: list[str], needed: set[str]) -> list[str]:
             kept.append(line)
     kept.reverse()
     return kept
+
+
+#: an inlined expression nests at most this deep (the parser's limit is 200 parentheses)
+_MAX_DEPTH = 40
+
+
+def _inline(lines: list[str], returned: set[str]) -> list[str]:
+    """Values used once are written into the expression that uses them instead of a line of their
+    own: the same operations in the same order, with far fewer local variables to store and load
+    (a function with hundreds of locals also pays an extra instruction for each access past 255)."""
+    uses: dict[str, int] = {}
+    for line in lines:
+        for used in _NAME.findall(line.split("=", 1)[1]):
+            uses[used] = uses.get(used, 0) + 1
+    pending: dict[str, tuple[str, int]] = {}  # name -> (its expression, nesting depth)
+    out = []
+    for line in lines:
+        target, expr = (part.strip() for part in line.split("=", 1))
+        depth = 0
+
+        def substitute(match: re.Match[str]) -> str:
+            nonlocal depth
+            name = match.group(0)
+            if name not in pending:
+                return name
+            text, inner = pending.pop(name)
+            depth = max(depth, inner + 1)
+            return f"({text})"
+
+        expr = _NAME.sub(substitute, expr)
+        if uses.get(target) == 1 and target not in returned and depth < _MAX_DEPTH:
+            pending[target] = (expr, depth)
+        else:
+            out.append(f"    {target} = {expr}")
+    return out
 
 
 def _with_releases(lines: list[str], keep: set[str]) -> list[str]:
@@ -268,6 +312,9 @@ class _TraceOps:
             return a if c else b
         return self._call("where", c, a, b)
 
+    def maximum(self, *x: Any) -> Any:
+        return self._call("maximum", *x)
+
     def quartic(self, *k: Any) -> tuple[Any, ...]:
         tracer = _first_var(*k)
         if tracer is None:
@@ -293,6 +340,8 @@ class _ScalarOps:
     def where(c: Any, a: Any, b: Any) -> Any:
         return a if c else b
 
+    maximum = staticmethod(max)
+
     def quartic(self, *k: float) -> tuple[Any, ...]:
         return trig_quadratic_roots(self, *k)
 
@@ -311,6 +360,10 @@ class _ArrayOps:
         return np.arccos(np.clip(x, -1.0, 1.0))
 
     where = staticmethod(np.where)
+
+    @staticmethod
+    def maximum(*x: Any) -> Any:
+        return functools.reduce(np.maximum, x)
 
     def quartic(self, *k: Any) -> tuple[Any, ...]:
         return trig_quadratic_roots(self, *k)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -32,15 +32,22 @@ class _Chain:
 
     def __init__(self, model: RobotModel) -> None:
         self.pose = _compile(model, lambda ops, q: chain(ops, model, q, with_axes=False))
-        self.pose_batch = _compile(model, lambda ops, q: chain(ops, model, q, with_axes=False), release=True)
+        self.pose_batch = _compile(model, lambda ops, q: chain(ops, model, q, with_axes=False), batch=True)
         self.jacobian = _compile(model, lambda ops, q: pose_and_jacobian(ops, model, q))
 
 
-def _compile(model: RobotModel, body: Callable[[Any, list[Any]], list[Any]], release: bool = False) -> Compiled:
+def _compile(
+    model: RobotModel,
+    body: Callable[[Any, list[Any]], list[Any]],
+    batch: bool = False,
+    extra: Sequence[str] = (),
+) -> Compiled:
+    """Trace ``body(ops, inputs)`` into ``f(q0, ..., q(dof-1), *extra, ops)``: the inputs are the
+    joint values, then the ``extra`` names."""
     tracer = Tracer()
-    names = [f"q{i}" for i in range(model.dof)]
+    names = [f"q{i}" for i in range(model.dof)] + list(extra)
     outputs = body(TRACE_OPS, [Var(tracer, n) for n in names])
-    return tracer.compile("chain", names, outputs, f"kinematics of {model.name}", release=release)
+    return tracer.compile("chain", names, outputs, f"kinematics of {model.name}", batch=batch)
 
 
 _CHAINS: weakref.WeakKeyDictionary[RobotModel, _Chain] = weakref.WeakKeyDictionary()

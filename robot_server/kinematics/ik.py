@@ -214,7 +214,7 @@ class ClosedFormIK:
         label = f"closed-form IK of {self.model.name}"
         return (
             tracer.compile("closed_form_ik", names, outputs, label),
-            tracer.compile("closed_form_ik_batch", names, outputs, label, release=True),
+            tracer.compile("closed_form_ik_batch", names, outputs, label, batch=True),
         )
 
     # -- the solver, on floats or arrays ---------------------------------------------------------

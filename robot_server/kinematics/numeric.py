@@ -12,6 +12,11 @@ revolute joints moved by multiples of 2 pi into the limits, and if it cannot be,
 from a new random configuration inside the limits, as it does when an attempt stops improving (the
 error falls by less than 2% over six steps) or runs out of iterations.
 
+An iteration is one function per model, traced like forward kinematics (:mod:`._trace`): the
+pose and Jacobian, the errors, the 6x6 system (an LDL^T factorisation written out) and the capped
+step, as straight-line float arithmetic with the model's constants folded in. For a 6-axis arm
+that is about 10 us, half of what numpy's small-matrix calls cost for the linear algebra alone.
+
 Tolerances are checked on the true errors, not on a cost: the result is ``success`` only if the
 position error is within ``position_tolerance`` (default 1e-6 m) *and* the orientation error
 within ``orientation_tolerance`` (default 1e-6 rad). Otherwise it says so and reports the best
@@ -22,6 +27,7 @@ from __future__ import annotations
 
 import math
 import weakref
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -29,8 +35,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..model import JointType, RobotModel
+from ._chain import pose_and_jacobian
 from ._trace import SCALAR_OPS
-from .fk import _chain
+from .fk import _compile
 
 __all__ = ["NumericIKResult", "ik_numeric", "rotation_error"]
 
@@ -41,13 +48,6 @@ _BIAS = 1e-9
 _MAX_STEP = 2.0
 #: an attempt restarts when the error has not fallen by 2% over this many iterations
 _PATIENCE = 6
-
-try:  # numpy's own gufunc behind np.linalg.solve, without the wrapper's checks (5x faster at 6x6)
-    from numpy.linalg import _umath_linalg
-
-    _solve: Any = _umath_linalg.solve1
-except (ImportError, AttributeError):  # pragma: no cover - other numpy layouts
-    _solve = np.linalg.solve
 
 
 @dataclass(frozen=True)
@@ -63,39 +63,44 @@ class NumericIKResult:
     attempts: int
 
 
+def _rotation_vector(ops: Any, a: Sequence[Sequence[Any]], b: Sequence[Sequence[Any]]) -> tuple[Any, Any, Any]:
+    """The rotation vector (axis times angle, rad) of ``A B^T`` for 3x3 rotations given as rows;
+    exact up to pi. Written against ``ops`` (no branches on values) so it is traced into the
+    iteration of :func:`ik_numeric` and serves :func:`rotation_error` on floats."""
+    # E = A B^T: e_ij = sum_k a_ik b_jk
+    e = [[a[i][0] * b[j][0] + a[i][1] * b[j][1] + a[i][2] * b[j][2] for j in range(3)] for i in range(3)]
+    v = (e[2][1] - e[1][2], e[0][2] - e[2][0], e[1][0] - e[0][1])
+    s = 0.5 * ops.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])  # sin(angle)
+    c = 0.5 * (e[0][0] + e[1][1] + e[2][2] - 1.0)  # cos(angle)
+    angle = ops.atan2(s, c)
+    tiny = s < 1e-12
+    k = ops.where(tiny, 0.5, angle / (2.0 * ops.where(tiny, 1.0, s)))  # small angles: the vector is v / 2
+    # near pi: the axis from the symmetric part, E + I = 2 a a^T (its longest column; sign from v)
+    cols = [[0.5 * (e[i][j] + e[j][i]) for i in range(3)] for j in range(3)]
+    for j in range(3):
+        cols[j][j] = e[j][j] + 1.0
+    sizes = [col[0] * col[0] + col[1] * col[1] + col[2] * col[2] for col in cols]
+    first = sizes[0] >= sizes[1]
+    col = [ops.where(first, x, y) for x, y in zip(cols[0], cols[1], strict=True)]
+    size = ops.where(first, sizes[0], sizes[1])
+    third = sizes[2] > size
+    col = [ops.where(third, z, x) for x, z in zip(col, cols[2], strict=True)]
+    norm = ops.sqrt(ops.where(third, sizes[2], size))
+    signed = ops.where(col[0] * v[0] + col[1] * v[1] + col[2] * v[2] < 0.0, -angle, angle)
+    kp = signed / ops.where(norm > 1e-300, norm, 1.0)
+    regular = (s > 1e-6) | (c > 0.0)
+    return (
+        ops.where(regular, v[0] * k, col[0] * kp),
+        ops.where(regular, v[1] * k, col[1] * kp),
+        ops.where(regular, v[2] * k, col[2] * kp),
+    )
+
+
 def rotation_error(r: list[list[float]], values: tuple[float, ...] | list[float]) -> tuple[float, float, float]:
     """The rotation vector (axis times angle, rad) of ``R_target R^T``, where ``r`` is R_target and
     R the 3x3 block of the 3x4 row-major ``values``; exact up to pi."""
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = r
-    b00, b01, b02, _, b10, b11, b12, _, b20, b21, b22 = values[:11]
-    # E = R_target R^T: e_ij = sum_k a_ik b_jk
-    e00 = a00 * b00 + a01 * b01 + a02 * b02
-    e11 = a10 * b10 + a11 * b11 + a12 * b12
-    e22 = a20 * b20 + a21 * b21 + a22 * b22
-    e01 = a00 * b10 + a01 * b11 + a02 * b12
-    e10 = a10 * b00 + a11 * b01 + a12 * b02
-    e02 = a00 * b20 + a01 * b21 + a02 * b22
-    e20 = a20 * b00 + a21 * b01 + a22 * b02
-    e12 = a10 * b20 + a11 * b21 + a12 * b22
-    e21 = a20 * b10 + a21 * b11 + a22 * b12
-    vx, vy, vz = e21 - e12, e02 - e20, e10 - e01
-    s = 0.5 * math.sqrt(vx * vx + vy * vy + vz * vz)  # sin(angle)
-    c = 0.5 * (e00 + e11 + e22 - 1.0)  # cos(angle)
-    angle = math.atan2(s, c)
-    if s > 1e-6 or c > 0.0:
-        k = 0.5 if s < 1e-12 else angle / (2.0 * s)  # small angles: the vector is v / 2
-        return vx * k, vy * k, vz * k
-    # near pi: the axis from the symmetric part, E + I = 2 a a^T (sign from the skew part)
-    rows = (
-        (e00 + 1.0, (e01 + e10) / 2, (e02 + e20) / 2),
-        ((e01 + e10) / 2, e11 + 1.0, (e12 + e21) / 2),
-        ((e02 + e20) / 2, (e12 + e21) / 2, e22 + 1.0),
-    )
-    col = max(rows, key=lambda row: row[0] * row[0] + row[1] * row[1] + row[2] * row[2])
-    norm = math.sqrt(col[0] * col[0] + col[1] * col[1] + col[2] * col[2])
-    sign = -1.0 if col[0] * vx + col[1] * vy + col[2] * vz < 0.0 else 1.0
-    k = sign * angle / norm
-    return col[0] * k, col[1] * k, col[2] * k
+    current = (values[0:3], values[4:7], values[8:11])
+    return _rotation_vector(SCALAR_OPS, r, current)
 
 
 def ik_numeric(
@@ -115,66 +120,121 @@ def ik_numeric(
     rows4 = t.tolist() if t.shape == (4, 4) else []
     if not rows4 or not math.isfinite(sum(x for row in rows4 for x in row)):
         raise ValueError(f"a pose is a finite 4x4 homogeneous matrix, not {t.shape} / non-finite")
-    terms, lo, hi, revolute = _context(model)
+    iteration, lo, hi, revolute = _context(model)
     n = len(lo)
     if seed is None:
         q = [(a + b) / 2.0 for a, b in zip(lo, hi, strict=True)]
     else:
         given = np.asarray(seed, dtype=float).reshape(n).tolist()
         q = [min(b, max(a, x)) for x, a, b in zip(given, lo, hi, strict=True)]
-    r_target = [row[:3] for row in rows4[:3]]
-    px, py, pz = rows4[0][3], rows4[1][3], rows4[2][3]
-    rows = 6 * n
-    best: tuple[float, list[float], float, float] = (math.inf, q, math.inf, math.inf)
+    target = [x for row in rows4[:3] for x in row]
+    position_limit, orientation_limit = position_tolerance**2, orientation_tolerance**2
+    best_cost, best_q, best_errors = math.inf, q, (math.inf, math.inf)
     total = 0
     for attempt in range(1, attempts + 1):
         history = [math.inf] * _PATIENCE
         for _ in range(max_iterations):
             total += 1
-            values = terms(*q, SCALAR_OPS)
-            ex, ey, ez = px - values[3], py - values[7], pz - values[11]
-            rx, ry, rz = rotation_error(r_target, values)
-            pos2 = ex * ex + ey * ey + ez * ez
-            ori2 = rx * rx + ry * ry + rz * rz
-            cost = pos2 + ori2
-            if pos2 <= position_tolerance**2 and ori2 <= orientation_tolerance**2:
+            out = iteration(*q, *target, SCALAR_OPS)
+            pos2, ori2 = out[0], out[1]
+            if pos2 <= position_limit and ori2 <= orientation_limit:
                 inside = _into_limits(q, lo, hi, revolute)
                 if inside is not None:
                     return NumericIKResult(tuple(inside), True, math.sqrt(pos2), math.sqrt(ori2), total, attempt)
                 break  # a solution, but outside the limits: look for another
-            if cost < best[0]:
-                best = (cost, q, math.sqrt(pos2), math.sqrt(ori2))
+            cost = pos2 + ori2
+            if cost < best_cost:
+                best_cost, best_q, best_errors = cost, q, (pos2, ori2)
+            elif not cost < math.inf:
+                break  # a degenerate system (non-finite values): restart
             if cost > 0.98 * history[-_PATIENCE] and cost > 1e-10:
                 break  # not converging from here: restart
             history.append(cost)
-            # (J J^T + lambda I) y = e, dq = J^T y: the step of (J^T J + lambda I) dq = J^T e
-            packed = np.array((*values[12:], ex, ey, ez, rx, ry, rz))
-            jac = packed[:rows].reshape(6, n)
-            gram = jac @ jac.T
-            gram.flat[::7] += _DAMPING * cost + _BIAS
-            step = (_solve(gram, packed[rows:]) @ jac).tolist()
-            largest = max(map(abs, step))
-            scale = _MAX_STEP / largest if largest > _MAX_STEP else 1.0
-            q = [a + scale * d for a, d in zip(q, step, strict=True)]
+            q = out[2:]
         if rng is None:
             rng = np.random.default_rng()
-        q = [rng.uniform(a, b) for a, b in zip(lo, hi, strict=True)]
-    _, q_best, pos, ori = best
-    return NumericIKResult(tuple(q_best), False, pos, ori, total, attempts)
+        q = [a + u * (b - a) for u, a, b in zip(rng.random(n).tolist(), lo, hi, strict=True)]
+    pos, ori = (math.sqrt(x) for x in best_errors)
+    return NumericIKResult(tuple(best_q), False, pos, ori, total, attempts)
 
 
 _CONTEXTS: weakref.WeakKeyDictionary[RobotModel, tuple[Any, list[float], list[float], list[bool]]] = (
     weakref.WeakKeyDictionary()
 )
+#: the target pose's inputs to the generated iteration: the rotation row-major, then the position
+_TARGET = ("r00", "r01", "r02", "px", "r10", "r11", "r12", "py", "r20", "r21", "r22", "pz")
 
 
 def _context(model: RobotModel) -> tuple[Any, list[float], list[float], list[bool]]:
-    """Per model, once: the generated pose-and-Jacobian function, the limits, which joints turn."""
+    """Per model, once: the generated iteration, the limits, which joints turn."""
     context = _CONTEXTS.get(model)
     if context is None:
         revolute = [j.type is JointType.REVOLUTE for j in model.joints]
-        context = _CONTEXTS[model] = (_chain(model).jacobian, model.lower.tolist(), model.upper.tolist(), revolute)
+        n = model.dof
+        iteration = _compile(model, lambda ops, inputs: _iteration(ops, model, inputs[:n], inputs[n:]), extra=_TARGET)
+        context = _CONTEXTS[model] = (iteration, model.lower.tolist(), model.upper.tolist(), revolute)
     return context
+
+
+def _iteration(ops: Any, model: RobotModel, q: Sequence[Any], target: Sequence[Any]) -> list[Any]:
+    """One Levenberg-Marquardt iteration at q, traced per model into one function: the squared
+    position (m^2) and orientation (rad^2) errors at q, then the next q (the step capped at
+    ``_MAX_STEP`` per joint, direction kept)."""
+    values = pose_and_jacobian(ops, model, q)
+    current = (values[0:3], values[4:7], values[8:11])
+    wanted = (target[0:3], target[4:7], target[8:11])
+    e = [target[3] - values[3], target[7] - values[7], target[11] - values[11]]
+    e += _rotation_vector(ops, wanted, current)
+    pos2 = e[0] * e[0] + e[1] * e[1] + e[2] * e[2]
+    ori2 = e[3] * e[3] + e[4] * e[4] + e[5] * e[5]
+    n = model.dof
+    jac = [values[12 + n * r : 12 + n * (r + 1)] for r in range(6)]
+    step = damped_step(ops, jac, e, _DAMPING * (pos2 + ori2) + _BIAS)
+    scale = _MAX_STEP / ops.maximum(_MAX_STEP, *(abs(d) for d in step))
+    return [pos2, ori2, *(qi + scale * d for qi, d in zip(q, step, strict=True))]
+
+
+def damped_step(ops: Any, jac: Sequence[Sequence[Any]], e: Sequence[Any], damping: Any) -> list[Any]:
+    """The dq minimising ``|J dq - e|^2 + damping |dq|^2``, through the smaller of the two
+    symmetric positive definite systems: ``(J J^T + damping I) y = e, dq = J^T y`` when J has at
+    least as many columns as rows, else ``(J^T J + damping I) dq = J^T e``."""
+    rows, cols = len(jac), len(jac[0])
+    if cols >= rows:
+        gram = [[_sum(jac[i][k] * jac[j][k] for k in range(cols)) for j in range(rows)] for i in range(rows)]
+        y = _solve_spd(ops, gram, e, damping)
+        return [_sum(jac[i][k] * y[i] for i in range(rows)) for k in range(cols)]
+    gram = [[_sum(jac[k][i] * jac[k][j] for k in range(rows)) for j in range(cols)] for i in range(cols)]
+    return _solve_spd(ops, gram, [_sum(jac[k][i] * e[k] for k in range(rows)) for i in range(cols)], damping)
+
+
+def _sum(terms: Iterable[Any]) -> Any:
+    total: Any = 0.0
+    for term in terms:
+        total = total + term
+    return total
+
+
+def _solve_spd(ops: Any, a: list[list[Any]], b: Sequence[Any], damping: Any) -> list[Any]:
+    """x with ``(a + damping I) x = b`` by an LDL^T factorisation (no square roots); a pivot
+    that rounding made non-positive is replaced by a tiny one, so the result stays finite or
+    becomes infinite, never an exception."""
+    m = len(a)
+    low: list[list[Any]] = [[0.0] * m for _ in range(m)]  # L, unit diagonal
+    ld: list[list[Any]] = [[0.0] * m for _ in range(m)]  # L D
+    inverse: list[Any] = [0.0] * m  # 1 / D
+    for j in range(m):
+        d = a[j][j] + damping - _sum(low[j][k] * ld[j][k] for k in range(j))
+        inverse[j] = 1.0 / ops.where(d > 1e-300, d, 1e-300)
+        for i in range(j + 1, m):
+            ld[i][j] = a[i][j] - _sum(ld[i][k] * low[j][k] for k in range(j))
+            low[i][j] = ld[i][j] * inverse[j]
+    z: list[Any] = []
+    for i in range(m):
+        z.append(b[i] - _sum(low[i][k] * z[k] for k in range(i)))
+    x: list[Any] = [0.0] * m
+    for i in reversed(range(m)):
+        x[i] = z[i] * inverse[i] - _sum(low[k][i] * x[k] for k in range(i + 1, m))
+    return x
 
 
 def _into_limits(q: list[float], lo: list[float], hi: list[float], revolute: list[bool]) -> list[float] | None:
