@@ -31,7 +31,8 @@ from robot_server.model import RobotModel
 
 from .refdata import DATA
 
-SPHERICAL = ["jibot_zxs", "puma560", "kuka_kr6_r900_sixx"]
+SKEW = str(DATA / "skew_arm.toml")  # the general (quartic) position case
+SPHERICAL = ["jibot_zxs", "puma560", "kuka_kr6_r900_sixx", SKEW]
 REFERENCE = json.loads((DATA / "fk_reference.json").read_text())
 
 
@@ -90,10 +91,17 @@ def test_closed_form_is_detected_from_the_geometry() -> None:
     assert {name: closed_form(load_model(name)) is not None for name in shipped_models()} == {
         "jibot_zxs": True,
         "puma560": True,
-        "kuka_kr6_r900_sixx": True,  # a URDF model, shoulder offset: the general (quartic) case
+        "kuka_kr6_r900_sixx": True,  # a URDF model
         "ur5": False,  # offset wrist
     }
     assert closed_form(load_model(str(DATA / "jibot_zxs.urdf"))) is not None
+    cases = {name: getattr(closed_form(load_model(name)), "case", None) for name in SPHERICAL}
+    assert cases == {
+        "jibot_zxs": "intersecting",
+        "puma560": "intersecting",
+        "kuka_kr6_r900_sixx": "offset",  # shoulder offset, axes 2 and 3 parallel: a quadratic
+        SKEW: "general",
+    }
 
 
 @pytest.mark.slow
@@ -183,8 +191,9 @@ def _shoulder_singular(model: RobotModel) -> np.ndarray:
     raise AssertionError("no shoulder singularity on the q2 grid")
 
 
-def test_shoulder_singularity_is_flagged_and_keeps_the_seed_q1() -> None:
-    model = load_model("jibot_zxs")
+@pytest.mark.parametrize("name", ["jibot_zxs", "kuka_kr6_r900_sixx"])
+def test_shoulder_singularity_is_flagged_and_keeps_the_seed_q1(name: str) -> None:
+    model = load_model(name)
     solver = closed_form(model)
     assert solver is not None
     q = _shoulder_singular(model)
@@ -203,16 +212,17 @@ def wrist_centre(model: RobotModel, q: np.ndarray) -> np.ndarray:
     return t[:3, 3] + t[:3, :3] @ (solver.r0.T @ np.array(solver.c_flange))
 
 
-@pytest.mark.parametrize("name", ["jibot_zxs", "puma560"])
+@pytest.mark.parametrize("name", ["jibot_zxs", "puma560", "kuka_kr6_r900_sixx"])
 def test_elbow_singularity_merges_the_branches(name: str) -> None:
     model = load_model(name)
     solver = closed_form(model)
     assert solver is not None
 
-    # axes 1 and 2 meet at o1, so the elbow alone sets the wrist centre's distance from o1; the
-    # elbow is singular where that distance is largest (arm stretched): golden-section search on q3
+    # the elbow alone sets the wrist centre's distance from o2 (on axis 2; at q1 = 0 it is where
+    # the model has it); the elbow is singular where that distance is largest (arm stretched):
+    # golden-section search on q3
     def reach(q3: float) -> float:
-        return -float(np.linalg.norm(wrist_centre(model, np.array([0.2, 0.3, q3, 0.4, 0.6, 0.1])) - solver.o1))
+        return -float(np.linalg.norm(wrist_centre(model, np.array([0.0, 0.3, q3, 0.4, 0.6, 0.1])) - solver.o2))
 
     grid = np.linspace(model.lower[2], model.upper[2], 3601)
     q3 = float(min(grid, key=reach))
@@ -224,8 +234,12 @@ def test_elbow_singularity_merges_the_branches(name: str) -> None:
     target = fk(model, q)
     solutions = solver.solve_all(target, q)
     assert solutions
-    assert all(s.singular & Singularity.ELBOW for s in solutions)
-    assert len(solutions) <= 4  # elbow up and down coincide
+    if solver.case == "intersecting":
+        assert all(s.singular & Singularity.ELBOW for s in solutions)
+        assert len(solutions) <= 4  # elbow up and down coincide
+    else:  # the other shoulder side (if within the limits) has a regular elbow-up and elbow-down
+        merged = [s for s in solutions if s.singular & Singularity.ELBOW]
+        assert any(wrapped_equal(s.q, q, 1e-6) for s in merged)
     for s in solutions:
         pos, ori = pose_error(model, np.array(s.q), target)
         assert pos < 1e-9 and ori < 1e-9

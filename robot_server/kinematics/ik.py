@@ -180,10 +180,22 @@ class ClosedFormIK:
         if np.linalg.norm(n6) < 0.1:
             n6 = np.cross(axes[5], [0.0, 1.0, 0.0])
         self.n6: Vec = tuple(float(x) for x in n6 / np.linalg.norm(n6))  # type: ignore[assignment]
+        # |v|^2 = n0 + X and h2.v = m0 + (m1 c3 + m2 s3), where X = n1 c3 + n2 s3
+        v0, vc, vs = self.v0, self.vc, self.vs
+        self.n0 = _dot(v0, v0) + _dot(vc, vc)
+        self.n1, self.n2 = 2.0 * _dot(v0, vc), 2.0 * _dot(v0, vs)
+        self.m0, self.m1, self.m2 = _dot(self.h[1], v0), _dot(self.h[1], vc), _dot(self.h[1], vs)
+        n_size = math.hypot(self.n1, self.n2)
+        self.ratio = 0.0
         if self.a < _GEOMETRY_TOL:
             self.case = "intersecting"
         elif self.sigma < _GEOMETRY_TOL:
             self.case = "parallel"
+        elif n_size > _GEOMETRY_TOL and abs(self.m1 * self.n2 - self.m2 * self.n1) < _GEOMETRY_TOL * n_size:
+            # h2.v moves with X alone (m = ratio n; always when axes 2 and 3 are parallel, as on most
+            # industrial arms): the quartic is a quadratic in X
+            self.case = "offset"
+            self.ratio = (self.m1 * self.n1 + self.m2 * self.n2) / (n_size * n_size)
         else:
             self.case = "general"
         h4, h5, h6 = self.h[3], self.h[4], self.h[5]
@@ -261,12 +273,9 @@ class ClosedFormIK:
 
     def _positions(self, ops: Any, dd: Any, hh: Any, rel: Vec, seed: Sequence[Any]) -> list[tuple[Any, ...]]:
         """(q1, q2, q3, valid, flags) for each position branch."""
-        h1, h2, _h3 = self.h[0], self.h[1], self.h[2]
+        h1, h2 = self.h[0], self.h[1]
         v0, vc, vs, w = self.v0, self.vc, self.vs, self.w
-        # |v|^2 and h2.v as linear functions of (1, c3, s3)
-        n0 = _dot(v0, v0) + _dot(vc, vc)
-        n1, n2 = 2.0 * _dot(v0, vc), 2.0 * _dot(v0, vs)
-        m0, m1, m2 = _dot(h2, v0), _dot(h2, vc), _dot(h2, vs)
+        n0, n1, n2, m0, m1, m2 = self.n0, self.n1, self.n2, self.m0, self.m1, self.m2
         # E1 rhs = C1 = e0 - n1 c3 - n2 s3;  E2 rhs = C2 = f0 - h12 (m1 c3 + m2 s3)
         e0 = dd - self.ww - n0
         f0 = hh - self.h1w - self.h12 * m0
@@ -291,18 +300,7 @@ class ClosedFormIK:
                     flags = elbow | ops.where(free, int(Singularity.SHOULDER), 0)
                     triples.append((q3, q2, ok3 & (ok2 | free), flags))
         else:
-            l1 = [x / (2.0 * self.a) for x in (e0, -n1, -n2)]
-            l2 = [x / self.sigma for x in (f0, -self.h12 * m1, -self.h12 * m2)]
-            # F = L1^2 + L2^2 - |v|^2 + (h2.v)^2, as k0 + k1 c + k2 s + k3 c^2 + k4 s^2 + k5 cs
-            kk: list[Any] = [-n0, -n1, -n2, 0.0, 0.0, 0.0]
-            for a0, a1, a2_ in (l1, l2, (m0, m1, m2)):
-                kk[0] = kk[0] + a0 * a0
-                kk[1] = kk[1] + 2.0 * a0 * a1
-                kk[2] = kk[2] + 2.0 * a0 * a2_
-                kk[3] = kk[3] + a1 * a1
-                kk[4] = kk[4] + a2_ * a2_
-                kk[5] = kk[5] + 2.0 * a1 * a2_
-            roots = ops.quartic(*kk)
+            roots = self._offset_roots(ops, e0, f0) if self.case == "offset" else self._quartic_roots(ops, e0, f0)
             for q3, ok3, double in zip(roots[0:4], roots[4:8], roots[8:12], strict=True):
                 c3, s3 = ops.cos(q3), ops.sin(q3)
                 v = _lin(v0, vc, vs, c3, s3)
@@ -324,6 +322,47 @@ class ClosedFormIK:
             q1, shoulder = _turn_angle(ops, h1, x, rel, seed[0])
             out.append((q1, q2, q3, valid, flags | ops.where(shoulder, int(Singularity.SHOULDER), 0)))
         return out
+
+    def _offset_roots(self, ops: Any, e0: Any, f0: Any) -> tuple[Any, ...]:
+        """q3 where axes 1 and 2 are skew and h2.v = m0 + ratio X: with L1 = (e0 - X) / 2|w| and
+        L2 = (f0 - h12 ratio X) / sin a12, the elimination gives ``A X^2 + B X + C = 0``; each real
+        X gives two q3 from ``n1 c3 + n2 s3 = X``. Returned like :func:`._quartic.trig_quadratic_roots`
+        (q3 x 4, valid x 4, double root x 4)."""
+        lam, h12, a2, s2 = self.ratio, self.h12, 4.0 * self.a * self.a, self.sigma * self.sigma
+        quad = 1.0 / a2 + h12 * h12 * lam * lam / s2 + lam * lam
+        lin = -2.0 * e0 / a2 - 2.0 * h12 * lam * f0 / s2 - 1.0 + 2.0 * self.m0 * lam
+        const = e0 * e0 / a2 + f0 * f0 / s2 - self.n0 + self.m0 * self.m0
+        disc = lin * lin - 4.0 * quad * const
+        # a double X is still real if it misses by rounding (X within _REACH_TOL |n| of real)
+        n_size = math.hypot(self.n1, self.n2)
+        real = disc >= -4.0 * quad * quad * (_REACH_TOL * n_size) ** 2
+        root = ops.sqrt(disc)
+        angles, valid, double = [], [], []
+        for x in ((-lin + root) / (2.0 * quad), (-lin - root) / (2.0 * quad)):
+            q3a, q3b, ok3, _ = _trig_roots(ops, -x, self.n1, self.n2)
+            for q3 in (q3a, q3b):
+                # a double root of F(q3) = A X(q3)^2 + B X(q3) + C, as for the quartic
+                slope = (2.0 * quad * x + lin) * (self.n2 * ops.cos(q3) - self.n1 * ops.sin(q3))
+                angles.append(q3)
+                valid.append(real & ok3)
+                double.append(real & ok3 & (abs(slope) < 1e-7))
+        return (*angles, *valid, *double)
+
+    def _quartic_roots(self, ops: Any, e0: Any, f0: Any) -> tuple[Any, ...]:
+        """q3 in the general case: the roots of the quartic (see the module doc)."""
+        n0, n1, n2, m0, m1, m2 = self.n0, self.n1, self.n2, self.m0, self.m1, self.m2
+        l1 = [x / (2.0 * self.a) for x in (e0, -n1, -n2)]
+        l2 = [x / self.sigma for x in (f0, -self.h12 * m1, -self.h12 * m2)]
+        # F = L1^2 + L2^2 - |v|^2 + (h2.v)^2, as k0 + k1 c + k2 s + k3 c^2 + k4 s^2 + k5 cs
+        kk: list[Any] = [-n0, -n1, -n2, 0.0, 0.0, 0.0]
+        for a0, a1, a2 in (l1, l2, (m0, m1, m2)):
+            kk[0] = kk[0] + a0 * a0
+            kk[1] = kk[1] + 2.0 * a0 * a1
+            kk[2] = kk[2] + 2.0 * a0 * a2
+            kk[3] = kk[3] + a1 * a1
+            kk[4] = kk[4] + a2 * a2
+            kk[5] = kk[5] + 2.0 * a1 * a2
+        return tuple(ops.quartic(*kk))
 
     # -- public API ------------------------------------------------------------------------------
 
