@@ -20,7 +20,9 @@ Every coefficient is linear in (cos q3, sin q3). Three cases, chosen from the mo
 * axes 1 and 2 are parallel: E2 alone fixes q3, then E1 gives two q2;
 * otherwise: eliminating q2 (the two equations are a rotation of the same 2-vector) leaves
   ``(E1rhs / 2|w|)^2 + (E2rhs / sin a12)^2 = |v|^2 - (h2.v)^2``, a quartic in tan(q3/2): up to four
-  q3, each with one q2.
+  q3, each with one q2. Where h2.v varies with q3 only through ``X = |v|^2 - n0`` (always when
+  axes 2 and 3 are parallel, as on most industrial arms with a shoulder offset) it is a quadratic
+  in X instead, and each X gives two q3 ("offset"); only truly skew arms need the quartic.
 
 q1 then turns the point reached by q2, q3 onto p_w (a rotation about one axis). **Orientation**
 (q4, q5, q6): ``W = R3^T R2^T R1^T R M0^T = Rot(h4,q4) Rot(h5,q5) Rot(h6,q6)``; h4.W.h6 fixes q5
