@@ -433,9 +433,14 @@ class ClosedFormIK:
                 fl[b] = out[8 * b + 7]
             qc, inside = _shift_batch(qc, r[None, :, z], lower, upper)
             ok &= inside
-            for j in range(1, 8):
-                for i in range(j):
-                    ok[j] &= ~(ok[i] & (np.abs(qc[j] - qc[i]).max(axis=0) < 1e-9))
+            # branches coincide only at singularities, which are flagged: compare only there
+            singular = np.flatnonzero((fl != 0).any(axis=0))
+            if singular.size:
+                qs, oks = qc[:, :, singular], ok[:, singular]
+                for j in range(1, 8):
+                    for i in range(j):
+                        oks[j] &= ~(oks[i] & (np.abs(qs[j] - qs[i]).max(axis=0) < 1e-9))
+                ok[:, singular] = oks
             q[z] = qc.transpose(2, 0, 1)
             valid[z] = ok.T
             flags[z] = fl.T
@@ -467,9 +472,12 @@ def _shift_batch(
     q: NDArray[np.float64], ref: NDArray[np.float64], lower: NDArray[np.float64], upper: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """:func:`_shift_into_limits` for (branch, joint, pose) arrays: (shifted, inside per branch)."""
-    v = ref + np.remainder(q - ref + math.pi, _TWO_PI) - math.pi
-    v += _TWO_PI * np.ceil(np.maximum(lower - v - 1e-12, 0.0) / _TWO_PI)
-    v -= _TWO_PI * np.ceil(np.maximum(v - upper - 1e-12, 0.0) / _TWO_PI)
+    v = q - _TWO_PI * np.rint((q - ref) / _TWO_PI)  # as math.remainder: within pi of ref
+    below, above = v < lower - 1e-12, v > upper + 1e-12
+    if below.any() or above.any():  # the few outside: the nearest value inside, if any
+        lo, hi = np.broadcast_to(lower, v.shape), np.broadcast_to(upper, v.shape)
+        v[below] += _TWO_PI * np.ceil((lo[below] - v[below] - 1e-12) / _TWO_PI)
+        v[above] -= _TWO_PI * np.ceil((v[above] - hi[above] - 1e-12) / _TWO_PI)
     inside = np.all((v >= lower - 1e-12) & (v <= upper + 1e-12), axis=1)
     return v, inside
 
