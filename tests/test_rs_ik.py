@@ -6,6 +6,7 @@ import dataclasses
 import itertools
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -292,6 +293,57 @@ def test_numeric_ik_on_1000_random_poses(name: str) -> None:
         else:
             assert result.position_error > 1e-6 or result.orientation_error > 1e-6
     assert solved >= 999
+
+
+def _urdf_chain(joints: list[tuple[str, str, str, float, float]]) -> str:
+    """A URDF serial chain: per joint (type, origin xyz, axis xyz, lower, upper)."""
+    links = "".join(f'<link name="l{i}"/>' for i in range(len(joints) + 1))
+    body = "".join(
+        f'<joint name="j{i + 1}" type="{kind}"><parent link="l{i}"/><child link="l{i + 1}"/>'
+        f'<origin xyz="{xyz}" rpy="0 0 0"/><axis xyz="{axis}"/>'
+        f'<limit lower="{lo}" upper="{hi}" velocity="1"/></joint>'
+        for i, (kind, xyz, axis, lo, hi) in enumerate(joints)
+    )
+    return f'<robot name="chain">{links}{body}</robot>'
+
+
+_PLANAR = [("revolute", "0 0 0", "0 0 1", -3, 3), ("revolute", "0.4 0 0", "0 0 1", -2.5, 2.5)]
+_PLANAR += [("revolute", "0.3 0 0", "0 0 1", -2.5, 2.5)]
+_SEVEN = [
+    ("revolute", "0 0 0.3", "0 0 1", -3, 3),
+    ("revolute", "0 0 0.1", "0 1 0", -2, 2),
+    ("prismatic", "0 0 0.4", "0 0 1", 0, 0.3),
+    ("revolute", "0 0 0.2", "0 1 0", -2, 2),
+    ("revolute", "0 0 0.3", "0 0 1", -3, 3),
+    ("revolute", "0 0 0.3", "0 1 0", -2, 2),
+    ("revolute", "0 0 0.1", "0 0 1", -3, 3),
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("joints", "required"), [(_PLANAR, 100), (_SEVEN, 95)], ids=["planar-3R", "7-axis-prismatic"])
+def test_numeric_ik_on_other_chains(
+    tmp_path: Path, joints: list[tuple[str, str, str, float, float]], required: int
+) -> None:
+    """Fewer and more joints than six (the smaller normal system; redundancy, a prismatic joint):
+    poses the chain itself reaches are solved within tolerance and limits, or reported failed."""
+    path = tmp_path / "chain.urdf"
+    path.write_text(_urdf_chain(joints))
+    model = load_model(path)
+    assert closed_form(model) is None
+    rng = np.random.default_rng(8)
+    solved = 0
+    for _ in range(100):
+        target = fk(model, rng.uniform(model.lower, model.upper))
+        result = ik_numeric(model, target, rng.uniform(model.lower, model.upper), rng=rng)
+        pos, ori = pose_error(model, np.array(result.q), target)
+        if result.success:
+            solved += 1
+            assert pos <= 1e-6 and ori <= 1e-6 and model.within_limits(np.array(result.q), 1e-12)
+        else:
+            assert pos == pytest.approx(result.position_error, abs=1e-12)
+            assert result.position_error > 1e-6 or result.orientation_error > 1e-6
+    assert solved >= required
 
 
 def test_numeric_ik_reports_failure_with_the_best_residual() -> None:
