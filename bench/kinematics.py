@@ -20,26 +20,36 @@ import functools
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from codec import machine
 
-from robot_server.kinematics import closed_form, fk, fk_batch, ik_numeric
+from robot_server.kinematics import NumericIKResult, closed_form, fk, fk_batch, ik_numeric
 from robot_server.loader import load_model, shipped_models
+from robot_server.model import RobotModel
 
 
-def median_us(calls: list[tuple[object, ...]], function: object, passes: int = 3) -> float:
-    """The median over ``calls`` of each call's best time in ``passes`` passes over them (us)."""
-    best = [float("inf")] * len(calls)
+def median_us(calls: Callable[[], list[tuple[Any, ...]]], function: Callable[..., object], passes: int = 3) -> float:
+    """The median over the calls of each call's best time in ``passes`` passes (us); ``calls()``
+    gives each pass its arguments, made outside the timing."""
+    best: list[float] = []
     for _ in range(passes):
-        for i, args in enumerate(calls):
+        arguments = calls()
+        best = best or [float("inf")] * len(arguments)
+        for i, args in enumerate(arguments):
             t0 = time.perf_counter_ns()
-            function(*args)  # type: ignore[operator]
+            function(*args)
             best[i] = min(best[i], time.perf_counter_ns() - t0)
     return statistics.median(best) / 1000.0
+
+
+def numeric(model: RobotModel, pose: Any, seed: Any, rng: np.random.Generator) -> NumericIKResult:
+    return ik_numeric(model, pose, seed, rng=rng)
 
 
 def best_rate(n: int, function: object, argument: object, repeats: int = 5) -> float:
@@ -73,27 +83,25 @@ def main() -> None:
         rng = np.random.default_rng(11)
         qs = rng.uniform(model.lower, model.upper, size=(batch, model.dof))
         fk(model, qs[0])
-        fk_single = median_us([(model, q) for q in qs[:samples]], fk)
+        fk_calls = [(model, q) for q in qs[:samples]]
+        fk_single = median_us(lambda: fk_calls, fk)  # noqa: B023
         fk_rate = best_rate(batch, functools.partial(fk_batch, model), qs)
         poses = fk_batch(model, qs)
         solver = closed_form(model)
         if solver is not None:
             solver.solve_all(poses[0])
-            cf_single = f"{median_us([(p,) for p in poses[:samples]], solver.solve_all):.1f}"
+            cf_calls = [(p,) for p in poses[:samples]]
+            cf_single = f"{median_us(lambda: cf_calls, solver.solve_all):.1f}"  # noqa: B023
             cf_rate = f"{best_rate(batch, solver.solve_batch, poses):,.0f}"
         else:
             cf_single = cf_rate = "n/a (no spherical wrist)"
         seeds = rng.uniform(model.lower, model.upper, size=(numeric_poses, model.dof))
-        best = [float("inf")] * numeric_poses
-        for _ in range(3):
-            rngs = [np.random.default_rng([11, i]) for i in range(numeric_poses)]  # the same restarts
-            solved = 0
-            for i in range(numeric_poses):
-                t0 = time.perf_counter_ns()
-                result = ik_numeric(model, poses[i], seeds[i], rng=rngs[i])
-                best[i] = min(best[i], time.perf_counter_ns() - t0)
-                solved += result.success
-        numeric_us = statistics.median(best) / 1000.0
+
+        def numeric_calls() -> list[tuple[Any, ...]]:  # each pass draws the same restarts
+            return [(model, poses[i], seeds[i], np.random.default_rng([11, i])) for i in range(numeric_poses)]  # noqa: B023
+
+        numeric_us = median_us(numeric_calls, numeric)
+        solved = sum(numeric(*args).success for args in numeric_calls())
         print(
             f"| {name} | {fk_single:.1f} | {fk_rate:,.0f} | {cf_single} | {cf_rate} | "
             f"{numeric_us:.0f} | {solved}/{numeric_poses} |"

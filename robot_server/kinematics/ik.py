@@ -187,7 +187,7 @@ class ClosedFormIK:
         self.n0 = _dot(v0, v0) + _dot(vc, vc)
         self.n1, self.n2 = 2.0 * _dot(v0, vc), 2.0 * _dot(v0, vs)
         self.m0, self.m1, self.m2 = _dot(self.h[1], v0), _dot(self.h[1], vc), _dot(self.h[1], vs)
-        n_size = math.hypot(self.n1, self.n2)
+        n_size = self.n_size = math.hypot(self.n1, self.n2)
         self.ratio = 0.0
         if self.a < _GEOMETRY_TOL:
             self.case = "intersecting"
@@ -336,8 +336,7 @@ class ClosedFormIK:
         const = e0 * e0 / a2 + f0 * f0 / s2 - self.n0 + self.m0 * self.m0
         disc = lin * lin - 4.0 * quad * const
         # a double X is still real if it misses by rounding (X within _REACH_TOL |n| of real)
-        n_size = math.hypot(self.n1, self.n2)
-        real = disc >= -4.0 * quad * quad * (_REACH_TOL * n_size) ** 2
+        real = disc >= -4.0 * quad * quad * (_REACH_TOL * self.n_size) ** 2
         root = ops.sqrt(disc)
         angles, valid, double = [], [], []
         for x in ((-lin + root) / (2.0 * quad), (-lin - root) / (2.0 * quad)):

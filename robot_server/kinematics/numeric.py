@@ -6,8 +6,8 @@ error (the rotation vector of ``R_target R^T``, rad), and lambda follows Sugihar
 (proportional to ``e^T e`` plus a small bias): large far from the goal, vanishing near it, so the
 last iterations are Gauss-Newton steps with quadratic convergence. In the steps (not in the
 tolerances) a metre of position error weighs 3 / L, L the chain's length: about one iteration
-fewer than weighing metres and radians alike, measured on the shipped models. Steps are capped at 2 rad per
-joint. The iterations ignore the position limits: clamping a joint at its limit was the main cause
+fewer than weighing metres and radians alike, measured on the shipped models. Steps are capped
+at 2 rad per joint. The iterations ignore the position limits: clamping a joint at its limit was the main cause
 of stalled attempts (most random targets lie across a limit from a random seed, measured on the
 shipped models). The limits are enforced on the result instead: a converged configuration has its
 revolute joints moved by multiples of 2 pi into the limits, and if it cannot be, the search goes on
@@ -32,7 +32,7 @@ from __future__ import annotations
 import itertools
 import math
 import weakref
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -249,18 +249,11 @@ def damped_step(ops: Any, jac: Sequence[Sequence[Any]], e: Sequence[Any], dampin
     least as many columns as rows, else ``(J^T J + damping I) dq = J^T e``."""
     rows, cols = len(jac), len(jac[0])
     if cols >= rows:
-        gram = [[_sum(jac[i][k] * jac[j][k] for k in range(cols)) for j in range(rows)] for i in range(rows)]
+        gram = [[sum(jac[i][k] * jac[j][k] for k in range(cols)) for j in range(rows)] for i in range(rows)]
         y = _solve_spd(ops, gram, e, damping)
-        return [_sum(jac[i][k] * y[i] for i in range(rows)) for k in range(cols)]
-    gram = [[_sum(jac[k][i] * jac[k][j] for k in range(rows)) for j in range(cols)] for i in range(cols)]
-    return _solve_spd(ops, gram, [_sum(jac[k][i] * e[k] for k in range(rows)) for i in range(cols)], damping)
-
-
-def _sum(terms: Iterable[Any]) -> Any:
-    total: Any = 0.0
-    for term in terms:
-        total = total + term
-    return total
+        return [sum(jac[i][k] * y[i] for i in range(rows)) for k in range(cols)]
+    gram = [[sum(jac[k][i] * jac[k][j] for k in range(rows)) for j in range(cols)] for i in range(cols)]
+    return _solve_spd(ops, gram, [sum(jac[k][i] * e[k] for k in range(rows)) for i in range(cols)], damping)
 
 
 def _solve_spd(ops: Any, a: list[list[Any]], b: Sequence[Any], damping: Any) -> list[Any]:
@@ -272,17 +265,17 @@ def _solve_spd(ops: Any, a: list[list[Any]], b: Sequence[Any], damping: Any) -> 
     ld: list[list[Any]] = [[0.0] * m for _ in range(m)]  # L D
     inverse: list[Any] = [0.0] * m  # 1 / D
     for j in range(m):
-        d = a[j][j] + damping - _sum(low[j][k] * ld[j][k] for k in range(j))
+        d = a[j][j] + damping - sum(low[j][k] * ld[j][k] for k in range(j))
         inverse[j] = 1.0 / ops.where(d > 1e-300, d, 1e-300)
         for i in range(j + 1, m):
-            ld[i][j] = a[i][j] - _sum(ld[i][k] * low[j][k] for k in range(j))
+            ld[i][j] = a[i][j] - sum(ld[i][k] * low[j][k] for k in range(j))
             low[i][j] = ld[i][j] * inverse[j]
     z: list[Any] = []
     for i in range(m):
-        z.append(b[i] - _sum(low[i][k] * z[k] for k in range(i)))
+        z.append(b[i] - sum(low[i][k] * z[k] for k in range(i)))
     x: list[Any] = [0.0] * m
     for i in reversed(range(m)):
-        x[i] = z[i] * inverse[i] - _sum(low[k][i] * x[k] for k in range(i + 1, m))
+        x[i] = z[i] * inverse[i] - sum(low[k][i] * x[k] for k in range(i + 1, m))
     return x
 
 
