@@ -819,14 +819,17 @@ class DhLink:
     alpha: float = 0.0
 
 
-#: Axes per group in MotoPlus's DH_PARAMETERS (``MAX_PULSE_AXES``); the SDK header is not public
-#: (simple-message.md §8.1 marks 8 as UNVERIFIED), so decoding derives the count from the body size.
+#: Axes per group in MotoPlus's DH_PARAMETERS (``MAX_PULSE_AXES``). The SDK header is not public, but
+#: MotoROS always sends 4 groups of 8 (a 512-byte body with float32) and MotoROS clients (the Python
+#: ``moto`` package) parse exactly that, so a reply always carries 8 axes per group, unused ones 0.
+#: Decoding still accepts fewer axes per group (derived from the body size) and pads them.
 DH_AXES = 8
 
 
 @dataclass(frozen=True, slots=True)
 class GetDhParametersReply(Message):
-    """GET_DH_PARAMETERS (2020) reply: 4 groups x N axes x (theta, d, a, alpha) reals."""
+    """GET_DH_PARAMETERS (2020) reply: 4 groups x 8 axes x (theta, d, a, alpha) reals (missing groups
+    and axes are zero; a group of more than :data:`DH_AXES` axes is an error)."""
 
     groups: tuple[tuple[DhLink, ...], ...] = ()
     comm_type: int = field(default=CommType.SERVICE_REPLY, kw_only=True)
@@ -843,9 +846,10 @@ class GetDhParametersReply(Message):
         )
         if len(groups) > MOTO_MAX_GROUPS:
             raise LocalProtocolError(f"at most {MOTO_MAX_GROUPS} groups, not {len(groups)}")
-        axes = max((len(g) for g in groups), default=DH_AXES)
-        padded = tuple(g + (DhLink(),) * (axes - len(g)) for g in groups)
-        padded += ((DhLink(),) * axes,) * (MOTO_MAX_GROUPS - len(padded))
+        if any(len(g) > DH_AXES for g in groups):
+            raise LocalProtocolError(f"at most {DH_AXES} axes per group, not {max(len(g) for g in groups)}")
+        padded = tuple(g + (DhLink(),) * (DH_AXES - len(g)) for g in groups)
+        padded += ((DhLink(),) * DH_AXES,) * (MOTO_MAX_GROUPS - len(padded))
         object.__setattr__(self, "groups", padded)
 
     def _encode_body(self, wire: WireFormat) -> bytes:
@@ -855,7 +859,7 @@ class GetDhParametersReply(Message):
     @classmethod
     def _decode_body(cls, body: bytes, wire: WireFormat, comm_type: int, reply_code: int) -> Message | None:
         s = wire.struct("rrrr")
-        if not body or len(body) % (MOTO_MAX_GROUPS * s.size):
+        if not body or len(body) % (MOTO_MAX_GROUPS * s.size) or len(body) > MOTO_MAX_GROUPS * DH_AXES * s.size:
             return None
         axes = len(body) // (MOTO_MAX_GROUPS * s.size)
         groups = tuple(

@@ -173,11 +173,21 @@ def test_motoros_mregister_request_and_reply_share_a_type() -> None:
 def test_select_tool_and_dh_parameters() -> None:
     assert decode(SelectTool(0, 3, 9).encode(), LE32) == SelectTool(0, 3, 9)
     assert decode(GetDhParameters().encode(), LE32) == GetDhParameters()
-    dh = GetDhParametersReply([[DhLink(0.0, 0.339, 0.0, 0.0), DhLink(1.0, 0.0, 0.25, 1.5)]])
-    assert len(dh.groups) == 4 and all(len(g) == 2 for g in dh.groups)
-    full = GetDhParametersReply([[DhLink()] * 8] * 4)
-    assert len(full.encode(LE32)) == 16 + 4 * 8 * 16
-    assert decode(full.encode(LE32), LE32) == full
+    # MotoROS always sends 4 groups x 8 axes (512 bytes with float32): fewer are padded with zeros
+    dh = GetDhParametersReply([[DhLink(0.0, 0.375, 0.0, 0.0), DhLink(1.0, 0.0, 0.25, 1.5)]])
+    assert len(dh.groups) == 4 and all(len(g) == 8 for g in dh.groups)
+    assert dh.groups[0][1] == DhLink(1.0, 0.0, 0.25, 1.5) and dh.groups[0][2] == DhLink() == dh.groups[3][7]
+    assert len(dh.encode(LE32)) == 16 + 512
+    assert len(dh.encode(LE64)) == 16 + 1024
+    assert decode(dh.encode(LE32), LE32) == dh
+    # a shorter body from another peer decodes (padded); more than 8 axes is refused both ways
+    body = b"".join(LE32.struct("rrrr").pack(1.0, 2.0, 3.0, 4.0) for _ in range(4 * 6))
+    frame = LE32.struct("iiii").pack(12 + len(body), 2020, 3, 1) + body
+    back = decode(frame, LE32)
+    assert isinstance(back, GetDhParametersReply) and back.groups[3][5] == DhLink(1.0, 2.0, 3.0, 4.0)
+    assert back.groups[3][6] == DhLink()
+    with pytest.raises(LocalProtocolError):
+        GetDhParametersReply([[DhLink()] * 9])
 
 
 def test_dummy_data_reply_of_rep_i0006() -> None:
