@@ -21,8 +21,9 @@ import signal
 import sys
 import threading
 from collections.abc import Sequence
+from pathlib import Path
 
-from .control import Policy
+from .control import Policy, Recorder
 from .emulator import FAULT_COMMANDS, Emulator, EmulatorConfig, FaultError, apply_fault_command
 from .emulator.server import MAX_STATE_RATE
 from .loader import load_model, shipped_models
@@ -94,6 +95,19 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--queue-size", type=int, default=64, metavar="POINTS", help="streamed points the controller queues")
     p.add_argument("--speedup", type=_positive, default=1.0, metavar="FACTOR", help="run the controller faster")
     p.add_argument("--serial", metavar="URL", help="also serve one link on this serial port (pyserial URL)")
+    p.add_argument(
+        "--record",
+        metavar="FILE.csv",
+        help="record every servo tick (command, actual, following error, points received) and write it as CSV "
+        "on exit; with several motion groups one file per group (FILE.g1.csv, ...)",
+    )
+    p.add_argument(
+        "--record-seconds",
+        type=_positive,
+        default=120.0,
+        metavar="SECONDS",
+        help="keep the last SECONDS of the record (default 120)",
+    )
     p.add_argument("--fault", type=_fault, action="append", default=[], metavar="SECONDS:COMMAND")
     p.add_argument("--no-stdin", action="store_true", help="do not read fault commands from stdin")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
@@ -131,14 +145,32 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         models = [load_model(m) for m in config.models]
         emulator = Emulator(config, models)
+        recorders = emulator.record(args.record_seconds) if args.record else []
     except (ValueError, ModelError, OSError) as exc:
         print(f"robot-server: {exc}", file=sys.stderr)
         return 2
     try:
-        return asyncio.run(_serve(emulator, args.fault, read_stdin=not args.no_stdin))
+        code = asyncio.run(_serve(emulator, args.fault, read_stdin=not args.no_stdin))
     except OSError as exc:  # e.g. the port is taken
         print(f"robot-server: {exc}", file=sys.stderr)
         return 1
+    try:
+        _write_records(args.record, recorders, emulator)
+    except OSError as exc:
+        print(f"robot-server: cannot write the record: {exc}", file=sys.stderr)
+        return 1
+    return code
+
+
+def _write_records(path: str | None, recorders: list[Recorder], emulator: Emulator) -> None:
+    if path is None:
+        return
+    target = Path(path)
+    for index, (recorder, group) in enumerate(zip(recorders, emulator.cell.groups, strict=True)):
+        out = target if index == 0 else target.with_name(f"{target.stem}.g{index}{target.suffix or '.csv'}")
+        recorder.to_csv(out, group.model.joint_names)
+        dropped = f" ({recorder.dropped} older ticks dropped: see --record-seconds)" if recorder.dropped else ""
+        log.info("record of group %d: %d ticks written to %s%s", index, len(recorder), out, dropped)
 
 
 def _check_command(command: str) -> None:

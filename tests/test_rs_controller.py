@@ -446,8 +446,9 @@ def test_recorder_is_bounded_and_exports_csv() -> None:
     rec.to_csv(out, MODEL.joint_names)
     lines = out.getvalue().splitlines()
     assert len(lines) == 101
-    assert lines[0].startswith("time,command_position_joint_1,")
-    assert len(lines[1].split(",")) == 1 + 7 * N
+    assert lines[0].startswith("time,command_position_joint_1,") and lines[0].endswith(",points")
+    assert len(lines[1].split(",")) == 1 + 7 * N + 1
+    assert lines[1].endswith(",2") and list(rec.points()) == [2] * 100  # both points arrived before
     every_tenth = Recorder(N, capacity=100, decimation=10)
     ctl.run_for(0.1, every_tenth)
     assert len(every_tenth) == 10

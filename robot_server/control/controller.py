@@ -98,7 +98,8 @@ class ControllerConfig:
 
 
 class Tick(NamedTuple):
-    """One servo tick: commanded and actual state per joint, and the following error (command - actual)."""
+    """One servo tick: commanded and actual state per joint, the following error (command - actual),
+    and how many points the controller had accepted by then (a count that steps when points arrive)."""
 
     time: float
     command_position: list[float]
@@ -108,6 +109,7 @@ class Tick(NamedTuple):
     actual_velocity: list[float]
     actual_acceleration: list[float]
     following_error: list[float]
+    points: int = 0
 
 
 class Controller:
@@ -144,6 +146,8 @@ class Controller:
         self.error_code = 0
         self.error_message = ""
         self.trajectories = 0
+        #: points accepted so far (first points included)
+        self.points_accepted = 0
         self._powered = True
         self._settled = True
 
@@ -253,6 +257,7 @@ class Controller:
             raise PointRejected(Reason.SEQUENCE, "END_TRAJECTORY (-3) without a download started by -1")
         for segment in self._plan_streamed(point):
             self._enqueue(segment)
+        self.points_accepted += 1
 
     def _check_ready(self) -> None:
         if not self._powered:
@@ -326,7 +331,9 @@ class Controller:
             self._tick += 1
             p = list(self.servo.position)
             zeros = [0.0] * self.dof
-            self.command = tick = Tick(self._tick * self.config.servo_period, p, zeros, zeros, p, zeros, zeros, zeros)
+            self.command = tick = Tick(
+                self._tick * self.config.servo_period, p, zeros, zeros, p, zeros, zeros, zeros, self.points_accepted
+            )
             self._settled = True
             return tick
         i = self._tick % self._sub
@@ -354,6 +361,7 @@ class Controller:
             list(servo.velocity),
             list(servo.acceleration),
             error,
+            self.points_accepted,
         )
         if not self._settled and not self._queue:
             self._check_settled(tick)
@@ -503,6 +511,8 @@ class ControlLoop:
     stats: LoopStats = field(default_factory=LoopStats)
     #: further controllers stepped in lockstep (other motion groups; same periods)
     others: Sequence[Controller] = ()
+    #: records the ticks of ``others`` (by position; None or missing: not recorded)
+    other_recorders: list[Recorder | None] = field(default_factory=list)
     #: called after every wake-up's ticks (e.g. to hand points over or to wake waiting replies)
     on_wake: Callable[[], None] | None = None
     _running: bool = field(default=False, init=False)
@@ -537,12 +547,18 @@ class ControlLoop:
                     if lateness > period:
                         stats.overruns += 1
                 recorder = self.recorder  # may be attached or detached between wake-ups
+                others = [
+                    (c, self.other_recorders[i] if i < len(self.other_recorders) else None)
+                    for i, c in enumerate(controllers[1:])
+                ]
                 for _ in range(sub):
                     tick = ctl.step()
                     if recorder is not None:
                         recorder.add(tick)
-                    for other in controllers[1:]:
-                        other.step()
+                    for other, other_recorder in others:
+                        other_tick = other.step()
+                        if other_recorder is not None:
+                            other_recorder.add(other_tick)
                 if on_wake is not None:
                     on_wake()
                 stats.ticks += sub

@@ -2,6 +2,10 @@
 
 It keeps the most recent ``capacity`` ticks in preallocated arrays (a ring buffer), so a long run
 never grows memory; :attr:`Recorder.dropped` says how many older ticks were overwritten.
+
+The CSV has a header row: ``time`` (s), then each of :data:`QUANTITIES` per joint (SI units),
+then ``points``: how many points the controller had accepted by that tick (it steps where points
+arrived).
 """
 
 from __future__ import annotations
@@ -10,7 +14,7 @@ import csv
 import io
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,6 +23,8 @@ if TYPE_CHECKING:
     from .controller import Tick
 
 __all__ = ["Recorder", "QUANTITIES"]
+
+_T = TypeVar("_T", bound=np.generic)
 
 #: per joint, in this order after the time column
 QUANTITIES = (
@@ -43,6 +49,7 @@ class Recorder:
         self.decimation = decimation
         self._time = np.zeros(capacity)
         self._data = np.zeros((capacity, len(QUANTITIES), dof))
+        self._points = np.zeros(capacity, dtype=np.int64)
         self._count = 0  # ticks stored so far (including overwritten ones)
         self._seen = 0
 
@@ -62,6 +69,7 @@ class Recorder:
             tick.actual_acceleration,
             tick.following_error,
         )
+        self._points[row] = tick.points
         self._count += 1
 
     def __len__(self) -> int:
@@ -79,11 +87,15 @@ class Recorder:
     def time(self) -> NDArray[np.float64]:
         return self._ordered(self._time)
 
+    def points(self) -> NDArray[np.int64]:
+        """Points accepted by each recorded tick, oldest first."""
+        return self._ordered(self._points)
+
     def get(self, quantity: str) -> NDArray[np.float64]:
         """``(ticks, dof)`` array of one of :data:`QUANTITIES`, oldest first."""
         return self._ordered(self._data[:, QUANTITIES.index(quantity), :])
 
-    def _ordered(self, array: NDArray[np.float64]) -> NDArray[np.float64]:
+    def _ordered(self, array: NDArray[_T]) -> NDArray[_T]:
         n = len(self)
         if self._count <= self.capacity:
             return array[:n].copy()
@@ -92,10 +104,10 @@ class Recorder:
 
     def header(self, joint_names: Sequence[str] | None = None) -> list[str]:
         names = list(joint_names) if joint_names is not None else [f"j{i + 1}" for i in range(self.dof)]
-        return ["time"] + [f"{q}_{name}" for q in QUANTITIES for name in names]
+        return ["time"] + [f"{q}_{name}" for q in QUANTITIES for name in names] + ["points"]
 
     def to_csv(self, target: str | Path | io.TextIOBase, joint_names: Sequence[str] | None = None) -> None:
-        """CSV with a header row: time (s), then each quantity per joint (SI units: rad, rad/s, ...)."""
+        """CSV with a header row (see the module doc)."""
         if isinstance(target, str | Path):
             with open(target, "w", newline="") as stream:
                 self._write(stream, joint_names)
@@ -107,5 +119,5 @@ class Recorder:
         writer.writerow(self.header(joint_names))
         times = self.time()
         data = np.concatenate([self.get(q) for q in QUANTITIES], axis=1)
-        for t, row in zip(times.tolist(), data.tolist(), strict=True):
-            writer.writerow([repr(t)] + [repr(x) for x in row])
+        for t, row, n in zip(times.tolist(), data.tolist(), self.points().tolist(), strict=True):
+            writer.writerow([repr(t)] + [repr(x) for x in row] + [n])

@@ -29,7 +29,7 @@ from simple_message.constants import Port
 from simple_message.endpoints import ReplyStyle, Server, Session
 from simple_message.wire import ByteOrder, WireFormat
 
-from ..control import Clock, ControllerConfig, ControlLoop, Policy, RealTimeClock, SimulatedClock
+from ..control import Clock, ControllerConfig, ControlLoop, Policy, RealTimeClock, Recorder, SimulatedClock
 from ..loader import load_model
 from ..model import RobotModel
 from .cell import RobotCell
@@ -279,6 +279,17 @@ class Emulator:
         await self.close()
 
     # -- helpers -----------------------------------------------------------------------------------
+
+    def record(self, seconds: float) -> list[Recorder]:
+        """Record every servo tick of every motion group from now on, keeping the last ``seconds``
+        of controller time (a bounded ring buffer); returns one recorder per group."""
+        if not seconds > 0.0:
+            raise ValueError(f"the record length must be > 0 s, not {seconds}")
+        period = self.cell.config.servo_period
+        recorders = [Recorder(g.dof, capacity=max(1, round(seconds / period))) for g in self.cell.groups]
+        self.control.recorder = recorders[0]
+        self.control.other_recorders = list(recorders[1:])
+        return recorders
 
     async def wait_until(self, predicate: Callable[[], bool], timeout: float) -> None:
         """Wait until ``predicate()`` holds, checked after every control-loop wake-up."""
