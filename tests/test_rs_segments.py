@@ -132,12 +132,33 @@ def test_sampling_is_vectorised_and_consistent() -> None:
 
 
 def test_extremes_are_exact() -> None:
-    (p0, v0, _), (p1, v1, _) = states(2)
-    segment = cubic_hermite(p0, v0, p1, v1, 0.8)
-    lo, hi = segment.extremes(0)
-    dense = segment.sample(np.linspace(0, 0.8, 200_001)).position
-    assert np.all(lo <= dense.min(axis=0) + 1e-15) and np.all(dense.min(axis=0) - lo < 1e-9)
-    assert np.all(hi >= dense.max(axis=0) - 1e-15) and np.all(hi - dense.max(axis=0) < 1e-9)
+    (p0, v0, a0), (p1, v1, a1) = states(2)
+    for segment in (
+        cubic_hermite(p0, v0, p1, v1, 0.8),
+        quintic_hermite((p0, v0, a0), (p1, v1, a1), 0.8),
+        RuckigSegment.plan((p0, v0, np.zeros(N)), (p1, np.zeros(N), np.zeros(N)), *LIMITS),
+    ):
+        dense = segment.sample(np.linspace(0, segment.duration, 200_001))
+        for order in range(4):
+            lo, hi = segment.extremes(order)
+            scale = max(1.0, float(np.max(np.abs(dense[order]))))
+            tol = 1e-9 * scale if order < 3 else 1e-12 * scale
+            assert np.all(lo <= dense[order].min(axis=0) + tol), (segment, order)
+            assert np.all(hi >= dense[order].max(axis=0) - tol), (segment, order)
+            if order < 3 or segment.kind != "ruckig":  # ruckig's jerk is exact at phase starts, sampled inside
+                assert np.all(dense[order].min(axis=0) - lo < 1e-6 * scale), (segment, order)
+                assert np.all(hi - dense[order].max(axis=0) < 1e-6 * scale), (segment, order)
+            bound_lo, bound_hi = segment.bounds(order)
+            assert np.all(bound_lo <= lo + tol) and np.all(bound_hi >= hi - tol)
+
+
+def test_bounded_order_says_which_derivatives_stay_finite_at_joins() -> None:
+    (p0, v0, a0), (p1, v1, a1) = states(2)
+    assert linear(p0, p1, 1.0).bounded_order == 1
+    assert cubic(p0, p1, 1.0).bounded_order == cubic_hermite(p0, v0, p1, v1, 1.0).bounded_order == 2
+    assert quintic(p0, p1, 1.0).bounded_order == quintic_hermite((p0, v0, a0), (p1, v1, a1), 1.0).bounded_order == 3
+    assert hold(p0, 1.0).bounded_order == 3
+    assert RuckigSegment.plan((p0, v0, a0), (p1, v1, np.zeros(N)), *LIMITS).bounded_order == 3
 
 
 def test_bad_segments_are_refused() -> None:
@@ -203,7 +224,11 @@ def test_ruckig_ignores_position_limits_so_we_check_extremes() -> None:
     assert trajectory.position_extrema[0].max > 0.2  # the limit was ignored
     segment = RuckigSegment.plan(([0.0], [1.0], [0.0]), ([0.1], [0.0], [0.0]), [3.0], [2.0], [10.0])
     _, hi = segment.extremes(0)
-    assert math.isclose(hi[0], trajectory.position_extrema[0].max)
+    # ruckig's own position_extrema says 0.3186 here, but its at_time reaches 0.3467 (at t = 0.6 s):
+    # extremes(0) finds the true maximum (where the velocity crosses zero), not ruckig's figure
+    sampled = max(segment.trajectory.at_time(float(t))[0][0] for t in np.linspace(0, segment.duration, 20_001))
+    assert math.isclose(hi[0], sampled, rel_tol=1e-6) and hi[0] >= sampled
+    assert trajectory.position_extrema[0].max < sampled - 0.02
     assert hi[0] > 0.2
 
 

@@ -58,11 +58,19 @@ class Samples(NamedTuple):
 
 
 class Segment(ABC):
-    """A motion of all joints over ``duration`` seconds."""
+    """A motion of all joints over ``duration`` seconds.
+
+    ``kind`` names the shape (for people: logs, reprs); code asks :attr:`bounded_order` instead:
+    the highest derivative that stays finite where segments of this shape join (1: the velocity of
+    a linear segment steps, so its acceleration is unbounded at the joins; 2: a cubic's
+    acceleration steps; 3: quintics and ruckig's profiles are C2, their jerk is bounded). Limits
+    are checked up to that order.
+    """
 
     kind: str
     duration: float
     dof: int
+    bounded_order: int
 
     @abstractmethod
     def sample(self, t: ArrayLike) -> Samples:
@@ -71,7 +79,7 @@ class Segment(ABC):
     @abstractmethod
     def extremes(self, order: int) -> tuple[Array, Array]:
         """Per joint, the exact minimum and maximum over the segment of position (``order`` 0),
-        velocity (1) or acceleration (2)."""
+        velocity (1), acceleration (2) or jerk (3)."""
 
     def end(self) -> Samples:
         return self.sample(self.duration)
@@ -107,24 +115,28 @@ class PolynomialSegment(Segment):
     which stays well conditioned for short segments (a 4 ms quintic has h_5 ~ 1e12 in seconds).
     """
 
-    __slots__ = ("_derivatives", "_normalised", "dof", "duration", "kind")
+    __slots__ = ("_derivatives", "_normalised", "bounded_order", "dof", "duration", "kind")
 
-    def __init__(self, coefficients: ArrayLike, duration: float, kind: str = "polynomial") -> None:
+    def __init__(
+        self, coefficients: ArrayLike, duration: float, kind: str = "polynomial", bounded_order: int = 3
+    ) -> None:
         h = np.array(coefficients, dtype=float)
         if h.ndim != 2 or not 1 <= h.shape[0] <= 6:
             raise PlanningError(f"polynomial coefficients must be (degree + 1, dof) with degree <= 5, not {h.shape}")
         tf = _duration(duration)
         scale = tf ** np.arange(h.shape[0])[:, None]
-        self._setup(h * scale, tf, kind)
+        self._setup(h * scale, tf, kind, bounded_order)
 
     @classmethod
-    def normalised(cls, coefficients: ArrayLike, duration: float, kind: str) -> PolynomialSegment:
+    def normalised(
+        cls, coefficients: ArrayLike, duration: float, kind: str, bounded_order: int = 3
+    ) -> PolynomialSegment:
         """From coefficients in normalised time ``s = t / duration``."""
         segment = cls.__new__(cls)
-        segment._setup(np.array(coefficients, dtype=float), _duration(duration), kind)
+        segment._setup(np.array(coefficients, dtype=float), _duration(duration), kind, bounded_order)
         return segment
 
-    def _setup(self, c: Array, duration: float, kind: str) -> None:
+    def _setup(self, c: Array, duration: float, kind: str, bounded_order: int) -> None:
         if not np.all(np.isfinite(c)):
             raise PlanningError("polynomial coefficients must be finite")
         self._normalised = np.zeros((6, c.shape[1]))
@@ -132,9 +144,11 @@ class PolynomialSegment(Segment):
         self.duration = duration
         self.dof = c.shape[1]
         self.kind = kind
-        # d/ds sum c_k s^k = sum k c_k s^(k-1); each derivative in t adds a factor 1/T
+        self.bounded_order = bounded_order
+        # d/ds sum c_k s^k = sum k c_k s^(k-1); each derivative in t adds a factor 1/T. Up to the
+        # snap (order 4): the extremes of the jerk are where the snap vanishes.
         derivatives = [self._normalised]
-        for _ in range(3):
+        for _ in range(4):
             prev = derivatives[-1]
             derivatives.append(prev[1:] * np.arange(1, prev.shape[0])[:, None] / duration)
         self._derivatives = derivatives
@@ -147,7 +161,7 @@ class PolynomialSegment(Segment):
     def sample(self, t: ArrayLike) -> Samples:
         s = np.clip(np.asarray(t, dtype=float) / self.duration, 0.0, 1.0)[..., None]
         out = []
-        for coefficients in self._derivatives:
+        for coefficients in self._derivatives[:4]:
             value = np.broadcast_to(coefficients[-1], (*s.shape[:-1], self.dof)).copy()
             for h in coefficients[-2::-1]:
                 value = value * s + h
@@ -210,14 +224,14 @@ def _unit_roots(slope: Array) -> Array:
 def hold(position: ArrayLike, duration: float) -> PolynomialSegment:
     """Stand still at ``position``."""
     p = _vector(position, "position")
-    return PolynomialSegment.normalised(p[None, :], duration, "hold")
+    return PolynomialSegment.normalised(p[None, :], duration, "hold", 3)
 
 
 def linear(start: ArrayLike, end: ArrayLike, duration: float) -> PolynomialSegment:
     """Constant velocity from ``start`` to ``end``: the velocity steps at every join."""
     p0 = _vector(start, "start")
     delta = _vector(end, "end", p0.size) - p0
-    return PolynomialSegment.normalised([p0, delta], duration, "linear")
+    return PolynomialSegment.normalised([p0, delta], duration, "linear", 1)
 
 
 def cubic(start: ArrayLike, end: ArrayLike, duration: float) -> PolynomialSegment:
@@ -235,7 +249,7 @@ def cubic(start: ArrayLike, end: ArrayLike, duration: float) -> PolynomialSegmen
     p0 = _vector(start, "start")
     delta = _vector(end, "end", p0.size) - p0
     zero = np.zeros_like(p0)
-    return PolynomialSegment.normalised([p0, zero, 3.0 * delta, -2.0 * delta], duration, "cubic")
+    return PolynomialSegment.normalised([p0, zero, 3.0 * delta, -2.0 * delta], duration, "cubic", 2)
 
 
 def cubic_hermite(
@@ -252,7 +266,7 @@ def cubic_hermite(
     tf = _duration(duration)
     c2 = 3.0 * delta - (2.0 * v0 + v1) * tf  # = h2 T^2
     c3 = -2.0 * delta + (v0 + v1) * tf  # = h3 T^3
-    return PolynomialSegment.normalised([p0, v0 * tf, c2, c3], tf, "cubic")
+    return PolynomialSegment.normalised([p0, v0 * tf, c2, c3], tf, "cubic", 2)
 
 
 def quintic(start: ArrayLike, end: ArrayLike, duration: float) -> PolynomialSegment:
@@ -285,7 +299,7 @@ def quintic_hermite(
     c3 = (20.0 * delta - (8.0 * v1 + 12.0 * v0) * tf - (3.0 * a0 - a1) * t2) / 2.0  # = h3 T^3
     c4 = (-30.0 * delta + (14.0 * v1 + 16.0 * v0) * tf + (3.0 * a0 - 2.0 * a1) * t2) / 2.0
     c5 = (12.0 * delta - 6.0 * (v1 + v0) * tf - (a0 - a1) * t2) / 2.0
-    return PolynomialSegment.normalised([p0, v0 * tf, a0 * t2 / 2.0, c3, c4, c5], tf, "quintic")
+    return PolynomialSegment.normalised([p0, v0 * tf, a0 * t2 / 2.0, c3, c4, c5], tf, "quintic", 3)
 
 
 class RuckigSegment(Segment):
@@ -296,10 +310,22 @@ class RuckigSegment(Segment):
     exact; the tests compare it with ``Trajectory.at_time``.
     """
 
-    __slots__ = ("_a", "_jerk", "_p", "_position_extrema", "_starts", "_v", "dof", "duration", "kind", "trajectory")
+    __slots__ = (
+        "_a",
+        "_jerk",
+        "_p",
+        "_starts",
+        "_v",
+        "bounded_order",
+        "dof",
+        "duration",
+        "kind",
+        "trajectory",
+    )
 
     def __init__(self, trajectory: ruckig.Trajectory, dof: int) -> None:
         self.kind = "ruckig"
+        self.bounded_order = 3
         self.trajectory = trajectory
         self.dof = dof
         self.duration = float(trajectory.duration)
@@ -323,10 +349,6 @@ class RuckigSegment(Segment):
             pos.append([ph[4] for ph in phases])
         self._starts = np.array(starts)  # (dof, 9)
         self._jerk, self._a, self._v, self._p = (np.array(x) for x in (jerk, acc, vel, pos))
-        self._position_extrema = (
-            np.array([e.min for e in trajectory.position_extrema]),
-            np.array([e.max for e in trajectory.position_extrema]),
-        )
 
     @classmethod
     def plan(
@@ -384,15 +406,25 @@ class RuckigSegment(Segment):
         return Samples(pos.reshape(shape), vel.reshape(shape), acc.reshape(shape), j.reshape(shape))
 
     def extremes(self, order: int) -> tuple[Array, Array]:
-        if order == 0:
-            return self._position_extrema[0].copy(), self._position_extrema[1].copy()
-        # the velocity is extreme where the acceleration crosses 0 and the acceleration at phase
-        # boundaries (it is piecewise linear): evaluate at every boundary and every zero crossing
+        if order == 3:  # constant in each phase: the phases that last
+            lasting = np.diff(np.concatenate([self._starts, np.full((self.dof, 1), self.duration)], axis=1)) > 0.0
+            jerk = np.where(lasting, self._jerk, 0.0)
+            return jerk.min(axis=1), jerk.max(axis=1)
+        # Inside a phase the position is extreme where the velocity (quadratic in time) crosses 0,
+        # the velocity where the acceleration (linear) does; the acceleration is extreme at phase
+        # boundaries. Evaluate at every boundary and every such crossing (ruckig's own
+        # position_extrema misses the brake phase, so positions are found the same way).
         times: list[Array] = [self._starts.reshape(-1), np.array([self.duration])]
-        if order == 1:
-            with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            if order == 1:
                 zero = self._starts - self._a / self._jerk
-            times.append(zero[np.isfinite(zero)])
+                times.append(zero[np.isfinite(zero)])
+            elif order == 0:
+                half_j, a, v = self._jerk / 2.0, self._a, self._v
+                root = np.sqrt(np.maximum(a * a - 4.0 * half_j * v, 0.0))
+                for dt in ((-a + root) / (2.0 * half_j), (-a - root) / (2.0 * half_j), -v / a):
+                    zero = self._starts + dt
+                    times.append(zero[np.isfinite(zero)])
         candidates: Array = np.clip(np.concatenate(times), 0.0, self.duration)
         values = self.sample(candidates)[order]
         return values.min(axis=0), values.max(axis=0)
