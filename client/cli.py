@@ -22,7 +22,7 @@ from typing import TextIO
 
 import numpy as np
 
-from robot_server.control import Policy
+from robot_server.control import POLICIES
 from robot_server.kinematics import fk
 from robot_server.loader import load_model, shipped_models
 from robot_server.model import ModelError, RobotModel, rpy_matrix
@@ -31,7 +31,7 @@ from simple_message.errors import SimpleMessageError
 from simple_message.messages import Status
 from simple_message.wire import ByteOrder, WireFormat
 
-from .demo import DemoConfig, format_table, run_demo
+from .demo import PAPER_POLICIES, DemoConfig, format_table, run_demo
 from .driver import DriverError, JointState, Mode, Profile, RobotDriver
 from .planner import Planner, PlanningError, pose
 from .trajectory import Trajectory, TrajectoryError, save_joint_states
@@ -111,7 +111,12 @@ def parser() -> argparse.ArgumentParser:
     demo.add_argument("--speedup", type=_positive, default=1.0, help="embedded emulator faster than real time")
     demo.add_argument("--embedded", action="store_true", help="do not look for a controller first")
     demo.add_argument(
-        "--policies", nargs="+", choices=[x.value for x in Policy], default=[x.value for x in Policy], metavar="POLICY"
+        "--policies",
+        nargs="+",
+        choices=list(POLICIES),
+        default=list(PAPER_POLICIES),
+        metavar="POLICY",
+        help=f"controller policies to compare (default: {' '.join(PAPER_POLICIES)}; known: {', '.join(POLICIES)})",
     )
     demo.add_argument("--no-plot", action="store_true", help="no figure even if matplotlib is installed")
     return p
@@ -333,7 +338,7 @@ async def _demo(args: argparse.Namespace, out: TextIO) -> None:
         state_port=args.state_port,
         profile=Profile(args.profile),
         wire=_wire(args),
-        policies=tuple(Policy(p) for p in args.policies),
+        policies=tuple(args.policies),
         plot=not args.no_plot,
         **size,
     )

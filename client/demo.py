@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from robot_server.control import Policy, Recorder
+from robot_server.control import Recorder
 from robot_server.emulator import Emulator, EmulatorConfig
 from robot_server.kinematics import closed_form, fk, fk_batch
 from robot_server.loader import load_model
@@ -61,6 +61,8 @@ Array = NDArray[np.float64]
 CENTRE_CONFIGURATION = (0.0, 0.3, -0.2, 0.0, 0.9, 0.0)
 #: "arrived" for the cycle time: every joint this close to the goal (rad) from then on
 SETTLED_POSITION = 1e-3
+#: the policies of the paper's table: its rest-to-rest shapes and ruckig
+PAPER_POLICIES = ("linear", "cubic", "quintic", "ruckig")
 
 
 @dataclass(frozen=True)
@@ -73,7 +75,9 @@ class DemoConfig:
     speed: float = 0.06  # m/s, the flange's top speed along an edge
     acceleration: float = 0.5  # m/s^2
     spacing: float = 0.025  # m between sparse waypoints
-    policies: tuple[Policy, ...] = (Policy.LINEAR, Policy.CUBIC, Policy.QUINTIC, Policy.RUCKIG)
+    #: the controller's interpolation policies to compare (the paper's shapes and ruckig; add
+    #: "blend" to see the emulator's default)
+    policies: tuple[str, ...] = PAPER_POLICIES
     output: Path = Path("demo-output")
     #: embedded emulator: a simulated clock (as fast as possible) instead of real time
     simulated: bool = False
@@ -276,7 +280,7 @@ class _Plan:
     corners: Array
 
 
-async def _embedded_run(config: DemoConfig, plan: _Plan, policy: Policy) -> tuple[DemoRow, Recorder]:
+async def _embedded_run(config: DemoConfig, plan: _Plan, policy: str) -> tuple[DemoRow, Recorder]:
     model, waypoints = plan.model, plan.waypoints
     emulator_config = EmulatorConfig(
         models=(config.model,),
@@ -311,7 +315,7 @@ async def _embedded_run(config: DemoConfig, plan: _Plan, policy: Policy) -> tupl
                 emu.control.recorder = None
     rows = _interpolation_rows(record, controller.config.servo_period, controller.servo_ticks_per_interpolation)
     row = analyse(
-        policy.value,
+        policy,
         plan.model,
         plan.corners,
         times=record.time()[rows],
@@ -406,15 +410,15 @@ async def run_demo(config: DemoConfig, progress: Callable[[str], None] = print) 
         clock = (
             "simulated clock" if config.simulated else ("real time" if config.speedup == 1 else f"{config.speedup:g}x")
         )
-        progress(f"{policy.value}: embedded emulator ({clock}) ...")
+        progress(f"{policy}: embedded emulator ({clock}) ...")
         begun = time.perf_counter()
         row, record = await _embedded_run(config, plan, policy)
         result.rows.append(row)
-        records[policy.value] = record
-        trace = out / f"demo_{policy.value}.csv"
+        records[policy] = record
+        trace = out / f"demo_{policy}.csv"
         record.to_csv(trace, model.joint_names)
         result.files.append(trace)
-        progress(f"{policy.value}: done in {time.perf_counter() - begun:.1f} s, trace {trace}")
+        progress(f"{policy}: done in {time.perf_counter() - begun:.1f} s, trace {trace}")
     if config.plot:
         result.figure = _figure(records, waypoints, model, out)
     return result

@@ -1,7 +1,7 @@
 """``robot-server`` (also ``python -m robot_server``): the robot controller emulator as a command.
 
 With no arguments it emulates the paper's robot (``jibot_zxs``) with the generic profile: motion
-server on 127.0.0.1:11000, state server on 127.0.0.1:11002, real time, quintic interpolation. It
+server on 127.0.0.1:11000, state server on 127.0.0.1:11002, real time, blend interpolation. It
 prints one line on stdout when it accepts connections, logs to stderr, and on SIGINT or SIGTERM
 decelerates the robot to rest, closes every connection and exits 0.
 
@@ -23,7 +23,7 @@ import threading
 from collections.abc import Sequence
 from pathlib import Path
 
-from .control import Policy, Recorder
+from .control import DEFAULT_POLICY, POLICIES, Recorder
 from .emulator import FAULT_COMMANDS, Emulator, EmulatorConfig, FaultError, apply_fault_command
 from .emulator.server import MAX_STATE_RATE
 from .loader import load_model, shipped_models
@@ -89,7 +89,13 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--state-rate", type=_positive, default=40.0, metavar="HZ", help="state topics per second")
     p.add_argument("--feedback", action="store_true", help="generic: JOINT_FEEDBACK to every state client")
-    p.add_argument("--interpolation", choices=[x.value for x in Policy], default=Policy.QUINTIC.value)
+    p.add_argument(
+        "--interpolation",
+        choices=list(POLICIES),
+        default=DEFAULT_POLICY,
+        help="how points are joined (default %(default)s): "
+        + "; ".join(f"{name}: {entry.summary}" for name, entry in POLICIES.items()),
+    )
     p.add_argument("--interpolation-period", type=_positive, default=0.004, metavar="SECONDS")
     p.add_argument("--servo-period", type=_positive, default=0.001, metavar="SECONDS")
     p.add_argument("--queue-size", type=int, default=64, metavar="POINTS", help="streamed points the controller queues")
@@ -136,7 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             reply_style=args.reply_style,
             state_rate=args.state_rate,
             feedback=args.feedback,
-            interpolation=Policy(args.interpolation),
+            interpolation=args.interpolation,
             interpolation_period=args.interpolation_period,
             servo_period=args.servo_period,
             speedup=args.speedup,

@@ -1,4 +1,8 @@
-"""The controller layer: trajectory semantics, queue, stop, servo drives, alarms, clocks, recorder."""
+"""The controller layer: trajectory semantics, queue, stop, servo drives, alarms, clocks, recorder.
+
+The ``blend`` policy's own behaviour (passing through points, slowing down, look-ahead) is tested
+in test_rs_blend.py; here the paper's rest-to-rest policies and what every policy shares.
+"""
 
 from __future__ import annotations
 
@@ -12,41 +16,38 @@ import pytest
 
 from robot_server.control import (
     FOLLOWING_ERROR_ALARM,
+    POLICIES,
     Controller,
     ControllerConfig,
     ControlLoop,
     Point,
     PointRejected,
-    Policy,
     RealTimeClock,
     Reason,
     Recorder,
     SimulatedClock,
     Tick,
-    point_from_message,
     run_simulated,
 )
 from robot_server.loader import load_model
 from robot_server.model import ModelError, MotorParameters
-from simple_message.constants import ValidFields
-from simple_message.messages import JointTrajPt, JointTrajPtFull
 
 MODEL = load_model("jibot_zxs")
 N = MODEL.dof
 VMAX, AMAX, JMAX = MODEL.max_velocity, MODEL.max_acceleration, MODEL.max_jerk
 
 
-def controller(policy: Policy = Policy.QUINTIC, **options: object) -> Controller:
+def controller(policy: str = "quintic", **options: object) -> Controller:
     return Controller(MODEL, ControllerConfig(policy=policy, **options))  # type: ignore[arg-type]
 
 
-def pt(seq: int, positions: object, ratio: float = 1.0, duration: float = 0.0) -> Point:
-    return Point(seq, np.array(positions, dtype=float), velocity_ratio=ratio, duration=duration)
+def pt(positions: object, ratio: float = 1.0, duration: float = 0.0) -> Point:
+    return Point(np.array(positions, dtype=float), velocity_ratio=ratio, duration=duration)
 
 
-def full(seq: int, time: float, p: object, v: object = None, a: object = None) -> Point:
+def full(time: float, p: object, v: object = None, a: object = None) -> Point:
     arr = [None if x is None else np.array(x, dtype=float) for x in (p, v, a)]
-    return Point(seq, arr[0], arr[1], arr[2], time=time)
+    return Point(arr[0], arr[1], arr[2], time=time)
 
 
 def run(ctl: Controller, seconds: float) -> Recorder:
@@ -65,116 +66,114 @@ def interpolation_samples(ctl: Controller, recorder: Recorder, quantity: str) ->
 
 
 def test_duration_is_the_segment_time_and_the_ratio_sets_it_otherwise() -> None:
-    ctl = controller(Policy.QUINTIC)
-    ctl.submit(pt(0, np.zeros(N)))
-    ctl.submit(pt(1, np.full(N, 0.5), duration=2.0))
-    assert ctl._queue[-1].duration == 2.0
-    ctl.submit(pt(2, np.zeros(N), ratio=0.5))
+    ctl = controller("quintic")
+    ctl.start(pt(np.zeros(N)))
+    ctl.add(pt(np.full(N, 0.5), duration=2.0))
+    assert ctl.queue.segments()[-1].duration == 2.0
+    ctl.add(pt(np.zeros(N), ratio=0.5))
     # quintic peak speed is 1.875 D / T: at half of pi rad/s, T = 1.875 * 0.5 / (0.5 * pi)
     expected = max(1.875 * 0.5 / (0.5 * math.pi), math.sqrt(10 / math.sqrt(3) * 0.5 / AMAX[0]))
-    assert math.isclose(ctl._queue[-1].duration, expected)
+    assert math.isclose(ctl.queue.segments()[-1].duration, expected)
     assert ctl.queue_fill == 2
-    for policy, factor in ((Policy.LINEAR, 1.0), (Policy.CUBIC, 1.5)):
+    for policy, factor in (("linear", 1.0), ("cubic", 1.5)):
         c = controller(policy)
-        c.submit(pt(0, np.zeros(N)))
-        c.submit(pt(1, [1.0, 0, 0, 0, 0, 0], ratio=1.0))
-        accel = 0.0 if policy is Policy.LINEAR else math.sqrt(6.0 / AMAX[0])
-        assert math.isclose(c._queue[-1].duration, max(factor / math.pi, accel))
+        c.start(pt(np.zeros(N)))
+        c.add(pt([1.0, 0, 0, 0, 0, 0], ratio=1.0))
+        accel = 0.0 if policy == "linear" else math.sqrt(6.0 / AMAX[0])
+        assert math.isclose(c.queue.segments()[-1].duration, max(factor / math.pi, accel))
+
+
+def test_the_first_point_is_the_start_itself_whatever_its_duration() -> None:
+    """industrial_robot_client gives every trajectory's first point a 10 s duration: no policy
+    waits 10 s for it (ABB's server skips a first point at the current position too)."""
+    for policy in POLICIES:
+        ctl = controller(policy)
+        ctl.start(pt(np.zeros(N), ratio=0.0, duration=10.0))
+        assert ctl.queue_fill == 0 and not ctl.moving
+        ctl.add(pt(np.full(N, 0.2), duration=0.5))
+        run(ctl, 0.02)
+        assert np.all(np.array(ctl.command.command_position) > 0.0), policy  # moving at once
 
 
 def test_every_policy_reaches_every_point_within_the_limits() -> None:
     targets = [np.zeros(N), np.full(N, 0.8), np.array([-0.5, 0.3, 1.0, -1.0, 0.7, 2.0]), np.zeros(N)]
-    for policy in Policy:
-        ctl = controller(policy)
-        for i, target in enumerate(targets):
-            ctl.submit(pt(i, target, ratio=0.8))
+    for name, policy in POLICIES.items():
+        ctl = controller(name)
+        ctl.start(pt(targets[0]))
+        for target in targets[1:]:
+            ctl.add(pt(target, ratio=0.8))
         rec = run(ctl, 8.0)
         assert not ctl.in_motion and ctl.queue_fill == 0 and not ctl.in_error
         assert np.allclose(ctl.command.command_position, targets[-1], atol=1e-12)
         assert np.allclose(ctl.command.actual_position, targets[-1], atol=1e-3)
         vel = np.abs(rec.get("command_velocity"))
-        assert np.all(vel <= VMAX * 0.8 * (1 + 1e-9))
-        if policy is not Policy.LINEAR:
+        # the ratio caps the rest-to-rest policies' peak speed; for blend it is the mean speed
+        assert np.all(vel <= VMAX * (1.0 if policy.passes_through else 0.8) * (1 + 1e-9))
+        if name != "linear":
             assert np.all(np.abs(rec.get("command_acceleration")) <= AMAX * (1 + 1e-9))
 
 
 def test_full_points_choose_the_segment_by_their_fields() -> None:
-    ctl = controller(Policy.LINEAR)  # the policy does not apply to JOINT_TRAJ_PT_FULL
+    ctl = controller("linear")  # the policy does not apply to points with velocities
     z = np.zeros(N)
-    ctl.submit(full(0, 0.0, z, z, z))
-    ctl.submit(full(1, 1.0, np.full(N, 0.2), np.full(N, 0.3), np.full(N, 0.1)))
-    ctl.submit(full(2, 2.0, np.full(N, 0.5), np.full(N, 0.2)))
-    ctl.submit(full(3, 3.0, np.full(N, 0.6)))
-    ctl.submit(full(4, 4.0, np.full(N, 0.6), z, z))
-    assert [s.kind for s in ctl._queue] == ["quintic", "cubic", "linear", "linear"]
-    assert [s.duration for s in ctl._queue] == [1.0, 1.0, 1.0, 1.0]
+    ctl.start(full(0.0, z, z, z))
+    ctl.add(full(1.0, np.full(N, 0.2), np.full(N, 0.3), np.full(N, 0.1)))
+    ctl.add(full(2.0, np.full(N, 0.5), np.full(N, 0.2)))
+    ctl.add(full(3.0, np.full(N, 0.6)))
+    ctl.add(full(4.0, np.full(N, 0.6), z, z))
+    segments = ctl.queue.segments()
+    assert [s.kind for s in segments] == ["quintic", "cubic", "linear", "linear"]
+    assert [s.duration for s in segments] == [1.0, 1.0, 1.0, 1.0]
     # the quintic and the cubic pass through the given velocities
-    quintic_end = ctl._queue[0].end()
+    quintic_end = segments[0].end()
     assert np.allclose(quintic_end.velocity, 0.3) and np.allclose(quintic_end.acceleration, 0.1)
-    assert np.allclose(ctl._queue[1].end().velocity, 0.2)
+    assert np.allclose(segments[1].end().velocity, 0.2)
 
 
 def test_full_points_need_time_and_positions_and_increasing_times() -> None:
     ctl = controller()
     z = np.zeros(N)
-    no_time = JointTrajPtFull(sequence=0, valid_fields=ValidFields.POSITION)
     with pytest.raises(PointRejected) as err:
-        ctl.submit(point_from_message(no_time, N))
+        ctl.start(full(0.0, None, z))
     assert err.value.reason is Reason.MISSING_FIELDS
+    ctl.start(full(0.0, z))
+    ctl.add(full(1.0, np.full(N, 0.1)))
     with pytest.raises(PointRejected) as err:
-        ctl.submit(full(0, 0.0, None, z))
-    assert err.value.reason is Reason.MISSING_FIELDS
-    ctl.submit(full(0, 0.0, z))
-    ctl.submit(full(1, 1.0, np.full(N, 0.1)))
-    with pytest.raises(PointRejected) as err:
-        ctl.submit(full(2, 1.0, np.full(N, 0.2)))
+        ctl.add(full(1.0, np.full(N, 0.2)))
     assert err.value.reason is Reason.TIMING
     assert ctl.queue_fill == 1
 
 
-def test_point_from_message() -> None:
-    msg = JointTrajPt(sequence=3, joint_data=[0.1] * N + [0.0] * 4, velocity=0.5, duration=0.2)
-    point = point_from_message(msg, N)
-    assert point.sequence == 3 and np.allclose(point.positions, 0.1)
-    assert point.velocity_ratio == pytest.approx(0.5) and point.duration == pytest.approx(0.2)
-    valid = ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY
-    msg_full = JointTrajPtFull(sequence=1, valid_fields=valid, time=1.5, positions=[0.2] * 10, velocities=[0.0] * 10)
-    with pytest.raises(PointRejected) as err:  # values in slots 7..10 for a 6-joint robot
-        point_from_message(msg_full, N)
-    assert err.value.reason is Reason.JOINT_COUNT and "10 joints" in str(err.value)
-    msg_full = dataclasses.replace(msg_full, positions=[0.2] * N + [0.0] * 4)
-    point = point_from_message(msg_full, N)
-    assert point.time == 1.5 and point.accelerations is None and point.velocities is not None
-    stop = point_from_message(JointTrajPt(sequence=-4, joint_data=[math.nan] * 10), N)
-    assert stop.sequence == -4 and stop.positions is None
-
-
 @pytest.mark.parametrize(
-    ("point", "reason"),
+    ("policy", "point", "reason"),
     [
-        (pt(1, [4.0, 0, 0, 0, 0, 0]), Reason.POSITION_LIMIT),
-        (pt(1, [math.nan, 0, 0, 0, 0, 0]), Reason.NOT_FINITE),
-        (pt(1, [2.5, 0, 0, 0, 0, math.inf]), Reason.NOT_FINITE),
-        (pt(1, [2.5] + [0.0] * (N - 2)), Reason.JOINT_COUNT),
-        (pt(1, [1.5, 0, 0, 0, 0, 0], duration=0.2), Reason.VELOCITY_LIMIT),  # quintic peak 9.4 rad/s
-        (pt(1, [2.7, 0, 0, 0, 0, 0], duration=0.2), Reason.ACCELERATION_LIMIT),  # 28.9 rad/s^2
-        (pt(1, [2.6, 0, 0, 0, 0, 0], ratio=0.0), Reason.TIMING),
-        (pt(1, [2.6, 0, 0, 0, 0, 0], ratio=1.5), Reason.VELOCITY_LIMIT),
-        (full(1, 1.0, [2.5, 0, 0, 0, 0, 0], [9.0] * N), Reason.VELOCITY_LIMIT),
-        (full(1, 1.0, [2.5, 0, 0, 0, 0, 0], [0.0] * N, [90.0] * N), Reason.ACCELERATION_LIMIT),
+        ("quintic", pt([4.0, 0, 0, 0, 0, 0]), Reason.POSITION_LIMIT),
+        ("blend", pt([4.0, 0, 0, 0, 0, 0]), Reason.POSITION_LIMIT),
+        ("blend", pt([math.nan, 0, 0, 0, 0, 0]), Reason.NOT_FINITE),
+        ("blend", pt([2.5, 0, 0, 0, 0, math.inf]), Reason.NOT_FINITE),
+        ("blend", pt([2.5] + [0.0] * (N - 2)), Reason.JOINT_COUNT),
+        ("quintic", pt([1.5, 0, 0, 0, 0, 0], duration=0.2), Reason.VELOCITY_LIMIT),  # quintic peak 9.4 rad/s
+        ("quintic", pt([2.7, 0, 0, 0, 0, 0], duration=0.2), Reason.ACCELERATION_LIMIT),  # 28.9 rad/s^2
+        ("quintic", pt([2.6, 0, 0, 0, 0, 0], ratio=0.0), Reason.TIMING),
+        ("blend", pt([2.6, 0, 0, 0, 0, 0], ratio=0.0), Reason.TIMING),  # no duration, no speed
+        ("blend", pt([2.6, 0, 0, 0, 0, 0], ratio=1.5), Reason.VELOCITY_LIMIT),
+        ("blend", pt([2.6, 0, 0, 0, 0, 0], ratio=-0.5), Reason.TIMING),
+        ("blend", pt([2.6, 0, 0, 0, 0, 0], duration=-1.0), Reason.TIMING),
+        ("blend", pt([2.6, 0, 0, 0, 0, 0], duration=1e9), Reason.TIMING),  # beyond max_segment_time
+        ("blend", full(1.0, [2.5, 0, 0, 0, 0, 0], [9.0] * N), Reason.VELOCITY_LIMIT),
+        ("blend", full(-1.0, [2.5, 0, 0, 0, 0, 0]), Reason.TIMING),
+        ("blend", full(5000.0, [2.5, 0, 0, 0, 0, 0]), Reason.TIMING),  # 5000 s after the last point
         # a cubic Hermite that overshoots the position limit between two points inside it
-        (full(1, 1.0, [2.9, 0, 0, 0, 0, 0], [-3.0, 0, 0, 0, 0, 0]), Reason.POSITION_LIMIT),
-        (pt(-7, [0.1] * N), Reason.SEQUENCE),
-        (pt(-3, [0.1] * N), Reason.SEQUENCE),
+        ("blend", full(1.0, [2.9, 0, 0, 0, 0, 0], [-3.0, 0, 0, 0, 0, 0]), Reason.POSITION_LIMIT),
     ],
 )
-def test_bad_points_are_rejected_before_anything_moves(point: Point, reason: Reason) -> None:
+def test_bad_points_are_rejected_before_anything_moves(policy: str, point: Point, reason: Reason) -> None:
     start = (2.5, 0.0, 0.0, 0.0, 0.0, 0.0)
-    ctl = controller(initial_position=start)
-    ctl.submit(full(0, 0.0, start, np.zeros(N), np.zeros(N)) if point.time is not None else pt(0, start))
+    ctl = controller(policy, initial_position=start)
+    ctl.start(full(0.0, start, np.zeros(N), np.zeros(N)) if point.time is not None else pt(start))
     before = ctl.queue_fill
     with pytest.raises(PointRejected) as err:
-        ctl.submit(point)
+        ctl.add(point)
     assert err.value.reason is reason
     assert ctl.queue_fill == before
     run(ctl, 0.2)
@@ -185,13 +184,13 @@ def test_bad_points_are_rejected_before_anything_moves(point: Point, reason: Rea
 def test_first_point_must_match_the_current_position() -> None:
     ctl = controller(initial_position=(0.5, 0, 0, 0, 0, 0))
     with pytest.raises(PointRejected) as err:
-        ctl.submit(pt(0, np.zeros(N)))
+        ctl.start(pt(np.zeros(N)))
     assert err.value.reason is Reason.START_MISMATCH and err.value.joint == 0
-    ctl.submit(pt(0, [0.505, 0, 0, 0, 0, 0]))  # within the default 0.01 rad
-    ctl.submit(pt(1, [0.6, 0, 0, 0, 0, 0], ratio=1.0))
-    # with the check off, a first point with a duration is a segment from where the robot is
+    ctl.start(pt([0.505, 0, 0, 0, 0, 0]))  # within the default 0.01 rad
+    ctl.add(pt([0.6, 0, 0, 0, 0, 0], ratio=1.0))
+    # with the check off, a first point away from the robot is a segment from where it is
     loose = controller(start_tolerance=None)
-    loose.submit(pt(0, [0.3] * N, duration=1.0))
+    loose.start(pt([0.3] * N, duration=1.0))
     assert loose.queue_fill == 1
     run(loose, 1.5)
     assert np.allclose(loose.command.command_position, 0.3, atol=1e-12)
@@ -199,59 +198,77 @@ def test_first_point_must_match_the_current_position() -> None:
 
 def test_streaming_queue_is_bounded_and_reports_its_fill() -> None:
     ctl = controller(queue_capacity=4)
-    ctl.submit(pt(0, np.zeros(N)))
+    ctl.start(pt(np.zeros(N)))
     for i in range(1, 5):
-        ctl.submit(pt(i, np.full(N, 0.1 * i), duration=0.5))
+        ctl.add(pt(np.full(N, 0.1 * i), duration=0.5))
     assert ctl.queue_fill == 4 == ctl.queue_capacity
     with pytest.raises(PointRejected) as err:
-        ctl.submit(pt(5, np.full(N, 0.5), duration=0.5))
+        ctl.add(pt(np.full(N, 0.5), duration=0.5))
     assert err.value.reason is Reason.QUEUE_FULL
     run(ctl, 0.6)
     assert ctl.queue_fill == 3
-    ctl.submit(pt(5, np.full(N, 0.5), duration=0.5))  # room again: the same point is accepted
+    ctl.add(pt(np.full(N, 0.5), duration=0.5))  # room again: the same point is accepted
     run(ctl, 2.5)
     assert ctl.queue_fill == 0 and np.allclose(ctl.command.command_position, 0.5, atol=1e-12)
 
 
 def test_streaming_while_moving_appends_without_a_pause() -> None:
-    ctl = controller(Policy.LINEAR)
-    ctl.submit(pt(0, np.zeros(N)))
-    ctl.submit(pt(1, np.full(N, 0.5), duration=1.0))
+    ctl = controller("linear")
+    ctl.start(pt(np.zeros(N)))
+    ctl.add(pt(np.full(N, 0.5), duration=1.0))
     run(ctl, 0.5)
-    ctl.submit(pt(2, np.full(N, 1.0), duration=1.0))
+    ctl.add(pt(np.full(N, 1.0), duration=1.0))
     rec = run(ctl, 1.0)
     # constant 0.5 rad/s through the join at t = 1.0 s: no stop between streamed points
     assert np.allclose(interpolation_samples(ctl, rec, "command_velocity"), 0.5, atol=1e-9)
 
 
-def test_download_runs_only_after_the_end_marker() -> None:
-    ctl = controller()
-    ctl.submit(pt(-1, np.zeros(N)))
-    ctl.submit(pt(1, np.full(N, 0.3), duration=0.5))
-    ctl.submit(pt(2, np.full(N, 0.6), duration=0.5))
+@pytest.mark.parametrize("policy", ["quintic", "blend"])
+def test_download_runs_only_after_the_end_marker(policy: str) -> None:
+    ctl = controller(policy)
+    ctl.start_download(pt(np.zeros(N)))
+    ctl.add(pt(np.full(N, 0.3), duration=0.5))
+    ctl.add(pt(np.full(N, 0.6), duration=0.5))
     assert ctl.downloading and ctl.queue_fill == 0
     run(ctl, 0.3)
     assert np.allclose(ctl.command.command_position, 0.0) and not ctl.in_motion
-    ctl.submit(pt(-3, np.full(N, 0.2), duration=0.5))
+    ctl.finish_download(pt(np.full(N, 0.2), duration=0.5))
     assert not ctl.downloading and ctl.queue_fill == 3 and ctl.in_motion
     run(ctl, 2.0)
     assert np.allclose(ctl.command.command_position, 0.2, atol=1e-12)
-    small = controller(download_capacity=2)
-    small.submit(pt(-1, np.zeros(N)))
-    small.submit(pt(1, np.full(N, 0.1), duration=0.5))
-    small.submit(pt(2, np.full(N, 0.2), duration=0.5))
+    small = controller(policy, download_capacity=3)  # the buffer holds the first point and two more
+    small.start_download(pt(np.zeros(N)))
+    small.add(pt(np.full(N, 0.1), duration=0.5))
+    small.add(pt(np.full(N, 0.2), duration=0.5))
     with pytest.raises(PointRejected) as err:
-        small.submit(pt(-3, np.full(N, 0.3), duration=0.5))
-    assert err.value.reason is Reason.QUEUE_FULL
+        small.finish_download(pt(np.full(N, 0.3), duration=0.5))
+    assert err.value.reason is Reason.QUEUE_FULL and not small.downloading
+
+
+def test_a_refused_download_point_drops_the_whole_download() -> None:
+    ctl = controller()
+    ctl.start_download(pt(np.zeros(N)))
+    ctl.add(pt(np.full(N, 0.3), duration=0.5))
+    with pytest.raises(PointRejected):
+        ctl.add(pt(np.full(N, 9.0), duration=0.5))  # beyond the position limits
+    assert not ctl.downloading
+    # a point refused only when the download is planned (too fast for the quintic) drops it too
+    ctl.start_download(pt(np.zeros(N)))
+    ctl.add(pt(np.full(N, 0.3), duration=0.5))
+    with pytest.raises(PointRejected) as err:
+        ctl.finish_download(pt(np.full(N, 2.0), duration=0.1))
+    assert err.value.reason is Reason.VELOCITY_LIMIT and not ctl.downloading and ctl.queue_fill == 0
+    run(ctl, 0.5)
+    assert not ctl.in_motion
 
 
 # -- stop --------------------------------------------------------------------------------------
 
 
 def full_speed_controller() -> Controller:
-    ctl = controller(Policy.RUCKIG, initial_position=(-2.0,) * N)
-    ctl.submit(pt(0, ctl.command.command_position))
-    ctl.submit(pt(1, np.full(N, 2.0), ratio=1.0))
+    ctl = controller("ruckig", initial_position=(-2.0,) * N)
+    ctl.start(pt(ctl.command.command_position))
+    ctl.add(pt(np.full(N, 2.0), ratio=1.0))
     run(ctl, 0.6)  # ruckig reaches pi rad/s after ~0.33 s
     assert np.allclose(ctl.command.command_velocity, VMAX)
     return ctl
@@ -260,7 +277,7 @@ def full_speed_controller() -> Controller:
 def test_stop_from_full_speed_in_every_joint() -> None:
     ctl = full_speed_controller()
     predicted = ctl.stop()
-    assert predicted > 0.3 and ctl.queue_fill == 1  # only the deceleration remains
+    assert predicted > 0.3 and ctl.queue_fill == 0 and ctl.moving  # only the deceleration remains
     before = ctl.command.command_position
     rec = run(ctl, predicted + 0.1)
     vel = interpolation_samples(ctl, rec, "command_velocity")
@@ -270,13 +287,13 @@ def test_stop_from_full_speed_in_every_joint() -> None:
     jerk = np.diff(acc, axis=0) / ctl.config.interpolation_period
     assert np.all(np.abs(jerk) <= JMAX * (1 + 1e-6))
     assert np.all(np.abs(np.diff(times, axis=0)) <= VMAX * ctl.config.interpolation_period * (1 + 1e-9))
-    # at rest within the predicted time (to the next interpolation instant), then the queue is empty
+    # at rest within the predicted time (to the next interpolation instant), then nothing is queued
     sub = round(ctl.config.interpolation_period / ctl.config.servo_period)
     t = rec.time()[sub - 1 :: sub]
     moving = np.any(np.abs(vel) > 1e-9, axis=1)
     last_moving = t[np.flatnonzero(moving)[-1]] - t[0] if moving.any() else 0.0
     assert last_moving <= predicted + ctl.config.interpolation_period
-    assert ctl.queue_fill == 0
+    assert ctl.queue_fill == 0 and not ctl.moving
     # decelerating, not jumping: it went on in the direction of travel
     assert np.all(np.array(ctl.command.command_position) > np.array(before))
     run(ctl, 0.3)
@@ -286,19 +303,21 @@ def test_stop_from_full_speed_in_every_joint() -> None:
 def test_stop_while_idle_and_the_next_trajectory() -> None:
     ctl = controller()
     assert ctl.stop() == 0.0
-    ctl.submit(Point(-4, None))  # STOP as a point
-    ctl.submit(pt(0, np.zeros(N)))
-    ctl.submit(pt(1, np.full(N, 0.4), ratio=1.0))
+    ctl.start(pt(np.zeros(N)))
+    ctl.add(pt(np.full(N, 0.4), ratio=1.0))
     run(ctl, 0.2)
-    ctl.submit(Point(-4, None))
+    ctl.stop()
     run(ctl, 1.0)
     stopped_at = ctl.command.command_position
     assert 0.0 < stopped_at[0] < 0.4 and ctl.queue_fill == 0
     with pytest.raises(PointRejected) as err:  # a new trajectory starts where the robot stopped
-        ctl.submit(pt(0, np.zeros(N)))
+        ctl.start(pt(np.zeros(N)))
     assert err.value.reason is Reason.START_MISMATCH
-    ctl.submit(pt(0, stopped_at))
-    ctl.submit(pt(1, np.zeros(N), ratio=1.0))
+    with pytest.raises(PointRejected) as err:  # so does the next point after a stop, whatever it says
+        ctl.add(pt(np.zeros(N)))
+    assert err.value.reason is Reason.START_MISMATCH
+    ctl.start(pt(stopped_at))
+    ctl.add(pt(np.zeros(N), ratio=1.0))
     run(ctl, 2.0)
     assert np.allclose(ctl.command.command_position, 0.0, atol=1e-12)
 
@@ -306,8 +325,8 @@ def test_stop_while_idle_and_the_next_trajectory() -> None:
 def test_a_queue_running_dry_in_motion_decelerates() -> None:
     ctl = controller()
     z = np.zeros(N)
-    ctl.submit(full(0, 0.0, z, z, z))
-    ctl.submit(full(1, 1.0, np.full(N, 0.5), np.full(N, 1.0), z))  # ends moving at 1 rad/s
+    ctl.start(full(0.0, z, z, z))
+    ctl.add(full(1.0, np.full(N, 0.5), np.full(N, 1.0), z))  # ends moving at 1 rad/s
     rec = run(ctl, 2.0)
     assert not ctl.moving
     acc = interpolation_samples(ctl, rec, "command_acceleration")
@@ -320,8 +339,8 @@ def test_a_queue_running_dry_in_motion_decelerates() -> None:
 
 def test_drives_follow_a_quintic_move_within_the_following_error() -> None:
     ctl = controller()
-    ctl.submit(pt(0, np.zeros(N)))
-    ctl.submit(pt(1, [2.0, 1.5, 2.0, 2.5, 1.5, 3.0], ratio=1.0))
+    ctl.start(pt(np.zeros(N)))
+    ctl.add(pt([2.0, 1.5, 2.0, 2.5, 1.5, 3.0], ratio=1.0))
     rec = run(ctl, 3.0)
     error = np.abs(rec.get("following_error")).max(axis=0)
     limits = np.array([MODEL.motor(i).following_error_limit for i in range(N)])
@@ -335,19 +354,19 @@ def test_drives_follow_a_quintic_move_within_the_following_error() -> None:
 def test_a_move_faster_than_the_motors_raises_the_following_error_alarm() -> None:
     weak = [dataclasses.replace(MODEL.motor(i), max_current=0.2) for i in range(N)]
     model = dataclasses.replace(MODEL, motors=tuple(weak))
-    ctl = Controller(model)
-    ctl.submit(pt(0, np.zeros(N)))
-    ctl.submit(pt(1, np.full(N, 1.5), ratio=1.0))
+    ctl = Controller(model, ControllerConfig(policy="quintic"))
+    ctl.start(pt(np.zeros(N)))
+    ctl.add(pt(np.full(N, 1.5), ratio=1.0))
     run(ctl, 2.0)
     assert ctl.in_error and FOLLOWING_ERROR_ALARM < ctl.error_code <= FOLLOWING_ERROR_ALARM + N
     assert ctl.queue_fill == 0 and "following error" in ctl.error_message
     with pytest.raises(PointRejected) as err:
-        ctl.submit(pt(0, ctl.command.actual_position))
+        ctl.start(pt(ctl.command.actual_position))
     assert err.value.reason is Reason.NOT_READY
     run(ctl, 1.0)
     assert not ctl.in_motion  # held where it stopped
     ctl.reset()
-    ctl.submit(pt(0, ctl.command.command_position))
+    ctl.start(pt(ctl.command.command_position))
 
 
 def test_motor_parameters_from_the_model_file(tmp_path: object) -> None:
@@ -374,13 +393,13 @@ def load_text(name: str) -> str:
 
 def scripted_run() -> Recorder:
     async def main() -> Recorder:
-        ctl = controller(Policy.RUCKIG)
+        ctl = controller("ruckig")
         rec = Recorder(N, capacity=5000)
         loop = ControlLoop(ctl, SimulatedClock(), rec)
-        ctl.submit(pt(0, np.zeros(N)))
-        ctl.submit(pt(1, [0.5, -0.3, 0.8, 1.0, -0.6, 2.0], ratio=0.7))
+        ctl.start(pt(np.zeros(N)))
+        ctl.add(pt([0.5, -0.3, 0.8, 1.0, -0.6, 2.0], ratio=0.7))
         await loop.run(0.5)
-        ctl.submit(pt(2, np.zeros(N), ratio=1.0))
+        ctl.add(pt(np.zeros(N), ratio=1.0))
         await loop.run(0.5)
         ctl.stop()
         await loop.run(1.0)
@@ -437,8 +456,8 @@ async def test_speedup_clock_and_loop_stop() -> None:
 def test_recorder_is_bounded_and_exports_csv() -> None:
     ctl = controller()
     rec = Recorder(N, capacity=100)
-    ctl.submit(pt(0, np.zeros(N)))
-    ctl.submit(pt(1, np.full(N, 0.1), ratio=1.0))
+    ctl.start(pt(np.zeros(N)))
+    ctl.add(pt(np.full(N, 0.1), ratio=1.0))
     ctl.run_for(0.25, rec)
     assert len(rec) == 100 and rec.dropped == 150
     assert rec.time()[0] == pytest.approx(0.151) and rec.time()[-1] == pytest.approx(0.25)

@@ -1,10 +1,13 @@
-"""The controller layer: segment interpolators, trajectory semantics, servo drives, the control loop.
+"""The controller layer: segment interpolators, interpolation policies, the motion queue, servo
+drives, the control loop.
 
-Independent of sockets: :mod:`robot_server` wires it to the protocol. See the module docs of
-:mod:`.segments`, :mod:`.trajectory`, :mod:`.servo`, :mod:`.controller` and :mod:`.clock`.
+Independent of sockets and of the wire: points arrive in SI units (:mod:`.points`), and
+:mod:`robot_server.emulator` turns messages into the controller's verbs. See the module docs of
+:mod:`.points`, :mod:`.policies`, :mod:`.blend`, :mod:`.motion`, :mod:`.segments`, :mod:`.servo`,
+:mod:`.controller` and :mod:`.clock`.
 """
 
-from .clock import Clock, RealTimeClock, SimulatedClock
+from .clock import Clock, RealTimeClock, SimulatedClock, SteppedClock
 from .controller import (
     FOLLOWING_ERROR_ALARM,
     Controller,
@@ -15,6 +18,9 @@ from .controller import (
     run_simulated,
     submit_together,
 )
+from .motion import MotionQueue
+from .points import Limits, Point, PointRejected, Reason, State, check_point
+from .policies import DEFAULT_POLICY, POLICIES, Policy, policy
 from .recorder import QUANTITIES, Recorder
 from .segments import (
     PlanningError,
@@ -30,12 +36,12 @@ from .segments import (
     quintic_hermite,
 )
 from .servo import ServoDrives
-from .trajectory import Limits, Point, PointRejected, Policy, Reason, State, TrajectoryPlanner, point_from_message
 
 __all__ = [
     "Clock",
     "RealTimeClock",
     "SimulatedClock",
+    "SteppedClock",
     "FOLLOWING_ERROR_ALARM",
     "ControlLoop",
     "Controller",
@@ -44,6 +50,17 @@ __all__ = [
     "Tick",
     "run_simulated",
     "submit_together",
+    "MotionQueue",
+    "Limits",
+    "Point",
+    "PointRejected",
+    "Reason",
+    "State",
+    "check_point",
+    "DEFAULT_POLICY",
+    "POLICIES",
+    "Policy",
+    "policy",
     "QUANTITIES",
     "Recorder",
     "PlanningError",
@@ -58,12 +75,4 @@ __all__ = [
     "quintic",
     "quintic_hermite",
     "ServoDrives",
-    "Limits",
-    "Point",
-    "PointRejected",
-    "Policy",
-    "Reason",
-    "State",
-    "TrajectoryPlanner",
-    "point_from_message",
 ]

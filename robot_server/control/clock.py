@@ -9,6 +9,10 @@ after it: there is no drift, however long the run.
 * :class:`SimulatedClock`: time jumps to each deadline at once, so the loop runs as fast as the
   computer can; it still yields to the event loop at every wait, so servers keep working. Its
   runs are deterministic: the same inputs at the same controller times give the same results.
+* :class:`SteppedClock`: time moves only when the program (a test) calls :meth:`SteppedClock.advance`;
+  the loop then runs up to the new time and ``advance`` returns. Between advances the controller
+  waits, so points sent meanwhile, over TCP or otherwise, arrive at a known controller time: a
+  streaming test gives the same trace, bit for bit, every time, with no wall-clock tolerance.
 """
 
 from __future__ import annotations
@@ -17,7 +21,7 @@ import asyncio
 import time
 from abc import ABC, abstractmethod
 
-__all__ = ["Clock", "RealTimeClock", "SimulatedClock"]
+__all__ = ["Clock", "RealTimeClock", "SimulatedClock", "SteppedClock"]
 
 
 class Clock(ABC):
@@ -62,3 +66,37 @@ class SimulatedClock(Clock):
     async def sleep_until(self, deadline: float) -> None:
         self._now = max(self._now, deadline)
         await asyncio.sleep(0)  # let servers and clients run between ticks
+
+
+class SteppedClock(Clock):
+    realtime = False
+
+    def __init__(self, start: float = 0.0) -> None:
+        self._now = float(start)
+        self._limit = float(start)
+        self._wake = asyncio.Event()
+        self._idle = asyncio.Event()
+
+    def now(self) -> float:
+        return self._now
+
+    async def sleep_until(self, deadline: float) -> None:
+        while deadline > self._limit + 1e-9:
+            self._wake.clear()
+            self._idle.set()
+            await self._wake.wait()
+        self._now = max(self._now, deadline)
+
+    async def advance(self, seconds: float) -> None:
+        """Let the loop run ``seconds`` further; returns once it waits for a later deadline. Bound
+        it with a timeout: it waits for as long as no loop runs on this clock."""
+        if not seconds >= 0.0:
+            raise ValueError(f"time only moves forward, not by {seconds}")
+        self._limit += seconds
+        self._idle.clear()
+        self._wake.set()
+        await self._idle.wait()
+
+    async def advance_to(self, time: float) -> None:
+        """:meth:`advance` up to controller time ``time``."""
+        await self.advance(max(0.0, time - self._limit))

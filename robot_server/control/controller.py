@@ -1,29 +1,33 @@
-"""The controller: trajectory queue, interpolation clock, servo drives, stop and alarms.
+"""The controller: motion queue, interpolation clock, servo drives, stop and alarms.
 
-A :class:`Controller` is a sans-I/O state machine. :meth:`Controller.submit` takes received points
-(:mod:`.trajectory` says what they mean), :meth:`Controller.stop` aborts, and :meth:`Controller.step`
-advances one servo period. :class:`ControlLoop` drives ``step`` from a :mod:`.clock`.
+A :class:`Controller` is a sans-I/O state machine. Its verbs take received points (SI units,
+:mod:`.points`): :meth:`~Controller.start` a trajectory with its first point, :meth:`~Controller.add`
+the next ones, or :meth:`~Controller.start_download` ... :meth:`~Controller.finish_download` a whole
+trajectory; :meth:`~Controller.stop` aborts. What points mean over time (look-ahead, slowing down,
+a queue that runs dry) is :mod:`.motion`'s; how they are joined is the policy's (:mod:`.policies`).
+:meth:`~Controller.step` advances one servo period; :class:`ControlLoop` drives it from a
+:mod:`.clock`.
 
-**Timing.** Every interpolation period (default 4 ms, as MotoROS) the queued segments are sampled
-on one continuous timeline, so a segment ending between two samples hands over to the next one at
-the right place (MotoROS carries partial periods over the same way). Between two samples the servo
+**Timing.** Every interpolation period (default 4 ms, as MotoROS) the queued motion is sampled on
+one continuous timeline, so a segment ending between two samples hands over to the next one at the
+right place (MotoROS carries partial periods over the same way). Between two samples the servo
 ticks (default 1 ms) interpolate the setpoint linearly, as a drive does with the increments it
-receives. Controller time is ``tick x servo_period`` with an integer tick count.
+receives. Controller time is ``tick x servo_period`` with an integer tick count; points act at the
+next interpolation instant, so the controller time at which they arrive decides the motion.
 
-**The queue.** Streamed points are planned at once and queued; :attr:`Controller.queue_fill` is
-how many are still to run, out of :attr:`Controller.queue_capacity`. A download (sequence -1, then
-points, then -3) is planned point by point into a separate bounded buffer and queued whole at the
-end marker. If the queue runs dry while the last segment ends in motion (streaming fell behind), the
-robot is brought to rest with the same jerk-limited deceleration as a stop rather than stopping dead.
+**The queue.** Streamed points are queued at once; :attr:`Controller.queue_fill` is how many are
+still to run, out of :attr:`Controller.queue_capacity` (a point beyond it is refused with
+:attr:`~.Reason.QUEUE_FULL`, which the emulator turns into a delayed reply or BUSY). A download is
+checked point by point into a bounded buffer and queued whole when it is finished.
 
-**Stop.** STOP (sequence -4) or :meth:`Controller.stop` replaces everything queued with ruckig's
-time-optimal jerk-limited motion from the current setpoint (position, velocity and acceleration)
-to rest, within the velocity, acceleration and jerk limits: no position jump, no unbounded
-deceleration. The next point then starts a new trajectory.
+**Stop.** :meth:`Controller.stop` replaces everything queued with ruckig's time-optimal
+jerk-limited motion from the current setpoint (position, velocity and acceleration) to rest,
+within the velocity, acceleration and jerk limits: no position jump, no unbounded deceleration.
+The next point then starts a new trajectory.
 
 **Drives.** :meth:`Controller.power_off` removes drive power (an emergency stop, servos off):
 motion is abandoned at once, the holding brakes keep every joint where it is, and points are
-refused until :meth:`Controller.power_on`. A stop with deceleration is :meth:`Controller.stop`.
+refused until :meth:`Controller.power_on`.
 
 **Alarms.** A following error beyond a joint's limit raises alarm ``4100 + joint number``: the
 queue is emptied, the command is set to the actual position (the drives brake at full torque
@@ -32,24 +36,21 @@ under their own loops) and new points are refused until :meth:`Controller.reset`
 
 from __future__ import annotations
 
-import copy
 import logging
 import time
-from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 
-from simple_message.constants import SpecialSeq
-
 from ..model import RobotModel
 from .clock import Clock, SimulatedClock
+from .motion import MotionQueue, Plan
+from .points import Limits, Point, PointRejected, Reason, State, check_point
+from .policies import DEFAULT_POLICY, policy
 from .recorder import Recorder
-from .segments import PlanningError, RuckigSegment, Segment, hold
 from .servo import ServoDrives
-from .trajectory import Limits, Point, PointRejected, Policy, Reason, State, TrajectoryPlanner
 
 __all__ = [
     "Controller",
@@ -72,13 +73,16 @@ FOLLOWING_ERROR_ALARM = 4100
 class ControllerConfig:
     """Controller settings (SI units)."""
 
-    policy: Policy = Policy.QUINTIC
+    #: interpolation policy, a name of :data:`~.policies.POLICIES`
+    policy: str = DEFAULT_POLICY
     interpolation_period: float = 0.004
     servo_period: float = 0.001
     queue_capacity: int = 64
     download_capacity: int = 10_000
     #: a trajectory's first point must be this close to the current position (None: no check)
     start_tolerance: float | None = 0.01
+    #: the longest segment a point may ask for (s); longer ones are refused
+    max_segment_time: float = 3600.0
     #: in_motion stays TRUE until every joint is this close to the command (rad or m) ...
     settle_position: float = 1e-3
     #: ... and this slow (rad/s or m/s)
@@ -95,6 +99,9 @@ class ControllerConfig:
             )
         if self.queue_capacity < 1 or self.download_capacity < 2:
             raise ValueError("queue_capacity must be >= 1 and download_capacity >= 2")
+        if not self.max_segment_time > 0.0:
+            raise ValueError(f"max_segment_time must be > 0, not {self.max_segment_time}")
+        object.__setattr__(self, "policy", policy(self.policy).name)
 
 
 class Tick(NamedTuple):
@@ -126,27 +133,27 @@ class Controller:
                 raise ValueError(f"initial position {config.initial_position} is not {n} values within the limits")
         else:
             start = np.clip(np.zeros(n), self.limits.lower, self.limits.upper)
-        self.planner = TrajectoryPlanner(self.limits, config.policy, config.start_tolerance)
-        self.planner.begin(State.rest(start))
+        self.policy = policy(config.policy)
+        self.queue = MotionQueue(
+            self.limits,
+            self.policy,
+            State.rest(start),
+            capacity=config.queue_capacity,
+            start_tolerance=config.start_tolerance,
+            max_duration=config.max_segment_time,
+        )
         self.servo = ServoDrives([model.motor(i) for i in range(n)], config.servo_period, start.tolist())
         self._sub = round(config.interpolation_period / config.servo_period)
         self._tick = 0
-        self._queue: deque[Segment] = deque()
-        self._queued_ends: deque[State] = deque()
-        self._segment_start = 0.0  # controller time at which _queue[0] starts
-        self._download: list[Segment] | None = None
-        self._stopping = False
+        self._download: list[Point] | None = None
         hold = start.tolist()
         zeros = [0.0] * n
         self._previous = (hold, zeros, zeros)  # setpoint at the last interpolation instant
         self._next = (hold, zeros, zeros)  # setpoint at the next one
-        self._planned_until = 0.0
-        self._hold = hold  # where the robot stands when nothing is queued
         self.command = Tick(0.0, hold, zeros, zeros, list(hold), list(zeros), list(zeros), list(zeros))
         self.error_code = 0
         self.error_message = ""
-        self.trajectories = 0
-        #: points accepted so far (first points included)
+        #: points accepted so far (first points and downloaded points included)
         self.points_accepted = 0
         self._powered = True
         self._settled = True
@@ -167,12 +174,17 @@ class Controller:
 
     @property
     def queue_fill(self) -> int:
-        """Points queued and not yet finished (the running one included)."""
-        return len(self._queue)
+        """Points queued and not yet reached (the running one included)."""
+        return self.queue.fill
 
     @property
     def queue_capacity(self) -> int:
         return self.config.queue_capacity
+
+    @property
+    def trajectories(self) -> int:
+        """Trajectories started so far."""
+        return self.queue.trajectories
 
     @property
     def in_error(self) -> bool:
@@ -180,15 +192,15 @@ class Controller:
 
     @property
     def moving(self) -> bool:
-        """Commanded motion is under way (queued segments or a stop in progress)."""
-        return bool(self._queue)
+        """Commanded motion is queued or under way (a stop included)."""
+        return self.queue.moving
 
     @property
     def in_motion(self) -> bool:
         """TRUE from the first commanded motion until the robot has settled after the last point
         (every joint within ``settle_position`` of the command and slower than ``settle_velocity``),
         then FALSE until the next motion: a drive's residual ringing does not flip it back."""
-        return bool(self._queue) or not self._settled
+        return self.queue.moving or not self._settled
 
     def _check_settled(self, tick: Tick) -> None:
         cfg = self.config
@@ -208,56 +220,74 @@ class Controller:
     @property
     def remaining(self) -> float:
         """Seconds of queued motion still to run (0 when nothing is queued)."""
-        if not self._queue:
-            return 0.0
-        end = self._segment_start + sum(segment.duration for segment in self._queue)
-        return max(0.0, end - self.time)
+        return self.queue.remaining
 
     # -- commands ------------------------------------------------------------------------------
 
-    def submit(self, point: Point) -> None:
-        """Act on one received point (its sequence number says how, simple-message.md §4.1):
-        -4 stops; -1 starts a download, -3 ends and runs it; 0 and -2 start a streamed
-        trajectory; other points continue the current one. Raises :class:`PointRejected`."""
-        seq = point.sequence
-        if seq == SpecialSeq.STOP_TRAJECTORY:
-            self.stop()
-            return
-        self._check_ready()
-        if seq < 0 and seq not in (
-            SpecialSeq.START_TRAJECTORY_DOWNLOAD,
-            SpecialSeq.START_TRAJECTORY_STREAMING,
-            SpecialSeq.END_TRAJECTORY,
-        ):
-            raise PointRejected(Reason.SEQUENCE, f"sequence {seq} is reserved")
-        if seq == SpecialSeq.START_TRAJECTORY_DOWNLOAD:
-            buffer: list[Segment] = []
-            self._plan_into(point, buffer, first=True)
-            self._download = buffer
-            return
+    def start(self, point: Point) -> None:
+        """``point`` starts a trajectory: it is the start itself (within the start tolerance of
+        where the queued motion ends), whatever its duration. Raises :class:`PointRejected`."""
+        self.commit(self.prepare(point, first=True))
+
+    def add(self, point: Point) -> None:
+        """The next point: of the open download (a refused one drops the download), else of the
+        streamed trajectory (the first point after a stop or an alarm starts one). Raises
+        :class:`PointRejected` (QUEUE_FULL while streaming: try again when there is room)."""
         if self._download is not None:
-            if len(self._download) >= self.config.download_capacity:
-                raise PointRejected(
-                    Reason.QUEUE_FULL, f"the download buffer holds {self.config.download_capacity} points at most"
-                )
+            self._check_ready()
             try:
-                self._plan_into(point, self._download, first=False)
+                if len(self._download) >= self.config.download_capacity:
+                    raise PointRejected(
+                        Reason.QUEUE_FULL, f"the download buffer holds {self.config.download_capacity} points at most"
+                    )
+                check_point(point, self.limits, self.config.max_segment_time)
             except PointRejected as exc:
-                # never run a trajectory with a hole in it: the whole download is dropped
-                self._download = None
-                log.warning("download abandoned: point %d refused (%s)", seq, exc)
+                self._drop_download(exc)
                 raise
-            if seq == SpecialSeq.END_TRAJECTORY:
-                buffer, self._download = self._download, None
-                for segment in buffer:
-                    self._enqueue(segment)
-                log.info("downloaded trajectory of %d segments queued", len(buffer))
+            self._download.append(point)
+            self.points_accepted += 1
             return
-        if seq == SpecialSeq.END_TRAJECTORY:
-            raise PointRejected(Reason.SEQUENCE, "END_TRAJECTORY (-3) without a download started by -1")
-        for segment in self._plan_streamed(point):
-            self._enqueue(segment)
+        self.commit(self.prepare(point, first=False))
+
+    def prepare(self, point: Point, *, first: bool) -> Plan:
+        """Check a streamed point and plan it without changing anything (:meth:`commit` applies
+        it): several controllers can accept points all together or not at all."""
+        self._check_ready()
+        return self.queue.plan(point, first=first)
+
+    def commit(self, plan: Plan) -> None:
+        self.queue.commit(plan)
         self.points_accepted += 1
+        if self.queue.moving:
+            self._settled = False
+
+    def start_download(self, point: Point) -> None:
+        """Open a download with its first point (within the start tolerance of where the queued
+        motion ends); the points that follow are buffered until :meth:`finish_download`."""
+        self._check_ready()
+        self.queue.check_start(point)
+        self._download = [point]
+        self.points_accepted += 1
+
+    def finish_download(self, point: Point) -> None:
+        """The download's last point: the whole trajectory is planned and queued, or, if any point
+        is refused, dropped whole (a trajectory with a hole in it never runs)."""
+        if self._download is None:
+            raise PointRejected(Reason.SEQUENCE, "the end of a download that was never started")
+        self.add(point)
+        points, self._download = self._download, None
+        try:
+            self.queue.add_all(points)
+        except PointRejected as exc:
+            self._drop_download(exc)
+            raise
+        if self.queue.moving:
+            self._settled = False
+        log.info("downloaded trajectory of %d points queued", len(points))
+
+    def _drop_download(self, exc: PointRejected) -> None:
+        self._download = None
+        log.warning("download abandoned: %s", exc)
 
     def _check_ready(self) -> None:
         if not self._powered:
@@ -265,33 +295,14 @@ class Controller:
         if self.in_error:
             raise PointRejected(Reason.NOT_READY, f"the controller is in alarm {self.error_code}: {self.error_message}")
 
-    def _plan_streamed(self, point: Point) -> list[Segment]:
-        if len(self._queue) >= self.config.queue_capacity:
-            raise PointRejected(Reason.QUEUE_FULL, f"the point queue is full ({self.config.queue_capacity} points)")
-        staged: list[Segment] = []
-        self._plan_into(point, staged, first=point.sequence in (0, SpecialSeq.START_TRAJECTORY_STREAMING))
-        return staged
-
     def stop(self) -> float:
         """Abort: decelerate to rest (jerk-limited, within the limits) and empty the queue.
         Returns the time the deceleration takes (0 if already at rest)."""
+        had = self.queue.fill
         self._download = None
-        had = len(self._queue)
-        self._queue.clear()
-        self._queued_ends.clear()
-        position, velocity, acceleration = (np.array(x) for x in self._next)
-        self._hold = list(self._next[0])
-        duration = 0.0
-        if _moving(velocity) or _moving(acceleration):
-            segment = self._stop_segment(State(position, velocity, acceleration))
-            self._queue.append(segment)
-            end = segment.end()
-            self._queued_ends.append(State.rest(end.position))
-            self._segment_start = self._planned_until
-            duration = segment.duration
-        self.planner.begin(self._planned_end())
+        duration = self.queue.stop()
         if had or duration:
-            log.info("stop: %d queued segments dropped, decelerating for %.3f s", had, duration)
+            log.info("stop: %d queued points dropped, decelerating for %.3f s", had, duration)
         return duration
 
     def raise_alarm(self, code: int, message: str) -> None:
@@ -339,8 +350,8 @@ class Controller:
         i = self._tick % self._sub
         if i == 0:
             self._previous = self._next
-            self._planned_until = (self._tick + self._sub) * self.config.servo_period
-            self._next = self._setpoint(self._planned_until)
+            state = self.queue.sample((self._tick + self._sub) * self.config.servo_period)
+            self._next = (state.position.tolist(), state.velocity.tolist(), state.acceleration.tolist())
         self._tick += 1
         f = (i + 1) / self._sub
         g = 1.0 - f
@@ -363,7 +374,7 @@ class Controller:
             error,
             self.points_accepted,
         )
-        if not self._settled and not self._queue:
+        if not self._settled and not self.queue.moving:
             self._check_settled(tick)
         for j, (e, limit) in enumerate(zip(error, servo.following_error_limit, strict=True)):
             if abs(e) > limit:
@@ -383,102 +394,24 @@ class Controller:
 
     # -- internals -----------------------------------------------------------------------------
 
-    def _plan_into(self, point: Point, out: list[Segment], first: bool) -> None:
-        if first:
-            self.planner.begin(self._planned_end())
-        segment = self.planner.plan(point)
-        if first:
-            self.trajectories += 1
-        if segment is not None:
-            out.append(segment)
-
-    def _planned_end(self) -> State:
-        """Where everything queued ends (the current setpoint if nothing is)."""
-        if self._queued_ends:
-            return self._queued_ends[-1]
-        p, v, a = self._next
-        return State(np.array(p), np.array(v), np.array(a))
-
-    def _enqueue(self, segment: Segment) -> None:
-        self._settled = False
-        if not self._queue:
-            self._segment_start = self._planned_until
-        self._queue.append(segment)
-        end = segment.end()
-        if segment.kind == "linear" or not _moving(end.velocity):
-            # ends at rest (a cubic's acceleration steps to 0 there, and a linear segment's velocity
-            # does, by design: never overshoot a final point to smooth that out)
-            self._queued_ends.append(State.rest(end.position))
-        else:
-            self._queued_ends.append(State(end.position, end.velocity, end.acceleration))
-
-    def _setpoint(self, t: float) -> tuple[list[float], list[float], list[float]]:
-        queue = self._queue
-        while queue and t >= self._segment_start + queue[0].duration:
-            done = queue.popleft()
-            end = self._queued_ends.popleft()
-            self._segment_start += done.duration
-            self._hold = end.position.tolist()
-            if not queue and _moving(end.velocity):
-                log.warning("the point queue ran dry while moving: decelerating to rest")
-                stop = self._stop_segment(end)
-                queue.append(stop)
-                self._queued_ends.append(State.rest(stop.end().position))
-                self.planner.begin(self._queued_ends[-1])
-        if queue:
-            s = queue[0].sample(t - self._segment_start)
-            return s.position.tolist(), s.velocity.tolist(), s.acceleration.tolist()
-        zeros = [0.0] * self.dof
-        return self._hold, zeros, zeros
-
-    def _stop_segment(self, state: State) -> Segment:
-        lim = self.limits
-        rest = np.zeros_like(state.position)
-        try:
-            return RuckigSegment.plan(
-                state, (state.position, rest, rest), lim.velocity, lim.acceleration, lim.jerk, velocity_interface=True
-            )
-        except PlanningError:  # pragma: no cover - ruckig plans a stop from any finite state
-            log.exception("no jerk-limited stop from %s; holding", state)
-            return hold(state.position, self.config.interpolation_period)
-
     def _abandon(self) -> None:
         """Drop all motion and command the actual position (alarm, emergency stop)."""
-        self._queue.clear()
-        self._queued_ends.clear()
         self._download = None
         actual = list(self.servo.position)
         zeros = [0.0] * self.dof
         self._previous = self._next = (actual, zeros, zeros)
-        self._hold = actual
         self._settled = False  # the drives still brake the joints to a halt
         self.servo.hold()
-        self.planner.begin(State.rest(np.array(actual)))
+        self.queue.abandon(np.array(actual))
 
 
-def submit_together(pairs: Sequence[tuple[Controller, Point]]) -> None:
-    """Streamed points (sequence >= 0) for several controllers that move as one (the motion groups
-    of a MotoROS JOINT_TRAJ_PT_FULL_EX): every point is accepted, or none is and nothing changes."""
-    saved = [(ctl, copy.copy(ctl.planner), ctl.trajectories) for ctl, _ in pairs]
-    staged: list[tuple[Controller, list[Segment]]] = []
-    try:
-        for ctl, point in pairs:
-            if point.sequence < 0:
-                raise PointRejected(Reason.SEQUENCE, f"sequence {point.sequence}: only streamed points move together")
-            ctl._check_ready()
-            staged.append((ctl, ctl._plan_streamed(point)))
-    except PointRejected:
-        for ctl, planner, trajectories in saved:
-            ctl.planner, ctl.trajectories = planner, trajectories
-        raise
-    for ctl, segments in staged:
-        for segment in segments:
-            ctl._enqueue(segment)
-
-
-def _moving(values: np.ndarray) -> bool:
-    """Not at rest: velocities or accelerations beyond floating-point noise."""
-    return bool(np.any(np.abs(values) > 1e-9))
+def submit_together(pairs: Sequence[tuple[Controller, Point]], *, first: bool = False) -> None:
+    """Streamed points for several controllers that move as one (the motion groups of a MotoROS
+    JOINT_TRAJ_PT_FULL_EX; ``first``: they start a trajectory): every point is accepted, or none is
+    and nothing changes."""
+    plans = [(ctl, ctl.prepare(point, first=first)) for ctl, point in pairs]
+    for ctl, plan in plans:
+        ctl.commit(plan)
 
 
 @dataclass

@@ -32,6 +32,7 @@ from simple_message.messages import Status
 
 from ..control import Controller, ControllerConfig, Point, PointRejected, Reason, submit_together
 from ..model import RobotModel
+from .points import STREAM_STARTS, dispatch
 
 __all__ = ["RobotCell", "FaultError", "apply_fault_command", "FAULT_COMMANDS"]
 
@@ -113,24 +114,27 @@ class RobotCell:
         if self.mode != RobotMode.AUTO:
             raise PointRejected(Reason.NOT_READY, "the controller is in MANUAL (teach) mode")
 
-    def submit(self, group: int, point: Point) -> None:
-        """Hand one point to a group's controller; raises :class:`PointRejected`."""
+    def submit(self, group: int, sequence: int, point: Point) -> None:
+        """Hand one point to a group's controller, as its sequence number says
+        (:func:`.points.dispatch`); raises :class:`PointRejected`."""
         controller = self.group(group)
-        if point.sequence == SpecialSeq.STOP_TRAJECTORY:  # a stop is always obeyed
+        if sequence == SpecialSeq.STOP_TRAJECTORY:  # a stop is always obeyed
             self._interrupted()
-            controller.submit(point)
+            controller.stop()
             return
         self.check_ready()
         before = controller.trajectories
-        controller.submit(point)
+        dispatch(controller, sequence, point)
         self._count(group, before)
 
-    def submit_together(self, points: Sequence[tuple[int, Point]]) -> None:
-        """One streamed point per group, all accepted or none."""
+    def submit_together(self, sequence: int, points: Sequence[tuple[int, Point]]) -> None:
+        """One streamed point per group, all accepted or none (sequence 0 starts a trajectory)."""
+        if sequence < 0:
+            raise PointRejected(Reason.SEQUENCE, f"sequence {sequence}: only streamed points move together")
         self.check_ready()
         pairs = [(self.group(g), p) for g, p in points]
         before = [c.trajectories for c, _ in pairs]
-        submit_together(pairs)
+        submit_together(pairs, first=sequence in STREAM_STARTS)
         for (g, _), n in zip(points, before, strict=True):
             self._count(g, n)
 

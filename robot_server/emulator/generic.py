@@ -33,8 +33,9 @@ from simple_message.constants import CommType, MsgType, ReplyCode, SpecialSeq, V
 from simple_message.endpoints import Server, Session
 from simple_message.messages import JointFeedback, JointPosition, JointTrajPtFull, Message
 
-from ..control import Point, PointRejected, Reason, point_from_message
+from ..control import Point, PointRejected, Reason
 from .cell import RobotCell
+from .points import point_from_message
 
 __all__ = ["GenericMotion", "GenericState", "FEEDBACK_FIELDS"]
 
@@ -69,22 +70,22 @@ class GenericMotion:
         group = msg.robot_id if isinstance(msg, JointTrajPtFull) else 0
         try:
             controller = self.cell.group(group)
-            point = point_from_message(msg, controller.dof)
-            if not is_request and not controller.downloading and point.sequence != SpecialSeq.START_TRAJECTORY_DOWNLOAD:
+            sequence, point = point_from_message(msg, controller.dof)
+            if not is_request and not controller.downloading and sequence != SpecialSeq.START_TRAJECTORY_DOWNLOAD:
                 log.warning(
                     "%s: %s TOPIC with sequence %d outside a download (-1 ... -3) ignored",
                     session.name,
                     msg.name,
-                    point.sequence,
+                    sequence,
                 )
                 return None
         except PointRejected as exc:
             return self._refused(msg, session, exc)
         try:
-            self.cell.submit(group, point)
+            self.cell.submit(group, sequence, point)
         except PointRejected as exc:
             if exc.reason is Reason.QUEUE_FULL and is_request:
-                return self._when_room(group, point, session)
+                return self._when_room(group, sequence, point, session)
             return self._refused(msg, session, exc)
         return ReplyCode.SUCCESS
 
@@ -93,23 +94,21 @@ class GenericMotion:
         log.warning("%s: %s %d refused: %s", session.name, msg.name, getattr(msg, "sequence", 0), exc)
         return ReplyCode.FAILURE if msg.comm_type == CommType.SERVICE_REQUEST else None
 
-    async def _when_room(self, group: int, point: Point, session: Session) -> ReplyCode:
+    async def _when_room(self, group: int, sequence: int, point: Point, session: Session) -> ReplyCode:
         """Hold the reply until the queue has room (the generic client's only flow control)."""
         cell = self.cell
         epoch = cell.interruptions
         while True:
             await cell.changed()
             if cell.interruptions != epoch:
-                log.warning(
-                    "%s: point %d waited for room across a stop or fault: not run", session.name, point.sequence
-                )
+                log.warning("%s: point %d waited for room across a stop or fault: not run", session.name, sequence)
                 return ReplyCode.FAILURE
             try:
-                cell.submit(group, point)
+                cell.submit(group, sequence, point)
             except PointRejected as exc:
                 if exc.reason is Reason.QUEUE_FULL:
                     continue
-                log.warning("%s: point %d refused: %s", session.name, point.sequence, exc)
+                log.warning("%s: point %d refused: %s", session.name, sequence, exc)
                 return ReplyCode.FAILURE
             return ReplyCode.SUCCESS
 

@@ -15,14 +15,19 @@ MOTO_MOTION_REPLY (2002), header SUCCESS, the outcome in ``result``/``subcode`` 
   in front of its 200-increment queue is: here, while at least 200 interpolation periods of motion
   are queued (0.8 s at the default 4 ms; the real FS100 capture's BUSY pattern matches 200 x 2 ms,
   so run with ``--interpolation-period 0.002`` to imitate an FS100). Speeds above the joint limit
-  give 3013, other refusals their data subcode (position 3012, acceleration 3014, time 3016).
-  Like MotoROS, the time is cut to whole milliseconds and segments are cubic in position and
-  velocity (accelerations are not used).
-  Unlike MotoROS, every point is checked completely before it is acknowledged, so a point that
-  would later be skipped is refused instead.
+  give 3013, other refusals their data subcode (position 3012, time 3016, anything else 3010);
+  MotoROS never refuses a point for its acceleration (3014 is defined and never sent), and neither
+  does the emulator: a segment too fast for the joints is slowed down (``control.motion``).
+  As MotoROS does, the time becomes whole milliseconds by ``(int)(time * 1000)`` in float32
+  arithmetic (:func:`motoros_milliseconds`: a client's 0.02 s is 20 ms, never 19), segments are
+  cubic in position and velocity (accelerations are not used), and values in the slots beyond the
+  group's axes are ignored. CHECK_QUEUE_CNT never reports more than the 200 increments MotoROS's
+  queue holds. Unlike MotoROS, every point is checked completely before it is acknowledged, so a
+  point that would later be skipped is refused instead.
 * JOINT_TRAJ_PT_FULL_EX (2016): one point per group, all accepted or none; BUSY if any group is.
-* SELECT_TOOL (tool 0-63, else 3017), GET_DH_PARAMETERS (the model's D-H table, FAILURE for a
-  model without one), PING (header-only SUCCESS), the IO messages (as on the IO port).
+* SELECT_TOOL (tool 0-63, else 3017), GET_DH_PARAMETERS (the model's D-H table, always 4 groups
+  of 8 axes as MotoROS sends it; FAILURE for a model without one or with more than 8 joints),
+  PING (header-only SUCCESS), the IO messages (as on the IO port).
 * Unknown types: INVALID/3003 with group and sequence -1. STATUS, JOINT_FEEDBACK, MOTO_MOTION_REPLY
   and JOINT_FEEDBACK_EX close the connection without a reply, as in MotoROS.
 * One motion client at a time: a new connection replaces the old one unless the robot is moving,
@@ -45,6 +50,8 @@ import logging
 import math
 from collections.abc import Iterable
 
+import numpy as np
+
 from simple_message.constants import (
     CommType,
     InvalidSubcode,
@@ -59,6 +66,7 @@ from simple_message.constants import (
 )
 from simple_message.endpoints import CloseConnection, Server, Session
 from simple_message.messages import (
+    DH_AXES,
     DhLink,
     ExGroup,
     GetDhParametersReply,
@@ -86,9 +94,10 @@ from simple_message.messages import (
     WriteSingleIoReply,
 )
 
-from ..control import Point, PointRejected, Reason, point_from_message
+from ..control import Point, PointRejected, Reason
 from .cell import FaultError, RobotCell
 from .io_table import IoTable
+from .points import point_from_message
 
 __all__ = [
     "MotorosMotion",
@@ -97,6 +106,7 @@ __all__ = [
     "MOTOROS_START_TOLERANCE",
     "MOTOROS_QUEUE_INCREMENTS",
     "MOTOROS_MAX_TIME",
+    "motoros_milliseconds",
 ]
 
 log = logging.getLogger(__name__)
@@ -114,7 +124,6 @@ _SUBCODES = {
     Reason.START_MISMATCH: InvalidSubcode.DATA_START_POS,
     Reason.POSITION_LIMIT: InvalidSubcode.DATA_POSITION,
     Reason.VELOCITY_LIMIT: InvalidSubcode.DATA_SPEED,
-    Reason.ACCELERATION_LIMIT: InvalidSubcode.DATA_ACCEL,
     Reason.TIMING: InvalidSubcode.DATA_TIME,
     Reason.MISSING_FIELDS: InvalidSubcode.DATA_INSUFFICIENT,
     Reason.SEQUENCE: InvalidSubcode.SEQUENCE,
@@ -123,6 +132,15 @@ _SUBCODES = {
 }
 #: types MotoROS knows but refuses on its motion port: the connection is closed (§8.1)
 _CLOSING_TYPES = (MsgType.STATUS, MsgType.JOINT_FEEDBACK, MsgType.MOTO_MOTION_REPLY, MsgType.JOINT_FEEDBACK_EX)
+
+
+def motoros_milliseconds(time: float) -> int:
+    """A JOINT_TRAJ_PT_FULL time in whole milliseconds as MotoROS computes it:
+    ``(int)(jointTrajData->time * 1000)`` (``Ros_MotionServer_ConvertToJointMotionData``) with a
+    float ``time``, so the product is rounded to float32 and then truncated toward zero. The
+    float32 nearest 0.02 is 0.0199999995..., whose float32 product with 1000 is exactly 20.0:
+    clean client times stay whole (truncating the double product instead would give 19 ms)."""
+    return int(np.float32(time) * np.float32(1000.0))
 
 
 class _Refused(Exception):
@@ -222,7 +240,8 @@ class MotorosMotion:
         if command == MotoCommand.CHECK_QUEUE_CNT:
             group = self._group(msg.group_no)
             period = cell.config.interpolation_period
-            return MotoResult.SUCCESS, math.ceil(cell.groups[group].remaining / period - 1e-9)
+            queued = math.ceil(cell.groups[group].remaining / period - 1e-9)
+            return MotoResult.SUCCESS, min(queued, MOTOROS_QUEUE_INCREMENTS)  # the queue holds 200 at most
         if command == MotoCommand.STOP_MOTION:
             cell.stop()
             return MotoResult.SUCCESS, 0
@@ -277,9 +296,9 @@ class MotorosMotion:
             point = self._check(
                 group, msg.sequence, msg.valid_fields, msg.time, positions=msg.positions, velocities=msg.velocities
             )
-            if point.sequence > 0 and self._busy(group):
+            if msg.sequence > 0 and self._busy(group):
                 raise _Refused(MotoResult.BUSY)
-            self._submit([(group, point)], session)
+            self._submit(msg.sequence, [(group, point)], session)
             result, subcode = MotoResult.SUCCESS, 0
         except _Refused as refused:
             result, subcode = refused.result, refused.subcode
@@ -310,7 +329,7 @@ class MotorosMotion:
                 raise _Refused(MotoResult.INVALID, InvalidSubcode.GROUPNO)
             if msg.sequence > 0 and any(self._busy(g) for g, _ in points):
                 raise _Refused(MotoResult.BUSY)
-            self._submit(points, session)
+            self._submit(msg.sequence, points, session)
             result, subcode = MotoResult.SUCCESS, 0
         except _Refused as refused:
             result, subcode = refused.result, refused.subcode
@@ -340,16 +359,17 @@ class MotorosMotion:
         if sequence == 0 and self.cell.groups[group].moving:
             raise _Refused(MotoResult.BUSY)  # a new trajectory waits until the last one has run
         controller = self.cell.groups[group]
+        # MotoROS uses time, positions and velocities (accelerations never), and only its axes' slots
         message = JointTrajPtFull(
             group,
             sequence,
             ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY,
-            math.floor(time * 1000.0) / 1000.0 if math.isfinite(time) else time,  # (int)(time*1000) ms
+            motoros_milliseconds(time) / 1000.0,
             tuple(positions),
             tuple(velocities),
         )
         try:
-            return point_from_message(message, controller.dof)
+            return point_from_message(message, controller.dof, extra_slots="ignore")[1]
         except PointRejected as exc:
             raise _refusal(exc) from None
 
@@ -357,14 +377,14 @@ class MotorosMotion:
         controller = self.cell.groups[group]
         return controller.remaining >= self.buffer_time or controller.queue_fill >= controller.queue_capacity
 
-    def _submit(self, points: list[tuple[int, Point]], session: Session) -> None:
+    def _submit(self, sequence: int, points: list[tuple[int, Point]], session: Session) -> None:
         try:
             if len(points) == 1:
-                self.cell.submit(*points[0])
+                self.cell.submit(points[0][0], sequence, points[0][1])
             else:
-                self.cell.submit_together(points)
+                self.cell.submit_together(sequence, points)
         except PointRejected as exc:
-            log.warning("%s: point %d refused: %s", session.name, points[0][1].sequence, exc)
+            log.warning("%s: point %d refused: %s", session.name, sequence, exc)
             raise _refusal(exc) from None
 
     # -- other motion-port messages ----------------------------------------------------------------
@@ -382,7 +402,7 @@ class MotorosMotion:
         groups = []
         for model in self.cell.models:
             rows = [joint.dh for joint in model.joints]
-            if any(row is None for row in rows) or len(rows) > 8:
+            if any(row is None for row in rows) or len(rows) > DH_AXES:
                 log.info("%s: GET_DH_PARAMETERS: model %s has no D-H table", session.name, model.name)
                 return GetDhParametersReply(reply_code=ReplyCode.FAILURE)
             groups.append(tuple(DhLink(*row) for row in rows if row is not None))

@@ -29,7 +29,16 @@ from simple_message.constants import Port
 from simple_message.endpoints import ReplyStyle, Server, Session
 from simple_message.wire import ByteOrder, WireFormat
 
-from ..control import Clock, ControllerConfig, ControlLoop, Policy, RealTimeClock, Recorder, SimulatedClock
+from ..control import (
+    DEFAULT_POLICY,
+    Clock,
+    ControllerConfig,
+    ControlLoop,
+    RealTimeClock,
+    Recorder,
+    SimulatedClock,
+    policy,
+)
 from ..loader import load_model
 from ..model import RobotModel
 from .cell import RobotCell
@@ -69,7 +78,8 @@ class EmulatorConfig:
     state_rate: float = 40.0
     #: generic profile: JOINT_FEEDBACK to every state client (else only to those that ask)
     feedback: bool = False
-    interpolation: Policy = Policy.QUINTIC
+    #: interpolation policy (a name of ``robot_server.control.POLICIES``)
+    interpolation: str = DEFAULT_POLICY
     interpolation_period: float = 0.004
     servo_period: float = 0.001
     speedup: float = 1.0
@@ -98,7 +108,7 @@ class EmulatorConfig:
             raise ValueError(f"the speed-up factor must be > 0, not {self.speedup}")
         if not self.models:
             raise ValueError("at least one model is needed")
-        object.__setattr__(self, "interpolation", Policy(self.interpolation))
+        object.__setattr__(self, "interpolation", policy(self.interpolation).name)
 
     @property
     def wire(self) -> WireFormat:
@@ -131,7 +141,13 @@ class PeriodStats:
 class Emulator:
     """A robot controller emulator serving simple_message (see the module doc)."""
 
-    def __init__(self, config: EmulatorConfig | None = None, models: Sequence[RobotModel] | None = None) -> None:
+    def __init__(
+        self,
+        config: EmulatorConfig | None = None,
+        models: Sequence[RobotModel] | None = None,
+        *,
+        clock: Clock | None = None,
+    ) -> None:
         self.config = config = config if config is not None else EmulatorConfig()
         if models is None:
             models = [load_model(m) for m in config.models]
@@ -169,7 +185,10 @@ class Emulator:
             generic_state = GenericState(self.cell, feedback=config.feedback)
             generic_state.install(self.state_server)
             self._publish = generic_state.publish
-        self.clock: Clock = SimulatedClock() if config.simulated else RealTimeClock(config.speedup)
+        if clock is None:
+            clock = SimulatedClock() if config.simulated else RealTimeClock(config.speedup)
+        #: the controller's clock (a test may pass a ``SteppedClock`` and advance it itself)
+        self.clock: Clock = clock
         self.control = ControlLoop(
             self.cell.groups[0], self.clock, others=self.cell.groups[1:], on_wake=self.cell.notify
         )
@@ -305,10 +324,10 @@ class Emulator:
             ports += f", serial {cfg.serial}"
         order = "auto-detected byte order" if cfg.byte_order == "auto" else f"{cfg.byte_order}-endian"
         timing = "real time" if cfg.speedup == 1.0 else f"{cfg.speedup:g}x real time"
-        if cfg.simulated:
+        if not self.clock.realtime:
             timing = "simulated time"
         models = " + ".join(g.model.name for g in self.cell.groups)
         return (
             f"robot-server ready: {cfg.profile} profile, {models}, {ports}, {order} float{64 if cfg.float64 else 32}, "
-            f"{cfg.interpolation.value} interpolation, {timing}"
+            f"{cfg.interpolation} interpolation, {timing}"
         )

@@ -1,0 +1,793 @@
+"""The motion queue: what received points mean over time.
+
+Points arrive one by one (streaming) or as a whole (a download); the controller samples the motion
+at its interpolation instants (:meth:`MotionQueue.sample`). In between, the queue holds the
+*running* segment and the *pending* ones, each ending at a point (a knot).
+
+**Trajectories.** :meth:`MotionQueue.plan` with ``first=True`` starts a trajectory. Its first point
+is the start itself, whatever its duration or time (industrial_robot_client gives it 10 s): it
+must lie within ``start_tolerance`` of where everything queued ends (MotoROS refuses it
+otherwise, simple-message.md §8.1), and the motion goes on from that state, never with a jump. A
+JOINT_TRAJ_PT_FULL first point's time is the origin of the times after it. After a stop or an
+alarm, the next point starts a trajectory whatever it says.
+
+**Three kinds of points.**
+
+* *Given*: a JOINT_TRAJ_PT_FULL point with velocities (and maybe accelerations): its end state is
+  what it says. Segments follow the fields both ends have, as ros2_control's joint trajectory
+  controller and MotoROS do (motion.md §3.3, §3.5): velocities give a cubic Hermite (C1), velocities
+  and accelerations a quintic (C2).
+* *Estimated*: positions only, under a policy that passes through points (``blend``). The point's
+  velocity and acceleration come from its neighbours (:mod:`.blend`), so **its state is fixed when
+  the next point is queued**; a segment that starts while no next point is queued ends at rest
+  there. If the next point then arrives while that segment runs, the rest of it is re-planned from
+  the current setpoint to the new end state over its remaining time (when that stays within the
+  limits): a stream that is late by a few milliseconds costs no stop. Arrival times in controller
+  time decide all of this, so the same arrivals give the same motion, bit for bit.
+* *Rest*: positions only under a rest-to-rest policy: the policy plans the segment when the point
+  arrives and a segment beyond a limit is refused (:mod:`.policies`).
+
+**Slowing down.** Given and estimated segments are checked against the velocity, acceleration
+and jerk limits (exact extremes). A segment beyond them is not refused: the part of the trajectory
+not yet executed (the rest of the running segment and everything pending) is time-scaled
+uniformly (velocities / k, accelerations / k^2, jerks / k^3) until everything fits, and one WARNING
+says by how much. The scale only grows within a trajectory; the next one starts at 1. (The
+running segment keeps its speed at the instant of the change, so the first re-planned segment
+absorbs the difference.)
+
+**A queue that runs dry.** When a segment ends in motion (a given velocity) and nothing follows,
+the robot decelerates with the jerk-limited stop of :meth:`MotionQueue.stop`; when an estimated
+point's segment to rest would exceed the limits, the robot goes to rest at the point time-optimally
+within them (ruckig). Either way it goes on when points arrive, from its state at that instant. A
+WARNING says so once per trajectory.
+
+Everything here is sans-I/O and deterministic; the controller owns the clock.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from enum import Enum
+
+import numpy as np
+from numpy.typing import NDArray
+
+from . import blend
+from .points import SLACK, Limits, Point, PointRejected, Reason, State, check_point, within
+from .policies import Policy
+from .segments import PlanningError, RuckigSegment, Segment, cubic_hermite, hold, linear, quintic_hermite
+
+__all__ = ["MotionQueue", "Plan"]
+
+log = logging.getLogger(__name__)
+
+Array = NDArray[np.float64]
+
+#: how many times a trajectory is re-scaled for one point before the point is refused
+_MAX_RESCALES = 12
+#: re-planning the rest of a segment needs at least this much of it left (s)
+_MIN_REMAINDER = 1e-6
+#: with the start check off, a first point farther than this (rad or m) is a move to it
+_SAME_PLACE = 1e-9
+
+
+class _Kind(Enum):
+    GIVEN = "given"
+    ESTIMATED = "estimated"
+    REST = "rest"
+
+
+@dataclass(frozen=True, slots=True)
+class _Knot:
+    """A queued point."""
+
+    position: Array
+    #: unscaled seconds from the previous point (None: the rest-to-rest policy decides)
+    duration: float | None
+    kind: _Kind
+    trajectory: int
+    #: 1, 2, ... within its trajectory (the first point, the start, is 0)
+    index: int
+    velocity: Array | None = None
+    acceleration: Array | None = None
+    ratio: float = 0.0
+    #: its JOINT_TRAJ_PT_FULL time
+    time: float | None = None
+    #: a rest point with positions only from a JOINT_TRAJ_PT_FULL: joined linearly (ros2_control)
+    linear: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class _Entry:
+    """A segment of the queue, ending at ``knot`` (None: a stop)."""
+
+    knot: _Knot | None
+    #: the previous point and the scaled time from it (for estimates)
+    before: Array
+    before_duration: float
+    start: State
+    #: the segment's time (scaled; what is left of it after a re-plan)
+    duration: float
+    end: State | None = None
+    segment: Segment | None = None
+    #: derivatives the start and end states carry: 1 velocity, 2 velocity and acceleration
+    start_order: int = 2
+    end_order: int = 2
+    #: ends at rest because no next point was queued when it started
+    dry: bool = False
+
+    @property
+    def trajectory(self) -> int:
+        return self.knot.trajectory if self.knot is not None else -1
+
+    @property
+    def index(self) -> int:
+        return self.knot.index if self.knot is not None else 0
+
+    def is_kind(self, kind: _Kind) -> bool:
+        return self.knot is not None and self.knot.kind is kind
+
+
+@dataclass(frozen=True, slots=True)
+class _Trajectory:
+    """Book-keeping of the trajectory that points are added to."""
+
+    number: int = 0
+    open: bool = False
+    scale: float = 1.0
+    points: int = 0
+    #: time of the last JOINT_TRAJ_PT_FULL point
+    time: float = 0.0
+    last_position: Array | None = None
+    warned_scale: bool = False
+    warned_dry: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class Plan:
+    """The queue after accepting one point (:meth:`MotionQueue.plan`), applied by :meth:`MotionQueue.commit`."""
+
+    running: _Entry | None
+    started: float
+    pending: tuple[_Entry, ...]
+    trajectory: _Trajectory
+    messages: tuple[tuple[int, str], ...] = ()
+
+
+class MotionQueue:
+    """Received points as motion over time (see the module doc)."""
+
+    def __init__(
+        self,
+        limits: Limits,
+        policy: Policy,
+        start: State,
+        *,
+        capacity: int = 64,
+        start_tolerance: float | None = 0.01,
+        max_duration: float = 3600.0,
+    ) -> None:
+        self.limits = limits
+        self.policy = policy
+        self.capacity = capacity
+        self.start_tolerance = start_tolerance
+        self.max_duration = max_duration
+        self._t = 0.0
+        self._state = start
+        self._running: _Entry | None = None
+        self._started = 0.0
+        self._pending: tuple[_Entry, ...] = ()
+        self._trajectory = _Trajectory()
+        #: (trajectory, point) where the robot came to rest for want of the next point
+        self._stopped_dry: tuple[int, int] | None = None
+
+    # -- state ---------------------------------------------------------------------------------
+
+    @property
+    def state(self) -> State:
+        """The setpoint at the last sampled instant."""
+        return self._state
+
+    @property
+    def moving(self) -> bool:
+        """Motion is queued or under way (a stop included)."""
+        return self._running is not None or bool(self._pending)
+
+    @property
+    def fill(self) -> int:
+        """Points queued and not yet reached (the running one included)."""
+        running = 1 if self._running is not None and self._running.knot is not None else 0
+        return running + len(self._pending)
+
+    @property
+    def remaining(self) -> float:
+        """Seconds of queued motion still to run."""
+        total = sum(e.duration for e in self._pending)
+        if self._running is not None:
+            total += max(0.0, self._started + self._running.duration - self._t)
+        return total
+
+    @property
+    def trajectories(self) -> int:
+        """Trajectories started so far."""
+        return self._trajectory.number
+
+    @property
+    def scale(self) -> float:
+        """The current trajectory's time scale (1: as the client timed it)."""
+        return self._trajectory.scale
+
+    def segments(self) -> list[Segment]:
+        """The queued segments already decided, the running one first (an estimated point's
+        segment is decided when the next point is queued, or when it starts)."""
+        entries = [self._running, *self._pending] if self._running is not None else list(self._pending)
+        return [e.segment for e in entries if e.segment is not None]
+
+    def planned_end(self) -> State:
+        """Where everything queued ends, the open trajectory's last point at rest (the current
+        setpoint if nothing is queued)."""
+        if self._pending:
+            last = self._pending[-1]
+            return last.end if last.end is not None else State.rest(_knot(last).position)
+        if self._running is not None and self._running.end is not None:
+            return self._running.end
+        return self._state
+
+    # -- points --------------------------------------------------------------------------------
+
+    def plan(self, point: Point, *, first: bool, bounded: bool = True) -> Plan:
+        """The queue with ``point`` added (``first``: it starts a trajectory; ``bounded``: refuse it
+        when the queue is full), without changing anything; raises :class:`PointRejected`. Apply
+        the result with :meth:`commit`."""
+        positions = check_point(point, self.limits, self.max_duration)
+        trajectory = self._trajectory
+        if first or not trajectory.open:
+            return self._plan_start(point, positions)
+        if bounded and self.fill >= self.capacity:
+            raise PointRejected(Reason.QUEUE_FULL, f"the point queue is full ({self.capacity} points)")
+        return self._plan_point(point, positions, Plan(self._running, self._started, self._pending, trajectory))
+
+    def commit(self, plan: Plan) -> None:
+        """Apply a :class:`Plan` of :meth:`plan` (made since the last commit or sample)."""
+        self._running, self._started, self._pending, self._trajectory = (
+            plan.running,
+            plan.started,
+            plan.pending,
+            plan.trajectory,
+        )
+        for level, message in plan.messages:
+            log.log(level, message)
+
+    def add_all(self, points: Sequence[Point]) -> None:
+        """A downloaded trajectory: its first point starts it, the others follow; all are accepted
+        or none is (and nothing changes)."""
+        saved = (self._running, self._started, self._pending, self._trajectory)
+        try:
+            for i, point in enumerate(points):
+                self.commit(self.plan(point, first=i == 0, bounded=False))
+        except PointRejected:
+            self._running, self._started, self._pending, self._trajectory = saved
+            raise
+
+    def check_start(self, point: Point) -> None:
+        """Refuse ``point`` as the first point of a trajectory starting now (PointRejected)."""
+        self._check_start(check_point(point, self.limits, self.max_duration), self.planned_end())
+
+    # -- stop, abandon, sampling -----------------------------------------------------------------
+
+    def stop(self) -> float:
+        """Replace everything queued with a jerk-limited deceleration to rest from the current
+        setpoint; the next point starts a trajectory. Returns the deceleration's time."""
+        self._pending = ()
+        self._running = None
+        self._trajectory = replace(self._trajectory, open=False)
+        state = self._state
+        if not (_moving(state.velocity) or _moving(state.acceleration)):
+            return 0.0
+        entry = self._stop_entry(state)
+        self._running, self._started = entry, self._t
+        return entry.duration
+
+    def abandon(self, position: Array) -> None:
+        """Drop all motion at once and hold ``position`` (alarm, e-stop)."""
+        self._pending = ()
+        self._running = None
+        self._trajectory = replace(self._trajectory, open=False)
+        self._state = State.rest(position)
+
+    def sample(self, t: float) -> State:
+        """The setpoint at controller time ``t`` (increasing from call to call); segments that end
+        before ``t`` hand over to the next ones on one continuous timeline."""
+        if self._running is None and self._pending:
+            self._start_next(self._t)
+        while self._running is not None and t >= self._started + self._running.duration:
+            done = self._running
+            end_time = self._started + done.duration
+            self._running = None
+            assert done.end is not None
+            if done.dry and _moving(done.start.velocity):
+                self._stopped_dry = (done.trajectory, done.index)
+            if self._pending:
+                self._start_next(end_time)
+            elif _moving(done.end.velocity) or _moving(done.end.acceleration):
+                self._warn_dry(f"nothing followed point {done.index}, which the robot passes moving")
+                self._running, self._started = self._stop_entry(done.end), end_time
+            else:
+                self._state = State.rest(done.end.position)
+        running = self._running
+        if running is not None:
+            assert running.segment is not None
+            s = running.segment.sample(t - self._started)
+            self._state = State(s.position, s.velocity, s.acceleration)
+        self._t = t
+        return self._state
+
+    # -- planning --------------------------------------------------------------------------------
+
+    def _check_start(self, positions: Array, origin: State) -> None:
+        if self.start_tolerance is None:
+            return
+        gap = np.abs(positions - origin.position)
+        worst = int(np.argmax(gap))
+        if gap[worst] > self.start_tolerance:
+            raise PointRejected(
+                Reason.START_MISMATCH,
+                f"the first point is {gap[worst]:.6g} from the current position of joint {worst + 1} "
+                f"(tolerance {self.start_tolerance:g})",
+                worst,
+            )
+
+    def _plan_start(self, point: Point, positions: Array) -> Plan:
+        pending = list(self._pending)
+        messages: list[tuple[int, str]] = []
+        if pending and pending[-1].end is None:  # the previous trajectory's last point ends at rest
+            pending[-1] = self._to_rest(pending[-1], messages)
+        origin = self.planned_end() if not pending else pending[-1].end
+        assert origin is not None
+        self._check_start(positions, origin)
+        away = self.start_tolerance is None and bool(np.any(np.abs(positions - origin.position) > _SAME_PLACE))
+        trajectory = _Trajectory(
+            number=self._trajectory.number + 1,
+            open=True,
+            points=0 if away else 1,
+            time=point.time if point.time is not None and not away else 0.0,
+            last_position=origin.position,
+        )
+        opened = Plan(self._running, self._started, tuple(pending), trajectory, tuple(messages))
+        if away:  # no start check: the robot goes to the first point from where it is
+            return self._plan_point(point, positions, opened)
+        return opened
+
+    def _plan_point(self, point: Point, positions: Array, base: Plan) -> Plan:
+        knot = self._knot(point, positions, base.trajectory)
+        if knot is None:  # already there and no time to spend: nothing to do
+            return replace(base, trajectory=replace(base.trajectory, points=base.trajectory.points + 1))
+        return self._plan_knot(knot, base)
+
+    def _knot(self, point: Point, positions: Array, trajectory: _Trajectory) -> _Knot | None:
+        """The queued form of a point after the first (None: nothing to do)."""
+        policy = self.policy
+        before = trajectory.last_position
+        assert before is not None
+        ratio = point.velocity_ratio if point.velocity_ratio is not None else 0.0
+        number, index = trajectory.number, trajectory.points
+        if point.time is not None:
+            duration = point.time - trajectory.time
+            if not duration > 0.0:
+                raise PointRejected(
+                    Reason.TIMING,
+                    f"time {point.time:g} s does not follow the previous point's time {trajectory.time:g} s",
+                )
+            if duration > self.max_duration:
+                raise PointRejected(
+                    Reason.TIMING,
+                    f"{duration:g} s after the previous point is beyond the maximum segment time "
+                    f"({self.max_duration:g} s)",
+                )
+            if point.velocities is not None:
+                kind = _Kind.GIVEN
+            else:
+                kind = _Kind.ESTIMATED if policy.passes_through else _Kind.REST
+            return _Knot(
+                positions,
+                duration,
+                kind,
+                number,
+                index,
+                point.velocities,
+                point.accelerations,
+                ratio,
+                time=point.time,
+                linear=kind is _Kind.REST,
+            )
+        duration_or_none = point.duration if point.duration else None
+        if not policy.passes_through:
+            return _Knot(positions, duration_or_none, _Kind.REST, number, index, ratio=ratio)
+        if duration_or_none is None:
+            delta = positions - before
+            if not np.any(delta):
+                return None
+            duration_or_none = policy.segment_time(delta, ratio, self.limits)
+        return _Knot(positions, duration_or_none, _Kind.ESTIMATED, number, index, ratio=ratio)
+
+    def _plan_knot(self, knot: _Knot, base: Plan) -> Plan:
+        trajectory = base.trajectory
+        scale = trajectory.scale
+        pending = list(base.pending)
+        running, started = base.running, base.started
+        messages = list(base.messages)
+        built: list[_Entry] = []  # segments decided now: checked against the limits below
+        # 1. the point before this one passes through it, now that it is known
+        if pending and pending[-1].end is None:
+            pending[-1] = self._determine(pending[-1], knot.position, _need(knot.duration) * scale)
+            built.append(pending[-1])
+        elif running is not None and running.dry and running.trajectory == knot.trajectory and not pending:
+            late = self._replan_running(running, knot.position, _need(knot.duration) * scale)
+            if late is not None:
+                running, started = late, self._t
+                built.append(running)
+            elif _moving(running.start.velocity):
+                messages.append(
+                    self._dry_message(
+                        trajectory, f"point {knot.index} came too late to pass through point {running.index}"
+                    )
+                )
+                trajectory = replace(trajectory, warned_dry=True)
+        elif running is not None and running.knot is None and not pending:
+            running, started = None, self._t  # a dry stop is under way: go on from the current setpoint
+        elif running is None and not pending and self._stopped_dry == (knot.trajectory, knot.index - 1):
+            messages.append(self._dry_message(trajectory, f"point {knot.index} came after the robot stopped"))
+            trajectory = replace(trajectory, warned_dry=True)
+        # 2. this point's segment, from where the one before ends
+        if pending:
+            start, order = pending[-1].end, pending[-1].end_order
+        elif running is not None:
+            start, order = running.end, running.end_order
+        else:
+            start, order = self._state, 2
+        assert start is not None and trajectory.last_position is not None
+        if knot.kind is _Kind.REST:
+            segment = self._rest_segment(knot, start)
+            if segment is None:
+                return Plan(
+                    running, started, tuple(pending), replace(trajectory, points=trajectory.points + 1), tuple(messages)
+                )
+            entry = _Entry(
+                knot,
+                trajectory.last_position,
+                segment.duration,
+                start,
+                segment.duration,
+                State.rest(knot.position),
+                segment,
+                start_order=order,
+                end_order=0 if knot.linear else 2,  # a linear segment's end carries its position only
+            )
+        else:
+            duration = _need(knot.duration) * scale
+            entry = _Entry(knot, trajectory.last_position, duration, start, duration, start_order=order)
+            if knot.kind is _Kind.GIVEN:
+                entry = self._given(entry, scale)
+                built.append(entry)
+        pending.append(entry)
+        trajectory = replace(
+            trajectory,
+            points=trajectory.points + 1,
+            last_position=knot.position,
+            time=knot.time if knot.time is not None else trajectory.time,
+        )
+        # 3. the limits: slow the trajectory down rather than refuse the point
+        for e in built:
+            self._check_position(e)
+        needed = max((self._needed(e) for e in built), default=1.0)
+        if needed > 1.0:
+            running, started, pending, trajectory = self._rescale(
+                running, started, pending, trajectory, needed=needed, knot=knot, messages=messages
+            )
+        return Plan(running, started, tuple(pending), trajectory, tuple(messages))
+
+    # -- entries -----------------------------------------------------------------------------------
+
+    def _determine(self, entry: _Entry, after: Array, after_duration: float) -> _Entry:
+        """An estimated point's state, now that the next point is known."""
+        knot = _knot(entry)
+        end = blend.through_state(
+            entry.start,
+            entry.duration,
+            knot.position,
+            after=after,
+            after_duration=after_duration,
+            before=entry.before,
+            before_duration=entry.before_duration,
+        )
+        return replace(entry, end=end, segment=_connect(entry.start, entry.start_order, end, 2, entry.duration))
+
+    def _given(self, entry: _Entry, scale: float) -> _Entry:
+        """A given point's state at the trajectory's time scale, and the segment to it."""
+        knot = _knot(entry)
+        assert knot.velocity is not None
+        velocity = knot.velocity / scale
+        if knot.acceleration is not None:
+            end, order = State(knot.position, velocity, knot.acceleration / (scale * scale)), 2
+        else:
+            end, order = State(knot.position, velocity, np.zeros_like(velocity)), 1
+        segment = _connect(entry.start, entry.start_order, end, order, entry.duration)
+        return replace(entry, end=end, end_order=order, segment=segment)
+
+    def _to_rest(self, entry: _Entry, messages: list[tuple[int, str]]) -> _Entry:
+        """An estimated point reached with no next point queued: it ends at rest, within the
+        limits (time-optimally, with ruckig, if the planned segment cannot do it)."""
+        knot = _knot(entry)
+        end = State.rest(knot.position)
+        segment = _connect(entry.start, entry.start_order, end, 2, entry.duration)
+        if self._needed(replace(entry, segment=segment)) > 1.0:
+            lim = self.limits
+            try:
+                segment = RuckigSegment.plan(
+                    entry.start, end, lim.velocity, lim.acceleration, lim.jerk, minimum_duration=entry.duration
+                )
+            except PlanningError:  # pragma: no cover - ruckig plans to rest from any state within the limits
+                log.exception("no motion to rest at point %d within the limits", knot.index)
+            else:
+                messages.append(
+                    (
+                        logging.INFO,
+                        f"trajectory {knot.trajectory}: coming to rest at point {knot.index} takes "
+                        f"{segment.duration:.3f} s within the limits ({entry.duration:.3f} s planned)",
+                    )
+                )
+        return replace(entry, end=end, segment=segment, duration=segment.duration, dry=True)
+
+    def _replan_running(self, running: _Entry, after: Array, after_duration: float) -> _Entry | None:
+        """The rest of a segment heading for rest at its point, re-planned to pass through it now
+        that the next point is known (None: too late, or beyond the limits)."""
+        remaining = self._started + running.duration - self._t
+        if remaining < _MIN_REMAINDER:
+            return None
+        knot = _knot(running)
+        start = self._state
+        end = blend.through_state(
+            start,
+            remaining,
+            knot.position,
+            after=after,
+            after_duration=after_duration,
+            before=running.before,
+            before_duration=running.before_duration,
+        )
+        segment = _connect(start, 2, end, 2, remaining)
+        entry = replace(running, start=start, duration=remaining, end=end, segment=segment, start_order=2, dry=False)
+        if self._needed(entry) > 1.0 or not self._within_positions(entry):
+            return None
+        return entry
+
+    def _rest_segment(self, knot: _Knot, start: State) -> Segment | None:
+        """A rest-to-rest policy's segment; refused beyond the limits."""
+        lim = self.limits
+        if knot.linear:
+            segment: Segment | None = linear(start.position, knot.position, _need(knot.duration))
+            orders: tuple[int, ...] = (1,)
+        else:
+            segment = self.policy.to_rest(start, knot.position, knot.duration, knot.ratio, lim)
+            orders = self.policy.checked_orders
+        if segment is None:
+            return None
+        for order in (0, *orders):
+            lower, upper = (lim.lower, lim.upper) if order == 0 else (-_limit(lim, order), _limit(lim, order))
+            lo, hi = segment.bounds(order)  # cheap; the exact extremes only when the bounds do not settle it
+            if np.all(lo >= lower) and np.all(hi <= upper):
+                continue
+            lo, hi = segment.extremes(order)
+            reason, what = _REFUSALS[order]
+            within(lo, lower, upper, reason, what)
+            within(hi, lower, upper, reason, what)
+        return segment
+
+    def _stop_entry(self, state: State) -> _Entry:
+        lim = self.limits
+        rest = np.zeros_like(state.position)
+        try:
+            segment: Segment = RuckigSegment.plan(
+                state, (state.position, rest, rest), lim.velocity, lim.acceleration, lim.jerk, velocity_interface=True
+            )
+        except PlanningError:  # pragma: no cover - ruckig plans a stop from any finite state
+            log.exception("no jerk-limited stop from %s; holding", state)
+            segment = hold(state.position, 1e-3)
+        end = State.rest(segment.end().position)
+        return _Entry(None, state.position, segment.duration, state, segment.duration, end, segment)
+
+    def _start_next(self, at: float) -> None:
+        entry, self._pending = self._pending[0], self._pending[1:]
+        if entry.end is None:
+            messages: list[tuple[int, str]] = []
+            entry = self._to_rest(entry, messages)
+            for level, message in messages:
+                log.log(level, message)
+        self._running, self._started = entry, at
+
+    # -- limits ------------------------------------------------------------------------------------
+
+    def _needed(self, entry: _Entry) -> float:
+        """By how much the segment's time must grow for its velocity, acceleration and jerk to be
+        within the limits (1: they are); uniform time scaling divides the k-th derivative by
+        factor^k."""
+        segment = entry.segment
+        assert segment is not None
+        lim = self.limits
+        needed = 1.0
+        for order in range(1, min(segment.bounded_order, 3) + 1):
+            limit = _limit(lim, order)
+            lo, hi = segment.bounds(order)
+            if np.all(np.maximum(-lo, hi) <= limit):
+                continue
+            lo, hi = segment.extremes(order)
+            excess = float(np.max(np.maximum(-lo, hi) / limit))
+            if excess > 1.0 + SLACK:
+                needed = max(needed, excess ** (1.0 / order))
+        return needed
+
+    def _within_positions(self, entry: _Entry) -> bool:
+        segment = entry.segment
+        assert segment is not None
+        lim = self.limits
+        lo, hi = segment.bounds(0)
+        if np.all(lo >= lim.lower) and np.all(hi <= lim.upper):
+            return True
+        lo, hi = segment.extremes(0)
+        slack = SLACK * np.maximum(1.0, np.abs(lim.upper))
+        return bool(np.all(lo >= lim.lower - slack) and np.all(hi <= lim.upper + slack))
+
+    def _check_position(self, entry: _Entry) -> None:
+        """Refuse a segment that leaves the position limits (a given velocity can swing it out)."""
+        if not self._within_positions(entry):
+            assert entry.segment is not None
+            lo, hi = entry.segment.extremes(0)
+            lim = self.limits
+            within(lo, lim.lower, lim.upper, Reason.POSITION_LIMIT, "the segment's position")
+            within(hi, lim.lower, lim.upper, Reason.POSITION_LIMIT, "the segment's position")
+
+    def _rescale(
+        self,
+        running: _Entry | None,
+        started: float,
+        pending: list[_Entry],
+        trajectory: _Trajectory,
+        *,
+        needed: float,
+        knot: _Knot,
+        messages: list[tuple[int, str]],
+    ) -> tuple[_Entry | None, float, list[_Entry], _Trajectory]:
+        """Time-scale what is not yet executed of the trajectory until it fits the limits."""
+        was = trajectory.scale
+        for _ in range(_MAX_RESCALES):
+            factor = needed * (1.0 + 1e-6)
+            trajectory = replace(trajectory, scale=trajectory.scale * factor)
+            running, started, pending = self._scaled(running, started, pending, trajectory, factor)
+            mine = [e for e in [running, *pending] if e is not None and e.segment is not None]
+            mine = [e for e in mine if e.trajectory == trajectory.number]
+            needed = max((self._needed(e) for e in mine), default=1.0)
+            if needed <= 1.0:
+                break
+        else:
+            raise PointRejected(
+                Reason.TIMING, f"point {knot.index}: the trajectory cannot be slowed down to fit the limits"
+            )
+        for e in mine:
+            self._check_position(e)
+        text = (
+            f"trajectory {trajectory.number}: point {knot.index} is too fast for the joints' limits: the rest of "
+            f"the trajectory is slowed down to x{trajectory.scale:.3f} its time ({(trajectory.scale - 1) * 100:.1f}% "
+            f"longer)"
+        )
+        if trajectory.warned_scale:
+            messages.append((logging.INFO, f"{text}, was x{was:.3f}"))
+        else:
+            messages.append((logging.WARNING, text))
+            trajectory = replace(trajectory, warned_scale=True)
+        return running, started, pending, trajectory
+
+    def _scaled(
+        self, running: _Entry | None, started: float, pending: list[_Entry], trajectory: _Trajectory, factor: float
+    ) -> tuple[_Entry | None, float, list[_Entry]]:
+        """The trajectory's part not yet executed, ``factor`` times slower: the rest of the running
+        segment (when that stays within the limits) and its pending segments."""
+        number, scale = trajectory.number, trajectory.scale
+        mine = [e.trajectory == number and not e.is_kind(_Kind.REST) for e in pending]
+        if running is not None and running.trajectory == number and not running.is_kind(_Kind.REST):
+            remaining = (started + running.duration - self._t) * factor
+            if remaining >= _MIN_REMAINDER:
+                successor = pending[0] if pending and mine[0] else None
+                candidate = self._rebuilt(
+                    replace(
+                        running,
+                        start=self._state,
+                        start_order=2,
+                        duration=remaining,
+                        before_duration=running.before_duration * factor,
+                    ),
+                    successor,
+                    scale,
+                )
+                if self._needed(candidate) <= 1.0 and self._within_positions(candidate):
+                    running, started = candidate, self._t
+        end, order = (running.end, running.end_order) if running is not None else (self._state, 2)
+        out: list[_Entry] = []
+        for i, entry in enumerate(pending):
+            if mine[i]:
+                duration = _need(_knot(entry).duration) * scale
+                assert end is not None
+                moved = replace(entry, start=end, start_order=order, duration=duration, before_duration=duration)
+                successor = pending[i + 1] if i + 1 < len(pending) and mine[i + 1] else None
+                entry = self._rebuilt(moved, successor, scale)
+            out.append(entry)
+            end, order = entry.end, entry.end_order
+        return running, started, out
+
+    def _rebuilt(self, entry: _Entry, successor: _Entry | None, scale: float) -> _Entry:
+        """``entry`` planned again from its start at ``scale``: an estimated point without a next
+        one stays undecided."""
+        if entry.is_kind(_Kind.GIVEN):
+            return self._given(entry, scale)
+        if entry.dry:
+            end = State.rest(_knot(entry).position)
+            return replace(entry, end=end, segment=_connect(entry.start, entry.start_order, end, 2, entry.duration))
+        if successor is None:
+            return replace(entry, end=None, segment=None)
+        return self._determine(entry, _knot(successor).position, _need(_knot(successor).duration) * scale)
+
+    # -- messages ----------------------------------------------------------------------------------
+
+    def _warn_dry(self, text: str) -> None:
+        trajectory = self._trajectory
+        if not trajectory.warned_dry:
+            log.warning(
+                "trajectory %d: the point queue ran dry: %s: decelerating to rest, going on when points arrive",
+                trajectory.number,
+                text,
+            )
+            self._trajectory = replace(trajectory, warned_dry=True)
+
+    @staticmethod
+    def _dry_message(trajectory: _Trajectory, text: str) -> tuple[int, str]:
+        level = logging.DEBUG if trajectory.warned_dry else logging.WARNING
+        return level, f"trajectory {trajectory.number}: the point queue ran dry: {text}: the robot went on from there"
+
+
+_REFUSALS = {
+    0: (Reason.POSITION_LIMIT, "the segment's position"),
+    1: (Reason.VELOCITY_LIMIT, "the segment's velocity"),
+    2: (Reason.ACCELERATION_LIMIT, "the segment's acceleration"),
+    3: (Reason.TIMING, "the segment's jerk"),
+}
+
+
+def _limit(limits: Limits, order: int) -> Array:
+    return {1: limits.velocity, 2: limits.acceleration, 3: limits.jerk}[order]
+
+
+def _connect(start: State, start_order: int, end: State, end_order: int, duration: float) -> Segment:
+    """The segment between two states with the derivatives both carry (ros2_control's rule)."""
+    order = min(start_order, end_order)
+    if order >= 2:
+        return quintic_hermite(start, end, duration)
+    if order == 1:
+        return cubic_hermite(start.position, start.velocity, end.position, end.velocity, duration)
+    return linear(start.position, end.position, duration)
+
+
+def _knot(entry: _Entry) -> _Knot:
+    assert entry.knot is not None
+    return entry.knot
+
+
+def _need(duration: float | None) -> float:
+    assert duration is not None and math.isfinite(duration)
+    return duration
+
+
+def _moving(values: Array) -> bool:
+    """Not at rest: velocities or accelerations beyond floating-point noise."""
+    return bool(np.any(np.abs(values) > 1e-9))

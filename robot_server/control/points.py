@@ -1,0 +1,154 @@
+"""Trajectory points as the controller receives them (SI units), and what it refuses.
+
+The controller knows nothing of wire messages or sequence numbers: the emulator turns a
+JOINT_TRAJ_PT, a JOINT_TRAJ_PT_FULL or a downloaded point into a :class:`Point` and calls the
+controller's verbs (start a trajectory, add a point, download, stop).
+
+A point carries positions and either a ``duration`` (the segment time from the previous point,
+JOINT_TRAJ_PT) with a ``velocity_ratio`` (the fraction of the maximum joint speed, used when the
+duration is 0), or a ``time`` from the trajectory's start (JOINT_TRAJ_PT_FULL) with optional
+``velocities`` and ``accelerations``.
+
+:func:`check_point` refuses only what a real controller refuses (simple-message.md §8.1 for
+MotoROS's checks): the wrong number of joints, NaN or infinity, positions outside the limits,
+explicit velocities above the maximum (a velocity ratio above 1 included), a negative duration or
+time, and a segment longer than the documented maximum. A segment that is merely too fast for the
+joints' acceleration or jerk is not a reason to refuse under the ``blend`` policy: it is slowed
+down (:mod:`.motion`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..model import RobotModel
+
+__all__ = ["Point", "State", "Limits", "Reason", "PointRejected", "check_point", "within"]
+
+Array = NDArray[np.float64]
+
+#: relative slack on limit checks (floating-point noise of exact-at-the-limit values)
+SLACK = 1e-9
+
+
+class Reason(StrEnum):
+    """Why a point was refused."""
+
+    JOINT_COUNT = "joint_count"
+    NOT_FINITE = "not_finite"
+    POSITION_LIMIT = "position_limit"
+    VELOCITY_LIMIT = "velocity_limit"
+    ACCELERATION_LIMIT = "acceleration_limit"
+    START_MISMATCH = "start_mismatch"
+    TIMING = "timing"
+    MISSING_FIELDS = "missing_fields"
+    SEQUENCE = "sequence"
+    QUEUE_FULL = "queue_full"
+    NOT_READY = "not_ready"
+
+
+class PointRejected(ValueError):
+    """A point the controller refuses; nothing changed because of it."""
+
+    def __init__(self, reason: Reason, message: str, joint: int | None = None) -> None:
+        super().__init__(f"{reason.value}: {message}")
+        self.reason = reason
+        self.joint = joint
+
+
+@dataclass(frozen=True)
+class Point:
+    """A received point in SI units, for ``dof`` joints (see the module doc)."""
+
+    positions: Array | None
+    velocities: Array | None = None
+    accelerations: Array | None = None
+    #: seconds from the trajectory's start (JOINT_TRAJ_PT_FULL)
+    time: float | None = None
+    #: seconds from the previous point (JOINT_TRAJ_PT); 0: from the velocity ratio
+    duration: float | None = None
+    #: fraction of the maximum joint speed, 0..1 (JOINT_TRAJ_PT)
+    velocity_ratio: float | None = None
+
+
+class State(NamedTuple):
+    position: Array
+    velocity: Array
+    acceleration: Array
+
+    @classmethod
+    def rest(cls, position: ArrayLike) -> State:
+        p = np.array(position, dtype=float)
+        return cls(p, np.zeros_like(p), np.zeros_like(p))
+
+
+@dataclass(frozen=True)
+class Limits:
+    lower: Array
+    upper: Array
+    velocity: Array
+    acceleration: Array
+    jerk: Array
+
+    @classmethod
+    def from_model(cls, model: RobotModel) -> Limits:
+        return cls(model.lower, model.upper, model.max_velocity, model.max_acceleration, model.max_jerk)
+
+    @property
+    def dof(self) -> int:
+        return int(self.lower.size)
+
+
+def check_point(point: Point, limits: Limits, max_duration: float) -> Array:
+    """Refuse a point a real controller refuses (module doc); returns its positions."""
+    dof = limits.dof
+    if point.positions is None:
+        raise PointRejected(Reason.MISSING_FIELDS, "a point needs positions (velocity-only points are not supported)")
+    for what, array in (
+        ("positions", point.positions),
+        ("velocities", point.velocities),
+        ("accelerations", point.accelerations),
+    ):
+        if array is None:
+            continue
+        if array.shape != (dof,):
+            raise PointRejected(Reason.JOINT_COUNT, f"{what} has {array.size} values; this robot has {dof}")
+        if not np.all(np.isfinite(array)):
+            raise PointRejected(Reason.NOT_FINITE, f"{what} contains NaN or infinity")
+    for what, number in (("time", point.time), ("duration", point.duration), ("velocity ratio", point.velocity_ratio)):
+        if number is None:
+            continue
+        if not math.isfinite(number):
+            raise PointRejected(Reason.NOT_FINITE, f"the {what} is {number}")
+        if number < 0.0:
+            raise PointRejected(Reason.TIMING, f"the {what} cannot be negative ({number:g})")
+    if point.duration is not None and point.duration > max_duration:
+        raise PointRejected(
+            Reason.TIMING, f"the duration {point.duration:g} s is beyond the maximum segment time ({max_duration:g} s)"
+        )
+    if point.velocity_ratio is not None and point.velocity_ratio > 1.0:
+        raise PointRejected(
+            Reason.VELOCITY_LIMIT, f"the velocity ratio {point.velocity_ratio:g} asks for more than the maximum speed"
+        )
+    within(point.positions, limits.lower, limits.upper, Reason.POSITION_LIMIT, "position")
+    if point.velocities is not None:
+        within(point.velocities, -limits.velocity, limits.velocity, Reason.VELOCITY_LIMIT, "velocity")
+    return point.positions
+
+
+def within(values: Array, lower: Array, upper: Array, reason: Reason, what: str) -> None:
+    """Refuse with ``reason`` unless ``lower <= values <= upper`` (to :data:`SLACK`)."""
+    slack_lo = SLACK * np.maximum(1.0, np.abs(lower))
+    slack_hi = SLACK * np.maximum(1.0, np.abs(upper))
+    bad = np.flatnonzero((values < lower - slack_lo) | (values > upper + slack_hi))
+    if bad.size:
+        j = int(bad[0])
+        raise PointRejected(
+            reason, f"{what} of joint {j + 1} is {values[j]:.6g}, outside {lower[j]:.6g}..{upper[j]:.6g}", j
+        )
