@@ -50,7 +50,11 @@ of it the controller takes). ``--cadence`` sleeps between points like the stream
   segments), through forward kinematics, as a polyline (point-to-segment distance);
 * stops: intermediate stops, runs of ticks strictly between the first motion and the end of the
   motion in which every joint's commanded velocity (the record's ``command_velocity``) is below
-  1e-4 rad/s; runs touching either end are not counted;
+  1e-4 rad/s plus a_max x 2 ms (half an interpolation period; 0.02 rad/s for jibot_zxs); runs
+  touching either end are not counted. The margin is needed because the setpoint is sampled every
+  4 ms: a stop between two instants is seen at most 2 ms away from it, where a joint within its
+  acceleration limit may already be back at a_max x 2 ms (with 1e-4 rad/s alone, ruckig's 99 stops
+  of the dense case count as about 13);
 * peak acc (rad/s²) and peak jerk (rad/s³): second and third differences of the commanded positions
   at the interpolation instants (what the drives are asked to do), as ``client.demo.analyse``
   computes them; acc/plan divides the peak by the plan's own peak acceleration (case heading);
@@ -74,7 +78,7 @@ import sys
 import tempfile
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 from pathlib import Path
@@ -98,6 +102,7 @@ from simple_message import (
     JointPosition,
     JointTrajPt,
     JointTrajPtFull,
+    Message,
     MotoCommand,
     MotoMotionCtrl,
     MotoMotionReply,
@@ -131,7 +136,7 @@ OVER_FAST = 1.8
 SLACK = 40.0
 MOVED = 1e-6  # rad: the command has moved
 ARRIVED = 1e-9  # rad: the command is at its final value
-STILL = 1e-4  # rad/s: a joint's commanded speed counts as stopped
+STILL = 1e-4  # rad/s: a joint's commanded speed counts as stopped below this (plus the sampling margin)
 PATH_STEP = 0.001  # s of plan time between polyline vertices (at most)
 PATH_MIN_SEGMENTS = 2000
 CHUNK = 16384  # ticks per forward-kinematics / distance chunk
@@ -303,9 +308,14 @@ class ServerProcess:
         server = cls(proc, {}, log)
         try:
             assert proc.stdout is not None
-            line = (await asyncio.wait_for(proc.stdout.readline(), 30.0)).decode(errors="replace")
+            try:
+                line = (await asyncio.wait_for(proc.stdout.readline(), 30.0)).decode(errors="replace")
+            except TimeoutError:
+                raise RunFailed("robot-server printed no ready line within 30 s") from None
             server.ports = {name: int(port) for name, port in re.findall(r"(motion|state|io) [\d.]+:(\d+)", line)}
             if "motion" not in server.ports or "state" not in server.ports:
+                if not line:  # it is exiting: let it finish, so that kill() does not race its reaping
+                    await server.exited(10.0)
                 raise RunFailed(f"robot-server did not start: {line.strip() or server.last_log_line()}")
             server._drain = asyncio.get_running_loop().create_task(proc.stdout.read())  # nothing more is expected
         except BaseException:
@@ -320,7 +330,10 @@ class ServerProcess:
                 return lines[-1]
         return "no output"
 
-    def exited(self) -> str | None:
+    async def exited(self, grace: float = 1.0) -> str | None:
+        """Why the server is gone (waiting ``grace`` s for it to be), or None if it still runs."""
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(self.proc.wait(), grace)
         code = self.proc.returncode
         return None if code is None else f"robot-server exited with code {code}: {self.last_log_line()}"
 
@@ -366,17 +379,26 @@ class StateWatch:
         self.in_motion = False
         self.statuses = 0
         self._event = asyncio.Event()
-        self._task = asyncio.get_running_loop().create_task(self._run())
+        loop = asyncio.get_running_loop()
+        self._task = loop.create_task(self._run())
+        self._closing = loop.create_task(self._end_with_connection())
 
     async def _run(self) -> None:
-        async for msg in self.sub:
-            if isinstance(msg, Status):
-                self.in_motion = msg.in_motion == TriState.TRUE
-                self.statuses += 1
-            elif isinstance(msg, JointPosition | JointFeedback) and self.position is None:
-                data = msg.joint_data if isinstance(msg, JointPosition) else msg.positions
-                self.position = np.array(data, dtype=float)
-            self._event.set()
+        try:
+            async for msg in self.sub:
+                if isinstance(msg, Status):
+                    self.in_motion = msg.in_motion == TriState.TRUE
+                    self.statuses += 1
+                elif isinstance(msg, JointPosition | JointFeedback) and self.position is None:
+                    data = msg.joint_data if isinstance(msg, JointPosition) else msg.positions
+                    self.position = np.array(data, dtype=float)
+                self._event.set()
+        finally:
+            self._event.set()  # wakes _until, which sees the end
+
+    async def _end_with_connection(self) -> None:
+        await self.conn.wait_closed()
+        self.sub.close()  # subscriptions outlive connections; this one ends with its connection
 
     async def _until(self, condition: Callable[[], bool]) -> None:
         while not condition():
@@ -386,7 +408,11 @@ class StateWatch:
             await self._event.wait()
 
     async def first_position(self, dof: int) -> Array:
-        await self._until(lambda: self.position is not None)
+        try:
+            async with asyncio.timeout(10.0):
+                await self._until(lambda: self.position is not None)
+        except TimeoutError:
+            raise RunFailed("no joint position on the state port within 10 s") from None
         assert self.position is not None
         return self.position[:dof].copy()
 
@@ -398,9 +424,10 @@ class StateWatch:
 
     async def close(self) -> None:
         self.conn.unsubscribe(self.sub)
-        self._task.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await self._task
+        for task in (self._task, self._closing):
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
         await self.conn.close()
 
 
@@ -421,7 +448,6 @@ class Streamed:
     busy: int = 0
     reasons: Counter[str] = field(default_factory=Counter)
     notes: list[str] = field(default_factory=list)
-    seconds: float = 0.0
 
 
 def velocity_ratio(velocities: Array, max_velocity: Array) -> float:
@@ -432,22 +458,15 @@ def velocity_ratio(velocities: Array, max_velocity: Array) -> float:
     return min(1.0, max(0.0, ratio))
 
 
-async def stream_traj_pt(conn: Connection, traj: Trajectory, model: RobotModel, cadence: float, out: Streamed) -> None:
-    """JOINT_TRAJ_PT, as industrial_robot_client's joint_trajectory_streamer sends them."""
+def traj_pt_messages(traj: Trajectory, model: RobotModel) -> Iterator[JointTrajPt]:
+    """JOINT_TRAJ_PT as industrial_robot_client fills them (``create_message``, ``calc_speed``)."""
     last_time = 0.0  # the C++ function-static: 0 before the first point, so it gets DEFAULT_DURATION
     for i in range(len(traj)):
         this_time = float(traj.times[i])
         duration = DEFAULT_DURATION if this_time <= last_time else this_time - last_time
         last_time = this_time
         ratio = velocity_ratio(traj.velocities[i], model.max_velocity)
-        msg = JointTrajPt(i, tuple(traj.positions[i]), ratio, duration)
-        try:
-            await conn.request(msg, timeout=None)  # bounded by the run's deadline
-            out.accepted += 1
-        except RequestFailed:
-            out.refused += 1
-        if cadence:
-            await asyncio.sleep(cadence)
+        yield JointTrajPt(i, tuple(traj.positions[i]), ratio, duration)
 
 
 def full_point(traj: Trajectory, i: int) -> JointTrajPtFull:
@@ -463,11 +482,11 @@ def full_point(traj: Trajectory, i: int) -> JointTrajPtFull:
     )
 
 
-async def stream_full_generic(conn: Connection, traj: Trajectory, cadence: float, out: Streamed) -> None:
-    """JOINT_TRAJ_PT_FULL on the generic profile: one request in flight, SUCCESS -> next point."""
-    for i in range(len(traj)):
+async def stop_and_wait(conn: Connection, messages: Iterable[Message], cadence: float, out: Streamed) -> None:
+    """The generic streamers: one request in flight; SUCCESS or FAILURE, the next point follows."""
+    for msg in messages:
         try:
-            await conn.request(full_point(traj, i), timeout=None)
+            await conn.request(msg, timeout=None)  # bounded by the run's deadline
             out.accepted += 1
         except RequestFailed:
             out.refused += 1
@@ -617,30 +636,35 @@ def deviation(model: RobotModel, joints: Array, path: Array) -> float:
     return worst
 
 
-def count_stops(velocity: Array) -> int:
-    """Runs of ticks with every joint slower than STILL, not counting runs at either end."""
-    still = np.all(np.abs(velocity) < STILL, axis=1)
-    moving = np.flatnonzero(~still)
+def count_stops(velocity: Array, still: Array) -> int:
+    """Runs of ticks with every joint slower than ``still`` (rad/s, per joint), runs at either end
+    not counted."""
+    slow = np.all(np.abs(velocity) < still, axis=1)
+    moving = np.flatnonzero(~slow)
     if moving.size < 2:
         return 0
-    inner = still[moving[0] : moving[-1] + 1]
-    starts = inner[1:] & ~inner[:-1]
-    return int(np.count_nonzero(starts))
+    inner = slow[moving[0] : moving[-1] + 1]
+    return int(np.count_nonzero(inner[1:] & ~inner[:-1]))
+
+
+class NoMotion(Exception):
+    """The command never moved: nothing to measure (not a failure of the run)."""
 
 
 def analyse(record: Record, traj: Trajectory, path: Array, model: RobotModel, periods: tuple[float, int]) -> Metrics:
     """The metrics of the module doc from one run's record."""
     servo_period, ticks = periods
     t, command = record.time, record.command
-    counted = np.flatnonzero(record.points > record.points[0])
+    still = STILL + model.max_acceleration * servo_period * ticks / 2
     if record.points[0] != 0:
         raise RunFailed("the record does not start with the server (raise --record-seconds)")
+    counted = np.flatnonzero(record.points > 0)
     if not counted.size:
         raise RunFailed("the controller accepted no point")
     first = int(counted[0])
     moved = np.flatnonzero(np.max(np.abs(command[first:] - command[first]), axis=1) > MOVED)
     if not moved.size:
-        raise RunFailed("the command never moved")
+        raise NoMotion("the command never moved")
     move = first + int(moved[0])
     away = np.flatnonzero(np.max(np.abs(command - command[-1]), axis=1) > ARRIVED)
     end = min(int(away[-1]) + 1, t.size - 1) if away.size else move
@@ -652,7 +676,7 @@ def analyse(record: Record, traj: Trajectory, path: Array, model: RobotModel, pe
         executed=float(t[end] - t[move]),
         deviation_command=deviation(model, command[move:], path),
         deviation_actual=deviation(model, record.actual[move:], path),
-        stops=count_stops(record.command_velocity[move : end + 1]),
+        stops=count_stops(record.command_velocity[move : end + 1], still),
         peak_acceleration=float(np.max(peak_joint)),
         peak_acceleration_joint=peak_joint,
         peak_jerk=peak_jerk,
@@ -722,16 +746,16 @@ async def run_case(case: Case, policy: str, explicit_policy: bool, settings: Set
     budget = duration + SLACK
     began = time.perf_counter()
     server: ServerProcess | None = None
+    record_path.unlink(missing_ok=True)  # never analyse an older run's record
     try:
         args = server_args(case, policy if explicit_policy else None, record_path, max(120.0, budget + 60.0))
         server = await ServerProcess.start(args, log_path)
         await drive(server, row, duration, settings, budget)
-    except RunFailed as exc:
-        row.error = str(exc)
     except TimeoutError:
         row.error = f"timed out after {time.perf_counter() - began:.1f} s (planned {duration:.3f} s + {SLACK:g} s)"
-    except (OSError, SimpleMessageError) as exc:  # connections refused or closed, unexpected replies
-        row.error = (server.exited() if server is not None else None) or f"{type(exc).__name__}: {exc}"
+    except (RunFailed, OSError, SimpleMessageError) as exc:  # also refused or closed connections, odd replies
+        gone = await server.exited() if server is not None else None  # a crash is the root cause
+        row.error = gone or (str(exc) if isinstance(exc, RunFailed) else f"{type(exc).__name__}: {exc}")
     finally:
         if server is not None:
             try:
@@ -748,6 +772,8 @@ async def run_case(case: Case, policy: str, explicit_policy: bool, settings: Set
         try:
             record = Record.load(record_path, model.joint_names)
             row.metrics = analyse(record, traj, traj.flange_path(model), model, settings.periods)
+        except NoMotion as exc:
+            row.notes.insert(0, str(exc))
         except (RunFailed, ValueError, KeyError) as exc:
             row.error = row.error or f"record: {exc}"
     return row
@@ -760,19 +786,16 @@ async def drive(server: ServerProcess, row: Row, duration: float, settings: Sett
     state = StateWatch(await connect(server.ports["state"], "state"))
     motion: Connection | None = None
     try:
-        async with asyncio.timeout(10.0):
-            q0 = await state.first_position(model.dof)
+        q0 = await state.first_position(model.dof)
         traj = row.trajectory = Trajectory.plan(q0, duration, case.points)
         motion = await connect(server.ports["motion"], "motion")
-        started = time.perf_counter()
         async with asyncio.timeout(budget):
-            if not case.full:
-                await stream_traj_pt(motion, traj, model, settings.cadence, out)
-            elif case.profile == "motoros":
+            if case.profile == "motoros":
                 await stream_full_motoros(motion, traj, settings.cadence, out)
+            elif case.full:
+                await stop_and_wait(motion, (full_point(traj, i) for i in range(len(traj))), settings.cadence, out)
             else:
-                await stream_full_generic(motion, traj, settings.cadence, out)
-            out.seconds = time.perf_counter() - started
+                await stop_and_wait(motion, traj_pt_messages(traj, model), settings.cadence, out)
             if out.accepted:
                 await state.motion_over()
         await asyncio.sleep(0.2)  # a little settled record after the motion
@@ -856,9 +879,9 @@ def heading(case: Case, model: RobotModel) -> str:
         text += f" ({OVER_FAST:g}x the {float(np.min(model.max_acceleration)):g} rad/s² limit)"
     if case.profile == "motoros":
         text += ", MotoROS profile"
-    fastest = float(np.max(np.abs(shape(np.zeros(DELTA.size), np.linspace(0, duration, 2001), duration)[1])))
-    if fastest > float(np.min(model.max_velocity)):
-        text += f" (peak speed {fastest:.2f} rad/s: over the velocity limit)"
+    speeds = np.max(np.abs(shape(np.zeros(DELTA.size), np.linspace(0, duration, 2001), duration)[1]), axis=0)
+    if np.any(speeds > model.max_velocity):
+        text += f" (peak speed {float(np.max(speeds)):.2f} rad/s: over the velocity limit)"
     return text
 
 
@@ -964,9 +987,14 @@ async def run(cases: Sequence[Case], policies: Sequence[str], cadence: float, wo
             print()
             print(heading(case, model))
             print()
+        sys.stdout.flush()  # the tables and the progress lines may share a terminal or a pipe
         print(f"{case.slug} / {policy} ...", file=sys.stderr, flush=True)
         row = await run_case(case, policy, explicit, settings)
-        print(f"{case.slug} / {policy}: {row.wall:.1f} s{f' ({row.error})' if row.error else ''}", file=sys.stderr)
+        print(
+            f"{case.slug} / {policy}: {row.wall:.1f} s{f' ({row.error})' if row.error else ''}",
+            file=sys.stderr,
+            flush=True,
+        )
         rows.append(row)
         duration = case.planned_duration(model)
         table.append(row_cells(row, duration, float(np.max(peak_acceleration(duration)))))
@@ -1008,12 +1036,16 @@ def main() -> None:
     chosen = args.cases or (QUICK if args.quick else slugs)
     cases = [c for c in CASES if c.slug in chosen]
     selected = [p for p in policies if p in (args.policies or policies)]
-    if args.keep is not None:
-        args.keep.mkdir(parents=True, exist_ok=True)
-        asyncio.run(run(cases, selected, args.cadence, args.keep))
-        return
-    with tempfile.TemporaryDirectory(prefix="bench-streaming-") as tmp:
-        asyncio.run(run(cases, selected, args.cadence, Path(tmp)))
+    try:
+        if args.keep is not None:
+            args.keep.mkdir(parents=True, exist_ok=True)
+            asyncio.run(run(cases, selected, args.cadence, args.keep))
+            return
+        with tempfile.TemporaryDirectory(prefix="bench-streaming-") as tmp:
+            asyncio.run(run(cases, selected, args.cadence, Path(tmp)))
+    except KeyboardInterrupt:  # the running server was stopped on the way out
+        print("interrupted", file=sys.stderr)
+        sys.exit(130)
 
 
 if __name__ == "__main__":

@@ -20,14 +20,25 @@ differences). That gives four linear conditions:
 
     alpha >= 0,  beta >= 0,  A >= -4 alpha,  B <= 4 beta,  2 (alpha + beta) / 5 + (A - B) / 20 <= 1
 
-So: a point where the joint reverses (the slopes differ in sign) or where it holds still on either
-side gets velocity 0, as a monotone spline does (Fritsch and Carlson's PCHIP); elsewhere the
-estimate is clamped into the conditions of the segment ending here (its start is already fixed)
-and of the segment starting here (of whose budget it takes at most :data:`RESERVE`, leaving the
-rest to the next point's choice). ``v = a = 0`` always satisfies them, so a choice always exists.
+So: where the points are monotone, the estimate is clamped into the conditions of the segment
+ending here (its start is already fixed) and of the segment starting here (of whose budget it
+takes at most :data:`RESERVE`, leaving the rest to the next point's choice); ``v = a = 0`` satisfies
+them whenever the start left room (it does when it was chosen the same way); when it did not (a
+start too fast for its segment), the estimate stands, since stopping at the point would not
+prevent the overshoot. A point where the joint holds still on either side gets velocity and
+acceleration 0. Where the joint reverses (the slopes differ in sign), the points are not monotone
+and the estimate stands: the data's own smooth curve turns between the samples, and forcing the
+velocity to 0 at the sample nearest the turn (as Fritsch and Carlson's PCHIP does) would put a
+kink in the acceleration there.
 The conditions are sufficient, not necessary: they only bite near reversals, at sharp corners of
 sparse waypoints and in the last points before a stop. Everything is vectorised over joints and
 invariant under uniform time scaling.
+
+**Jerk.** Within what the shape allows, the end acceleration is chosen to keep the segment's jerk
+within the limit (the jerk is linear in it, :func:`jerk_limited`): the parabola estimate is off
+where the client's plan steps its acceleration (time-optimal planners without a jerk limit step it
+at the start, the end and every phase change), and a quintic through slightly inconsistent states
+pays for it in jerk.
 """
 
 from __future__ import annotations
@@ -37,12 +48,12 @@ from numpy.typing import NDArray
 
 from .points import State
 
-__all__ = ["estimate", "shape_preserving", "through_state", "RESERVE"]
+__all__ = ["estimate", "shape_preserving", "jerk_limited", "through_state", "RESERVE"]
 
 Array = NDArray[np.float64]
 
 #: share of the next segment's monotonicity budget that the point at its start may use
-RESERVE = 0.5
+RESERVE = 0.25
 #: moves shorter than this (rad or m) count as holding still
 _STILL = 1e-12
 
@@ -63,10 +74,10 @@ def shape_preserving(
     after: Array,
     after_duration: float,
     velocity: Array,
-    acceleration: Array,
-) -> tuple[Array, Array]:
-    """``velocity`` and ``acceleration`` at ``position`` clamped so that the segment from ``start``
-    (``duration`` long) and the one to ``after`` (``after_duration``) do not overshoot (module doc)."""
+) -> tuple[Array, Array, Array]:
+    """The velocity at ``position`` clamped so that the segment from ``start`` (``duration`` long)
+    and the one to ``after`` (``after_duration``) need not overshoot, and the interval
+    ``[low, high]`` the acceleration must lie in for them not to (module doc)."""
     t1, t2 = duration, after_duration
     delta1, delta2 = position - start.position, after - position
     m1, m2 = np.abs(delta1), np.abs(delta2)
@@ -80,7 +91,7 @@ def shape_preserving(
     low1 = used * m1 / (t1 * t1)  # the end acceleration (in the s1 direction) may not go below this + 8 u / t1
     room2 = 20.0 * (1.0 - RESERVE) * m2 / (t2 * t2)
     monotone = (np.sign(delta2) == s1) & ~still
-    # monotone points: speed u >= 0 and acceleration w in the s1 direction
+    # speed u >= 0 and acceleration w in the s1 direction
     u_max = np.minimum.reduce(
         [
             -used * m1 / (4.0 * t1),
@@ -88,17 +99,65 @@ def shape_preserving(
             (room2 - low1) / (8.0 / t1 + 8.0 / t2),
         ]
     )
-    u = np.clip(velocity * s1, 0.0, np.maximum(u_max, 0.0))
+    # a start too fast for its segment (used > 0) leaves no monotone choice: the segment overshoots
+    # whatever this point's state is, and stopping here would only make it worse, so the estimate
+    # stands (in the direction of the data)
+    u = np.where(u_max >= 0.0, np.clip(velocity * s1, 0.0, np.maximum(u_max, 0.0)), np.maximum(velocity * s1, 0.0))
     w_lo = np.maximum(low1 + 8.0 * u / t1, -4.0 * u / t2)
     w_hi = np.minimum(4.0 * u / t1, room2 - 8.0 * u / t2)
-    # reversals: u = 0; decelerate into the point (w <= 0) within both segments' budgets
-    turn_lo = np.maximum(low1, -room2)
-    w_lo = np.where(monotone, w_lo, turn_lo)
-    w_hi = np.where(monotone, w_hi, 0.0)
-    w = np.where(w_lo <= w_hi, np.clip(acceleration * s1, w_lo, w_hi), 0.0)  # empty: the start left no room
-    v_out = np.where(monotone, u * s1, 0.0)
-    a_out = np.where(still, 0.0, w * s1)
-    return v_out, a_out
+    empty = w_lo > w_hi  # no room (the start left none): any acceleration
+    w_lo = np.where(empty, -np.inf, w_lo)
+    w_hi = np.where(empty, np.inf, w_hi)
+    lo = np.where(s1 >= 0.0, w_lo, -w_hi)
+    hi = np.where(s1 >= 0.0, w_hi, -w_lo)
+    # a reversal (the joint turns between the neighbours): the smooth curve turns near the point,
+    # so the estimate stands and the curve may pass the point slightly, as the data's own curve does
+    v_out = np.where(monotone, u * s1, np.where(still, 0.0, velocity))
+    lo = np.where(monotone, lo, np.where(still, 0.0, -np.inf))
+    hi = np.where(monotone, hi, np.where(still, 0.0, np.inf))
+    return v_out, lo, hi
+
+
+#: where the jerk of a segment is sampled to choose the end acceleration (normalised time)
+_JERK_SAMPLES = np.linspace(0.0, 1.0, 9)[:, None]
+
+
+def jerk_limited(
+    start: State,
+    duration: float,
+    position: Array,
+    velocity: Array,
+    *,
+    acceleration: Array,
+    low: Array,
+    high: Array,
+    jerk: Array,
+) -> Array:
+    """The end acceleration for the quintic from ``start`` to ``(position, velocity, .)`` over
+    ``duration``: ``acceleration`` clamped into ``[low, high]`` and, where possible, to keep the
+    segment's jerk within ``jerk`` (sampled at nine instants; the segment is checked exactly
+    afterwards). The end acceleration enters the jerk linearly: ``j(s) = j0(s) + a1 (3 - 24 s +
+    30 s^2) / T`` in normalised time."""
+    t = duration
+    p0, v0, a0 = start
+    delta = position - p0
+    c3 = (20.0 * delta - (8.0 * velocity + 12.0 * v0) * t - 3.0 * a0 * t * t) / 2.0
+    c4 = (-30.0 * delta + (14.0 * velocity + 16.0 * v0) * t + 3.0 * a0 * t * t) / 2.0
+    c5 = (12.0 * delta - 6.0 * (velocity + v0) * t - a0 * t * t) / 2.0
+    s = _JERK_SAMPLES
+    j0 = (6.0 * c3 + 24.0 * c4 * s + 60.0 * c5 * s * s) / t**3  # (samples, dof) with a1 = 0
+    g = np.broadcast_to((3.0 - 24.0 * s + 30.0 * s * s) / t, j0.shape)  # d jerk / d a1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bound_a = (-jerk - j0) / g
+        bound_b = (jerk - j0) / g
+    lower = np.where(g > 0.0, bound_a, bound_b).max(axis=0)
+    upper = np.where(g > 0.0, bound_b, bound_a).min(axis=0)
+    lower, upper = np.maximum(lower, low), np.minimum(upper, high)
+    # where no acceleration the shape allows keeps the jerk within the limit (a start from rest that
+    # the plan wants faster than the jerk allows), the estimate stands: the segment is then
+    # replaced by a jerk-limited one (motion.py) and should end in the state the data implies
+    chosen = np.clip(acceleration, low, high)
+    return np.where(lower <= upper, np.clip(chosen, lower, upper), chosen)
 
 
 def through_state(
@@ -110,13 +169,16 @@ def through_state(
     after_duration: float,
     before: Array,
     before_duration: float,
+    jerk: Array | None = None,
 ) -> State:
     """The state at ``position`` for a segment that starts at ``start`` (``duration`` before it)
     and goes on to ``after``: the estimate from the points ``before -> position -> after``
     (``before_duration`` is the full time of the segment from ``before``, which may have started
-    earlier than ``start``), made shape-preserving."""
+    earlier than ``start``), made shape-preserving, and with the jerk of the segment ending here
+    within ``jerk`` where an acceleration allowed by the shape can do it."""
     v, a = estimate(before, before_duration, position, after_duration, after)
-    v, a = shape_preserving(
-        start, duration, position, after=after, after_duration=after_duration, velocity=v, acceleration=a
-    )
+    v, low, high = shape_preserving(start, duration, position, after=after, after_duration=after_duration, velocity=v)
+    if jerk is None:
+        return State(position, v, np.clip(a, low, high))
+    a = jerk_limited(start, duration, position, v, acceleration=a, low=low, high=high, jerk=jerk)
     return State(position, v, a)

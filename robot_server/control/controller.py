@@ -83,6 +83,8 @@ class ControllerConfig:
     start_tolerance: float | None = 0.01
     #: the longest segment a point may ask for (s); longer ones are refused
     max_segment_time: float = 3600.0
+    #: a segment from rest waits this long at most for the point after its own, to pass through it
+    lookahead_wait: float = 0.008
     #: in_motion stays TRUE until every joint is this close to the command (rad or m) ...
     settle_position: float = 1e-3
     #: ... and this slow (rad/s or m/s)
@@ -141,6 +143,7 @@ class Controller:
             capacity=config.queue_capacity,
             start_tolerance=config.start_tolerance,
             max_duration=config.max_segment_time,
+            lookahead_wait=config.lookahead_wait,
         )
         self.servo = ServoDrives([model.motor(i) for i in range(n)], config.servo_period, start.tolist())
         self._sub = round(config.interpolation_period / config.servo_period)

@@ -28,12 +28,20 @@ alarm, the next point starts a trajectory whatever it says.
   arrives and a segment beyond a limit is refused (:mod:`.policies`).
 
 **Slowing down.** Given and estimated segments are checked against the velocity, acceleration
-and jerk limits (exact extremes). A segment beyond them is not refused: the part of the trajectory
-not yet executed (the rest of the running segment and everything pending) is time-scaled
-uniformly (velocities / k, accelerations / k^2, jerks / k^3) until everything fits, and one WARNING
-says by how much. The scale only grows within a trajectory; the next one starts at 1. (The
-running segment keeps its speed at the instant of the change, so the first re-planned segment
-absorbs the difference.)
+and jerk limits (exact extremes), and a segment beyond them is not refused:
+
+* beyond the velocity or acceleration limit, the trajectory is too fast for the robot: the part
+  not yet executed (the rest of the running segment and everything pending) is time-scaled
+  uniformly (velocities / k, accelerations / k^2) until everything fits, and one WARNING says by how
+  much. The scale only grows within a trajectory; the next one starts at 1. (The running segment
+  keeps its speed at the instant of the change, so the first re-planned segment absorbs the
+  difference.)
+* beyond the jerk limit only, the segment alone is stretched until it fits. Time-optimal planners
+  without a jerk limit (MoveIt's TOTG, IPTP) step the acceleration at the start, the end and
+  every phase change; blending such a step within the jerk limit needs a few milliseconds more
+  than one dense segment has. Stretching that segment costs the robot a few milliseconds of lag
+  there, as a real controller's command smoothing does; scaling the whole trajectory for such a
+  transient would lengthen it by 20 % and more.
 
 **A queue that runs dry.** When a segment ends in motion (a given velocity) and nothing follows,
 the robot decelerates with the jerk-limited stop of :meth:`MotionQueue.stop`; when an estimated
@@ -68,6 +76,9 @@ Array = NDArray[np.float64]
 
 #: how many times a trajectory is re-scaled for one point before the point is refused
 _MAX_RESCALES = 12
+#: a jerk-limited replacement may take at most this factor times the segment's time plus _MAX_LAG (s)
+_MAX_LAG_FACTOR = 1.5
+_MAX_LAG = 0.01
 #: re-planning the rest of a segment needs at least this much of it left (s)
 _MIN_REMAINDER = 1e-6
 #: with the start check off, a first point farther than this (rad or m) is a move to it
@@ -118,6 +129,13 @@ class _Entry:
     end_order: int = 2
     #: ends at rest because no next point was queued when it started
     dry: bool = False
+    #: the next point and the scaled time to it, when they decided this segment's end state
+    after: Array | None = None
+    after_duration: float = 0.0
+    #: the trajectory's time scale when the end state was decided
+    scale: float = 1.0
+    #: controller time at which the point was queued
+    queued: float = 0.0
 
     @property
     def trajectory(self) -> int:
@@ -169,8 +187,10 @@ class MotionQueue:
         capacity: int = 64,
         start_tolerance: float | None = 0.01,
         max_duration: float = 3600.0,
+        lookahead_wait: float = 0.008,
     ) -> None:
         self.limits = limits
+        self.lookahead_wait = lookahead_wait
         self.policy = policy
         self.capacity = capacity
         self.start_tolerance = start_tolerance
@@ -301,7 +321,7 @@ class MotionQueue:
     def sample(self, t: float) -> State:
         """The setpoint at controller time ``t`` (increasing from call to call); segments that end
         before ``t`` hand over to the next ones on one continuous timeline."""
-        if self._running is None and self._pending:
+        if self._running is None and self._pending and not self._waiting(self._pending[0]):
             self._start_next(self._t)
         while self._running is not None and t >= self._started + self._running.duration:
             done = self._running
@@ -313,7 +333,8 @@ class MotionQueue:
             if self._pending:
                 self._start_next(end_time)
             elif _moving(done.end.velocity) or _moving(done.end.acceleration):
-                self._warn_dry(f"nothing followed point {done.index}, which the robot passes moving")
+                if _moving(done.end.velocity):
+                    self._warn_dry(f"nothing followed point {done.index}, which the robot passes moving")
                 self._running, self._started = self._stop_entry(done.end), end_time
             else:
                 self._state = State.rest(done.end.position)
@@ -324,6 +345,17 @@ class MotionQueue:
             self._state = State(s.position, s.velocity, s.acceleration)
         self._t = t
         return self._state
+
+    def _waiting(self, entry: _Entry) -> bool:
+        """A segment from rest to a point whose next point is not queued yet waits a little
+        (``lookahead_wait``) for it, so that it can pass through the point: a streaming client
+        sends one point at a time (industrial_robot_client: one per 5 ms), and without the next
+        one the robot would have to stop at the first point."""
+        return (
+            entry.end is None
+            and not (_moving(entry.start.velocity) or _moving(entry.start.acceleration))
+            and self._t < entry.queued + self.lookahead_wait - 1e-12
+        )
 
     # -- planning --------------------------------------------------------------------------------
 
@@ -422,7 +454,7 @@ class MotionQueue:
         built: list[_Entry] = []  # segments decided now: checked against the limits below
         # 1. the point before this one passes through it, now that it is known
         if pending and pending[-1].end is None:
-            pending[-1] = self._determine(pending[-1], knot.position, _need(knot.duration) * scale)
+            pending[-1] = self._stretched(self._determine(pending[-1], knot.position, _need(knot.duration) * scale))
             built.append(pending[-1])
         elif running is not None and running.dry and running.trajectory == knot.trajectory and not pending:
             late = self._replan_running(running, knot.position, _need(knot.duration) * scale)
@@ -468,7 +500,9 @@ class MotionQueue:
             )
         else:
             duration = _need(knot.duration) * scale
-            entry = _Entry(knot, trajectory.last_position, duration, start, duration, start_order=order)
+            entry = _Entry(
+                knot, trajectory.last_position, duration, start, duration, start_order=order, queued=self._t
+            )
             if knot.kind is _Kind.GIVEN:
                 entry = self._given(entry, scale)
                 built.append(entry)
@@ -482,7 +516,7 @@ class MotionQueue:
         # 3. the limits: slow the trajectory down rather than refuse the point
         for e in built:
             self._check_position(e)
-        needed = max((self._needed(e) for e in built), default=1.0)
+        needed = max((self._excess(e)[0] for e in built), default=1.0)
         if needed > 1.0:
             running, started, pending, trajectory = self._rescale(
                 running, started, pending, trajectory, needed=needed, knot=knot, messages=messages
@@ -502,8 +536,10 @@ class MotionQueue:
             after_duration=after_duration,
             before=entry.before,
             before_duration=entry.before_duration,
+            jerk=self.limits.jerk,
         )
-        return replace(entry, end=end, segment=_connect(entry.start, entry.start_order, end, 2, entry.duration))
+        segment = _connect(entry.start, entry.start_order, end, 2, entry.duration)
+        return replace(entry, end=end, segment=segment, after=after, after_duration=after_duration)
 
     def _given(self, entry: _Entry, scale: float) -> _Entry:
         """A given point's state at the trajectory's time scale, and the segment to it."""
@@ -515,7 +551,31 @@ class MotionQueue:
         else:
             end, order = State(knot.position, velocity, np.zeros_like(velocity)), 1
         segment = _connect(entry.start, entry.start_order, end, order, entry.duration)
-        return replace(entry, end=end, end_order=order, segment=segment)
+        return replace(entry, end=end, end_order=order, segment=segment, scale=scale)
+
+    def _stretched(self, entry: _Entry) -> _Entry:
+        """``entry`` within the jerk limit: a segment beyond it is replaced by ruckig's time-optimal
+        jerk-limited motion to the same end state, at least as long as planned. A client's plan
+        whose acceleration steps (every time-optimal planner's does) cannot be blended within the
+        jerk limit in one segment costs the robot a few milliseconds of lag there, as a real
+        controller's command smoothing does, instead of slowing the whole trajectory down."""
+        if entry.is_kind(_Kind.GIVEN) or self._excess(entry)[1] <= 1.0:
+            return entry  # given states are followed as given (ros2_control, MotoROS)
+        assert entry.end is not None
+        lim = self.limits
+        try:
+            segment = RuckigSegment.plan(
+                entry.start, entry.end, lim.velocity, lim.acceleration, lim.jerk, minimum_duration=entry.duration
+            )
+        except PlanningError as exc:  # an end state beyond the limits: keep the polynomial
+            log.debug("point %d: no jerk-limited motion to its state (%s)", entry.index, exc)
+            return entry
+        if segment.duration > _MAX_LAG_FACTOR * entry.duration + _MAX_LAG:
+            # synchronising all joints on moving end states can take ruckig much longer than the
+            # segment; a lag that long would distort the path more than the jerk matters
+            log.debug("point %d: a jerk-limited segment would take %.3f s", entry.index, segment.duration)
+            return entry
+        return replace(entry, segment=segment, duration=segment.duration)
 
     def _to_rest(self, entry: _Entry, messages: list[tuple[int, str]]) -> _Entry:
         """An estimated point reached with no next point queued: it ends at rest, within the
@@ -523,7 +583,7 @@ class MotionQueue:
         knot = _knot(entry)
         end = State.rest(knot.position)
         segment = _connect(entry.start, entry.start_order, end, 2, entry.duration)
-        if self._needed(replace(entry, segment=segment)) > 1.0:
+        if max(self._excess(replace(entry, segment=segment))) > 1.0:
             lim = self.limits
             try:
                 segment = RuckigSegment.plan(
@@ -549,18 +609,32 @@ class MotionQueue:
             return None
         knot = _knot(running)
         start = self._state
+        # the point's state as if the segment had known the next point from its start (its
+        # original start and time), then the rest of it from where the robot is now
         end = blend.through_state(
-            start,
-            remaining,
+            running.start,
+            running.before_duration,
             knot.position,
             after=after,
             after_duration=after_duration,
             before=running.before,
             before_duration=running.before_duration,
+            jerk=self.limits.jerk,
         )
         segment = _connect(start, 2, end, 2, remaining)
-        entry = replace(running, start=start, duration=remaining, end=end, segment=segment, start_order=2, dry=False)
-        if self._needed(entry) > 1.0 or not self._within_positions(entry):
+        entry = replace(
+            running,
+            start=start,
+            duration=remaining,
+            end=end,
+            segment=segment,
+            start_order=2,
+            dry=False,
+            after=after,
+            after_duration=after_duration,
+        )
+        entry = self._stretched(entry)
+        if self._excess(entry)[0] > 1.0 or not self._within_positions(entry):
             return None
         return entry
 
@@ -610,14 +684,14 @@ class MotionQueue:
 
     # -- limits ------------------------------------------------------------------------------------
 
-    def _needed(self, entry: _Entry) -> float:
-        """By how much the segment's time must grow for its velocity, acceleration and jerk to be
-        within the limits (1: they are); uniform time scaling divides the k-th derivative by
-        factor^k."""
+    def _excess(self, entry: _Entry) -> tuple[float, float]:
+        """By how much the segment's time must grow for its velocity and acceleration, and for its
+        jerk, to be within the limits (1: they are); uniform time scaling divides the k-th
+        derivative by factor^k."""
         segment = entry.segment
         assert segment is not None
         lim = self.limits
-        needed = 1.0
+        needed = [1.0, 1.0, 1.0, 1.0]
         for order in range(1, min(segment.bounded_order, 3) + 1):
             limit = _limit(lim, order)
             lo, hi = segment.bounds(order)
@@ -626,8 +700,8 @@ class MotionQueue:
             lo, hi = segment.extremes(order)
             excess = float(np.max(np.maximum(-lo, hi) / limit))
             if excess > 1.0 + SLACK:
-                needed = max(needed, excess ** (1.0 / order))
-        return needed
+                needed[order] = excess ** (1.0 / order)
+        return max(needed[1], needed[2]), needed[3]
 
     def _within_positions(self, entry: _Entry) -> bool:
         segment = entry.segment
@@ -668,7 +742,7 @@ class MotionQueue:
             running, started, pending = self._scaled(running, started, pending, trajectory, factor)
             mine = [e for e in [running, *pending] if e is not None and e.segment is not None]
             mine = [e for e in mine if e.trajectory == trajectory.number]
-            needed = max((self._needed(e) for e in mine), default=1.0)
+            needed = max((self._excess(e)[0] for e in mine), default=1.0)
             if needed <= 1.0:
                 break
         else:
@@ -711,7 +785,13 @@ class MotionQueue:
                     successor,
                     scale,
                 )
-                if self._needed(candidate) <= 1.0 and self._within_positions(candidate):
+                if candidate.segment is not None:
+                    candidate = self._stretched(candidate)
+                if (
+                    candidate.segment is not None
+                    and self._excess(candidate)[0] <= 1.0
+                    and self._within_positions(candidate)
+                ):
                     running, started = candidate, self._t
         end, order = (running.end, running.end_order) if running is not None else (self._state, 2)
         out: list[_Entry] = []
@@ -722,6 +802,8 @@ class MotionQueue:
                 moved = replace(entry, start=end, start_order=order, duration=duration, before_duration=duration)
                 successor = pending[i + 1] if i + 1 < len(pending) and mine[i + 1] else None
                 entry = self._rebuilt(moved, successor, scale)
+                if entry.segment is not None:
+                    entry = self._stretched(entry)
             out.append(entry)
             end, order = entry.end, entry.end_order
         return running, started, out
