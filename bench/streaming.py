@@ -54,7 +54,8 @@ of it the controller takes). ``--cadence`` sleeps between points like the stream
   touching either end are not counted. The margin is needed because the setpoint is sampled every
   4 ms: a stop between two instants is seen at most 2 ms away from it, where a joint within its
   acceleration limit may already be back at a_max x 2 ms (with 1e-4 rad/s alone, ruckig's 99 stops
-  of the dense case count as about 13);
+  of the dense case count as about 13). The price: a motion that slow on every joint counts as
+  stopped, which in these plans only the first and last few points are;
 * peak acc (rad/s²) and peak jerk (rad/s³): second and third differences of the commanded positions
   at the interpolation instants (what the drives are asked to do), as ``client.demo.analyse``
   computes them; acc/plan divides the peak by the plan's own peak acceleration (case heading);

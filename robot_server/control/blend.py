@@ -24,15 +24,17 @@ So: where the points are monotone, the estimate is clamped into the conditions o
 ending here (its start is already fixed) and of the segment starting here (of whose budget it
 takes at most :data:`RESERVE`, leaving the rest to the next point's choice); ``v = a = 0`` satisfies
 them whenever the start left room (it does when it was chosen the same way); when it did not (a
-start too fast for its segment), the estimate stands, since stopping at the point would not
-prevent the overshoot. A point where the joint holds still on either side gets velocity and
+start too fast for its segment, given by the client or after a transient), the point is reached at
+rest, which keeps the unavoidable overshoot smallest. A point where the joint holds still on either side gets velocity and
 acceleration 0. Where the joint reverses (the slopes differ in sign), the points are not monotone
 and the estimate stands: the data's own smooth curve turns between the samples, and forcing the
 velocity to 0 at the sample nearest the turn (as Fritsch and Carlson's PCHIP does) would put a
 kink in the acceleration there.
-The conditions are sufficient, not necessary: they only bite near reversals, at sharp corners of
-sparse waypoints and in the last points before a stop. Everything is vectorised over joints and
-invariant under uniform time scaling.
+The conditions are sufficient, not necessary, so they are applied only where the plain
+estimate's control points show an overshoot beyond :data:`OVERSHOOT` (a tenth of a milliradian):
+at sharp corners of sparse waypoints and in the last points before a stop. Near a joint's turn,
+dense points leave tiny segments, and clamping there would force hard decelerations for a gain
+nobody could see. Everything is vectorised over joints and invariant under uniform time scaling.
 
 **Jerk.** Within what the shape allows, the end acceleration is chosen to keep the segment's jerk
 within the limit (the jerk is linear in it, :func:`jerk_limited`): the parabola estimate is off
@@ -56,6 +58,8 @@ Array = NDArray[np.float64]
 RESERVE = 0.25
 #: moves shorter than this (rad or m) count as holding still
 _STILL = 1e-12
+#: an overshoot this small (rad or m: 0.1 mrad is 0.05 mm at half a metre) is not worth a clamp
+OVERSHOOT = 1e-4
 
 
 def estimate(before: Array, h1: float, position: Array, h2: float, after: Array) -> tuple[Array, Array]:
@@ -100,14 +104,16 @@ def shape_preserving(
         ]
     )
     # a start too fast for its segment (used > 0) leaves no monotone choice: the segment overshoots
-    # whatever this point's state is, and stopping here would only make it worse, so the estimate
-    # stands (in the direction of the data)
-    u = np.where(u_max >= 0.0, np.clip(velocity * s1, 0.0, np.maximum(u_max, 0.0)), np.maximum(velocity * s1, 0.0))
+    # the point whatever its state; arriving at rest keeps that overshoot smallest (a larger end
+    # speed over the short remaining distance would first swing the joint back)
+    u = np.clip(velocity * s1, 0.0, np.maximum(u_max, 0.0))
     w_lo = np.maximum(low1 + 8.0 * u / t1, -4.0 * u / t2)
-    w_hi = np.minimum(4.0 * u / t1, room2 - 8.0 * u / t2)
-    empty = w_lo > w_hi  # no room (the start left none): any acceleration
-    w_lo = np.where(empty, -np.inf, w_lo)
-    w_hi = np.where(empty, np.inf, w_hi)
+    # with room, the interval is not empty (u <= u_max makes the four bounds compatible; at
+    # u = u_max it is a single value, which rounding may invert); without room, any acceleration
+    w_hi = np.maximum(np.minimum(4.0 * u / t1, room2 - 8.0 * u / t2), w_lo)
+    empty = u_max < 0.0
+    w_lo = np.where(empty, 0.0, w_lo)
+    w_hi = np.where(empty, 0.0, w_hi)
     lo = np.where(s1 >= 0.0, w_lo, -w_hi)
     hi = np.where(s1 >= 0.0, w_hi, -w_lo)
     # a reversal (the joint turns between the neighbours): the smooth curve turns near the point,
@@ -176,9 +182,48 @@ def through_state(
     (``before_duration`` is the full time of the segment from ``before``, which may have started
     earlier than ``start``), made shape-preserving, and with the jerk of the segment ending here
     within ``jerk`` where an acceleration allowed by the shape can do it."""
-    v, a = estimate(before, before_duration, position, after_duration, after)
-    v, low, high = shape_preserving(start, duration, position, after=after, after_duration=after_duration, velocity=v)
+    v_est, a_est = estimate(before, before_duration, position, after_duration, after)
+    v, low, high = shape_preserving(
+        start, duration, position, after=after, after_duration=after_duration, velocity=v_est
+    )
+    # where the plain estimate overshoots by no more than OVERSHOOT (the convex hull of the Bezier
+    # control points bounds it), the clamp would only cost smoothness: near a joint's turn, dense
+    # points leave tiny segments, and clamping there forces hard decelerations
+    harmless = _hull_overshoot(start, duration, position, after, after_duration, v_est, a_est) <= OVERSHOOT
+    # ... as long as it leaves the next point room to choose (else that one could not avoid a
+    # large overshoot when the points go on the same way)
+    m2 = np.abs(after - position)
+    s2 = np.sign(after - position)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        alpha2 = v_est * s2 * after_duration / m2
+        curvature2 = a_est * s2 * after_duration**2 / m2
+    harmless &= (m2 > _STILL) & (curvature2 + 8.0 * alpha2 - 20.0 <= 0.0)
+    v = np.where(harmless, v_est, v)
+    low = np.where(harmless, -np.inf, low)
+    high = np.where(harmless, np.inf, high)
     if jerk is None:
-        return State(position, v, np.clip(a, low, high))
-    a = jerk_limited(start, duration, position, v, acceleration=a, low=low, high=high, jerk=jerk)
+        return State(position, v, np.clip(a_est, low, high))
+    a = jerk_limited(start, duration, position, v, acceleration=a_est, low=low, high=high, jerk=jerk)
     return State(position, v, a)
+
+
+def _hull_overshoot(
+    start: State, t1: float, position: Array, after: Array, t2: float, velocity: Array, acceleration: Array
+) -> Array:
+    """Per joint, a bound on how far the segment ending at ``position`` with this state, and the
+    start of the next one, go beyond their points: their Bezier control points' excursion."""
+    p0, v0, a0 = start
+    inner1 = np.stack(
+        [
+            p0 + v0 * t1 / 5.0,
+            p0 + 2.0 * v0 * t1 / 5.0 + a0 * t1 * t1 / 20.0,
+            position - 2.0 * velocity * t1 / 5.0 + acceleration * t1 * t1 / 20.0,
+            position - velocity * t1 / 5.0,
+        ]
+    )
+    inner2 = np.stack(
+        [position + velocity * t2 / 5.0, position + 2.0 * velocity * t2 / 5.0 + acceleration * t2 * t2 / 20.0]
+    )
+    beyond1 = np.maximum(inner1 - np.maximum(p0, position), np.minimum(p0, position) - inner1).max(axis=0)
+    beyond2 = np.maximum(inner2 - np.maximum(position, after), np.minimum(position, after) - inner2).max(axis=0)
+    return np.maximum(np.maximum(beyond1, beyond2), 0.0)

@@ -136,6 +136,10 @@ class _Entry:
     scale: float = 1.0
     #: controller time at which the point was queued
     queued: float = 0.0
+    #: starts from a state the client's plan did not lead to (rest, after the queue ran dry):
+    #: its limits are met locally (a jerk-limited segment, however long), never by slowing the
+    #: rest of the trajectory down
+    transient: bool = False
 
     @property
     def trajectory(self) -> int:
@@ -332,10 +336,11 @@ class MotionQueue:
                 self._stopped_dry = (done.trajectory, done.index)
             if self._pending:
                 self._start_next(end_time)
-            elif _moving(done.end.velocity) or _moving(done.end.acceleration):
-                if _moving(done.end.velocity):
-                    self._warn_dry(f"nothing followed point {done.index}, which the robot passes moving")
+            elif _moving(done.end.velocity):
+                self._warn_dry(f"nothing followed point {done.index}, which the robot passes moving")
                 self._running, self._started = self._stop_entry(done.end), end_time
+            elif _moving(done.end.acceleration):  # at rest, but still accelerating: settle on the point
+                self._running, self._started = self._stop_entry(done.end, at=done.end.position), end_time
             else:
                 self._state = State.rest(done.end.position)
         running = self._running
@@ -452,6 +457,10 @@ class MotionQueue:
         running, started = base.running, base.started
         messages = list(base.messages)
         built: list[_Entry] = []  # segments decided now: checked against the limits below
+        # set when the robot stands where the client's plan has it moving (the first segment of a
+        # trajectory from rest: the plan may start accelerating at once; or after the queue ran
+        # dry): this point's segment starts from a state the plan did not lead to (a transient)
+        transient = False
         # 1. the point before this one passes through it, now that it is known
         if pending and pending[-1].end is None:
             pending[-1] = self._stretched(self._determine(pending[-1], knot.position, _need(knot.duration) * scale))
@@ -461,16 +470,20 @@ class MotionQueue:
             if late is not None:
                 running, started = late, self._t
                 built.append(running)
-            elif _moving(running.start.velocity):
-                messages.append(
-                    self._dry_message(
-                        trajectory, f"point {knot.index} came too late to pass through point {running.index}"
+            else:
+                transient = True
+                if _moving(running.start.velocity):
+                    messages.append(
+                        self._dry_message(
+                            trajectory, f"point {knot.index} came too late to pass through point {running.index}"
+                        )
                     )
-                )
-                trajectory = replace(trajectory, warned_dry=True)
+                    trajectory = replace(trajectory, warned_dry=True)
         elif running is not None and running.knot is None and not pending:
             running, started = None, self._t  # a dry stop is under way: go on from the current setpoint
+            transient = True
         elif running is None and not pending and self._stopped_dry == (knot.trajectory, knot.index - 1):
+            transient = True
             messages.append(self._dry_message(trajectory, f"point {knot.index} came after the robot stopped"))
             trajectory = replace(trajectory, warned_dry=True)
         # 2. this point's segment, from where the one before ends
@@ -481,6 +494,8 @@ class MotionQueue:
         else:
             start, order = self._state, 2
         assert start is not None and trajectory.last_position is not None
+        if knot.index == 1 and not (_moving(start.velocity) or _moving(start.acceleration)):
+            transient = True
         if knot.kind is _Kind.REST:
             segment = self._rest_segment(knot, start)
             if segment is None:
@@ -501,10 +516,17 @@ class MotionQueue:
         else:
             duration = _need(knot.duration) * scale
             entry = _Entry(
-                knot, trajectory.last_position, duration, start, duration, start_order=order, queued=self._t
+                knot,
+                trajectory.last_position,
+                duration,
+                start,
+                duration,
+                start_order=order,
+                queued=self._t,
+                transient=transient,
             )
             if knot.kind is _Kind.GIVEN:
-                entry = self._given(entry, scale)
+                entry = self._stretched(self._given(entry, scale))
                 built.append(entry)
         pending.append(entry)
         trajectory = replace(
@@ -516,7 +538,7 @@ class MotionQueue:
         # 3. the limits: slow the trajectory down rather than refuse the point
         for e in built:
             self._check_position(e)
-        needed = max((self._excess(e)[0] for e in built), default=1.0)
+        needed = max((self._excess(e)[0] for e in built if not e.transient), default=1.0)
         if needed > 1.0:
             running, started, pending, trajectory = self._rescale(
                 running, started, pending, trajectory, needed=needed, knot=knot, messages=messages
@@ -546,7 +568,11 @@ class MotionQueue:
         knot = _knot(entry)
         assert knot.velocity is not None
         velocity = knot.velocity / scale
-        if knot.acceleration is not None:
+        if not _moving(knot.velocity):
+            # a point the robot reaches at rest (a trajectory's end: MoveIt's plans stop with the
+            # deceleration still on) is reached at rest, not still accelerating
+            end, order = State.rest(knot.position), 2
+        elif knot.acceleration is not None:
             end, order = State(knot.position, velocity, knot.acceleration / (scale * scale)), 2
         else:
             end, order = State(knot.position, velocity, np.zeros_like(velocity)), 1
@@ -558,8 +584,15 @@ class MotionQueue:
         jerk-limited motion to the same end state, at least as long as planned. A client's plan
         whose acceleration steps (every time-optimal planner's does) cannot be blended within the
         jerk limit in one segment costs the robot a few milliseconds of lag there, as a real
-        controller's command smoothing does, instead of slowing the whole trajectory down."""
-        if entry.is_kind(_Kind.GIVEN) or self._excess(entry)[1] <= 1.0:
+        controller's command smoothing does, instead of slowing the whole trajectory down. A
+        transient (a segment from rest where the plan has the robot moving) gets the same for its
+        velocity and acceleration too, however long it takes: the plan is not too fast, the robot
+        is late."""
+        excess = self._excess(entry)
+        if entry.transient:
+            if max(excess) <= 1.0:
+                return entry
+        elif entry.is_kind(_Kind.GIVEN) or excess[1] <= 1.0:
             return entry  # given states are followed as given (ros2_control, MotoROS)
         assert entry.end is not None
         lim = self.limits
@@ -570,7 +603,7 @@ class MotionQueue:
         except PlanningError as exc:  # an end state beyond the limits: keep the polynomial
             log.debug("point %d: no jerk-limited motion to its state (%s)", entry.index, exc)
             return entry
-        if segment.duration > _MAX_LAG_FACTOR * entry.duration + _MAX_LAG:
+        if not entry.transient and segment.duration > _MAX_LAG_FACTOR * entry.duration + _MAX_LAG:
             # synchronising all joints on moving end states can take ruckig much longer than the
             # segment; a lag that long would distort the path more than the jerk matters
             log.debug("point %d: a jerk-limited segment would take %.3f s", entry.index, segment.duration)
@@ -660,12 +693,14 @@ class MotionQueue:
             within(hi, lower, upper, reason, what)
         return segment
 
-    def _stop_entry(self, state: State) -> _Entry:
+    def _stop_entry(self, state: State, at: Array | None = None) -> _Entry:
+        """The jerk-limited way to rest from ``state``: wherever it ends, or at ``at``."""
         lim = self.limits
         rest = np.zeros_like(state.position)
+        target = (state.position if at is None else at, rest, rest)
         try:
             segment: Segment = RuckigSegment.plan(
-                state, (state.position, rest, rest), lim.velocity, lim.acceleration, lim.jerk, velocity_interface=True
+                state, target, lim.velocity, lim.acceleration, lim.jerk, velocity_interface=at is None
             )
         except PlanningError:  # pragma: no cover - ruckig plans a stop from any finite state
             log.exception("no jerk-limited stop from %s; holding", state)
