@@ -73,7 +73,9 @@ def chain(positions: np.ndarray, durations: np.ndarray) -> list:
     times=st.lists(st.floats(0.05, 2.0), min_size=12, max_size=12),
     sign=st.sampled_from([1.0, -1.0]),
 )
-def test_no_segment_overshoots_where_the_points_are_monotone(steps: list[float], times: list[float], sign: float) -> None:
+def test_no_segment_overshoots_where_the_points_are_monotone(
+    steps: list[float], times: list[float], sign: float
+) -> None:
     """Any monotone sequence of points, any spacing: every segment stays between its two points
     (to within blend.OVERSHOOT, a tenth of a milliradian, where a clamp would only cost smoothness)."""
     positions = np.concatenate([[0.0], np.cumsum(steps)])[:, None] * sign * np.ones(2)
@@ -88,7 +90,9 @@ def test_no_segment_overshoots_where_the_points_are_monotone(steps: list[float],
 def test_a_joint_that_holds_still_has_no_velocity_and_a_reversal_keeps_its_estimate() -> None:
     start = State(np.array([0.0, 0.0]), np.array([0.5, 0.5]), np.zeros(2))
     position, after = np.array([0.1, 0.1]), np.array([0.1, 0.05])  # joint 1 holds, joint 2 turns back
-    v, low, high = shape_preserving(start, 0.2, position, after=after, after_duration=0.2, velocity=np.array([0.3, 0.2]))
+    v, low, high = shape_preserving(
+        start, 0.2, position, after=after, after_duration=0.2, velocity=np.array([0.3, 0.2])
+    )
     assert v[0] == 0.0 and low[0] == high[0] == 0.0
     assert v[1] == 0.2 and np.isinf(low[1]) and np.isinf(high[1])
 

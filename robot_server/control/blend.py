@@ -22,10 +22,10 @@ differences). That gives four linear conditions:
 
 So: where the points are monotone, the estimate is clamped into the conditions of the segment
 ending here (its start is already fixed) and of the segment starting here (of whose budget it
-takes at most :data:`RESERVE`, leaving the rest to the next point's choice); ``v = a = 0`` satisfies
-them whenever the start left room (it does when it was chosen the same way); when it did not (a
-start too fast for its segment, given by the client or after a transient), the point is reached at
-rest, which keeps the unavoidable overshoot smallest. A point where the joint holds still on either side gets velocity and
+takes at most :data:`RESERVE`, leaving the rest to the next point's choice); ``v = a = 0``
+satisfies them whenever the start left room (it does when it was chosen the same way); when it
+did not (a start too fast for its segment, given by the client or after a transient), the point
+is reached at rest, which keeps the unavoidable overshoot smallest. A point where the joint holds still on either side gets velocity and
 acceleration 0. Where the joint reverses (the slopes differ in sign), the points are not monotone
 and the estimate stands: the data's own smooth curve turns between the samples, and forcing the
 velocity to 0 at the sample nearest the turn (as Fritsch and Carlson's PCHIP does) would put a
@@ -189,7 +189,10 @@ def through_state(
     # where the plain estimate overshoots by no more than OVERSHOOT (the convex hull of the Bezier
     # control points bounds it), the clamp would only cost smoothness: near a joint's turn, dense
     # points leave tiny segments, and clamping there forces hard decelerations
-    harmless = _hull_overshoot(start, duration, position, after, after_duration, v_est, a_est) <= OVERSHOOT
+    overshoot = _hull_overshoot(
+        start, duration, position, after=after, t2=after_duration, velocity=v_est, acceleration=a_est
+    )
+    harmless = overshoot <= OVERSHOOT
     # ... as long as it leaves the next point room to choose (else that one could not avoid a
     # large overshoot when the points go on the same way)
     m2 = np.abs(after - position)
@@ -208,7 +211,7 @@ def through_state(
 
 
 def _hull_overshoot(
-    start: State, t1: float, position: Array, after: Array, t2: float, velocity: Array, acceleration: Array
+    start: State, t1: float, position: Array, *, after: Array, t2: float, velocity: Array, acceleration: Array
 ) -> Array:
     """Per joint, a bound on how far the segment ending at ``position`` with this state, and the
     start of the next one, go beyond their points: their Bezier control points' excursion."""
@@ -226,4 +229,5 @@ def _hull_overshoot(
     )
     beyond1 = np.maximum(inner1 - np.maximum(p0, position), np.minimum(p0, position) - inner1).max(axis=0)
     beyond2 = np.maximum(inner2 - np.maximum(position, after), np.minimum(position, after) - inner2).max(axis=0)
-    return np.maximum(np.maximum(beyond1, beyond2), 0.0)
+    result: Array = np.maximum(np.maximum(beyond1, beyond2), 0.0)
+    return result
