@@ -25,11 +25,12 @@ ending here (its start is already fixed) and of the segment starting here (of wh
 takes at most :data:`RESERVE`, leaving the rest to the next point's choice); ``v = a = 0``
 satisfies them whenever the start left room (it does when it was chosen the same way); when it
 did not (a start too fast for its segment, given by the client or after a transient), the point
-is reached at rest, which keeps the unavoidable overshoot smallest. A point where the joint holds still on either side gets velocity and
-acceleration 0. Where the joint reverses (the slopes differ in sign), the points are not monotone
-and the estimate stands: the data's own smooth curve turns between the samples, and forcing the
-velocity to 0 at the sample nearest the turn (as Fritsch and Carlson's PCHIP does) would put a
-kink in the acceleration there.
+is reached at rest, which keeps the unavoidable overshoot smallest. A point where the joint holds
+still on either side gets velocity and acceleration 0. Where the joint reverses (the slopes differ
+in sign), the points are not monotone and the estimate stands: the data's own smooth curve turns
+between the samples, and forcing the velocity to 0 at the sample nearest the turn (as Fritsch and
+Carlson's PCHIP does) would put a kink in the acceleration there.
+
 The conditions are sufficient, not necessary, so they are applied only where the plain
 estimate's control points show an overshoot beyond :data:`OVERSHOOT` (a tenth of a milliradian):
 at sharp corners of sparse waypoints and in the last points before a stop. Near a joint's turn,
