@@ -94,15 +94,15 @@ def joint_traj_pt_full(
     positions: list[float],
     velocities: list[float] | None = None,
     *,
+    accelerations: list[float] | None = None,
     order: str = "<",
 ) -> bytes:
     """A JOINT_TRAJ_PT_FULL frame from a reference vector with its fields replaced (float32)."""
     buf = bytearray(template)
     pos = [*positions, *[0.0] * (10 - len(positions))]
     vel = [*(velocities or []), *[0.0] * (10 - len(velocities or []))]
-    struct.pack_into(
-        order + "iiif10f10f10f", buf, HEADER, robot_id, sequence, valid_fields, time, *pos, *vel, *[0.0] * 10
-    )
+    acc = [*(accelerations or []), *[0.0] * (10 - len(accelerations or []))]
+    struct.pack_into(order + "iiif10f10f10f", buf, HEADER, robot_id, sequence, valid_fields, time, *pos, *vel, *acc)
     return bytes(buf)
 
 

@@ -147,8 +147,8 @@ def measure(record: Recorder, model: RobotModel, plan: Plan, ticks_per_interpola
     t = record.time()
     command, actual = record.get("command_position"), record.get("actual_position")
     step = np.max(np.abs(np.diff(command, axis=0)), axis=1)
-    moving = np.flatnonzero(step > 1e-9)
-    first, last = int(moving[0]), int(moving[-1]) + 1
+    moving = np.flatnonzero(step > 1e-9)  # tick i + 1 differs from tick i
+    first, last = int(moving[0]) + 1, int(moving[-1]) + 1  # the first and the last tick that moved
     arrived = int(np.flatnonzero(record.points() >= 1)[0])
     # stops: the command stands still (every joint slower than 1e-4 rad/s) and then moves on by
     # more than a micro-radian; the final approach to rest is not a stop
