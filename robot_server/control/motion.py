@@ -725,6 +725,9 @@ class MotionQueue:
         derivative by factor^k."""
         segment = entry.segment
         assert segment is not None
+        cached = segment.memo.get(self)
+        if cached is not None:
+            return cached  # type: ignore[return-value]
         lim = self.limits
         needed = [1.0, 1.0, 1.0, 1.0]
         for order in range(1, min(segment.bounded_order, 3) + 1):
@@ -736,7 +739,9 @@ class MotionQueue:
             excess = float(np.max(np.maximum(-lo, hi) / limit))
             if excess > 1.0 + SLACK:
                 needed[order] = excess ** (1.0 / order)
-        return max(needed[1], needed[2]), needed[3]
+        result = max(needed[1], needed[2]), needed[3]
+        segment.memo[self] = result
+        return result
 
     def _within_positions(self, entry: _Entry) -> bool:
         segment = entry.segment
@@ -777,7 +782,7 @@ class MotionQueue:
             running, started, pending = self._scaled(running, started, pending, trajectory, factor)
             mine = [e for e in [running, *pending] if e is not None and e.segment is not None]
             mine = [e for e in mine if e.trajectory == trajectory.number]
-            needed = max((self._excess(e)[0] for e in mine), default=1.0)
+            needed = max((self._excess(e)[0] for e in mine if not e.transient), default=1.0)
             if needed <= 1.0:
                 break
         else:
@@ -805,6 +810,9 @@ class MotionQueue:
         segment (when that stays within the limits) and its pending segments."""
         number, scale = trajectory.number, trajectory.scale
         mine = [e.trajectory == number and not e.is_kind(_Kind.REST) for e in pending]
+        # the first pending segment starts from the running one's end: at the old speed unless the
+        # rest of the running segment is re-planned at the new scale (then a transient)
+        transition = running is not None and running.trajectory == number
         if running is not None and running.trajectory == number and not running.is_kind(_Kind.REST):
             remaining = (started + running.duration - self._t) * factor
             if remaining >= _MIN_REMAINDER:
@@ -827,7 +835,7 @@ class MotionQueue:
                     and self._excess(candidate)[0] <= 1.0
                     and self._within_positions(candidate)
                 ):
-                    running, started = candidate, self._t
+                    running, started, transition = candidate, self._t, False
         end, order = (running.end, running.end_order) if running is not None else (self._state, 2)
         out: list[_Entry] = []
         for i, entry in enumerate(pending):
@@ -835,6 +843,9 @@ class MotionQueue:
                 duration = _need(_knot(entry).duration) * scale
                 assert end is not None
                 moved = replace(entry, start=end, start_order=order, duration=duration, before_duration=duration)
+                if transition:
+                    moved = replace(moved, transient=True)
+                    transition = False
                 successor = pending[i + 1] if i + 1 < len(pending) and mine[i + 1] else None
                 entry = self._rebuilt(moved, successor, scale)
                 if entry.segment is not None:

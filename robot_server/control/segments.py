@@ -71,6 +71,8 @@ class Segment(ABC):
     duration: float
     dof: int
     bounded_order: int
+    #: derived values computed once (extremes, bounds, what a controller checked of it)
+    memo: dict[object, object]
 
     @abstractmethod
     def sample(self, t: ArrayLike) -> Samples:
@@ -115,7 +117,7 @@ class PolynomialSegment(Segment):
     which stays well conditioned for short segments (a 4 ms quintic has h_5 ~ 1e12 in seconds).
     """
 
-    __slots__ = ("_derivatives", "_normalised", "bounded_order", "dof", "duration", "kind")
+    __slots__ = ("_derivatives", "_normalised", "bounded_order", "dof", "duration", "kind", "memo")
 
     def __init__(
         self, coefficients: ArrayLike, duration: float, kind: str = "polynomial", bounded_order: int = 3
@@ -145,6 +147,7 @@ class PolynomialSegment(Segment):
         self.dof = c.shape[1]
         self.kind = kind
         self.bounded_order = bounded_order
+        self.memo: dict[object, object] = {}
         # d/ds sum c_k s^k = sum k c_k s^(k-1); each derivative in t adds a factor 1/T. Up to the
         # snap (order 4): the extremes of the jerk are where the snap vanishes.
         derivatives = [self._normalised]
@@ -169,12 +172,26 @@ class PolynomialSegment(Segment):
         return Samples(*out)
 
     def bounds(self, order: int) -> tuple[Array, Array]:
-        # over 0 <= s <= 1: |sum_k c_k s^k - c_0| <= sum_{k>=1} |c_k|
-        coefficients = self._derivatives[order]
-        reach = np.abs(coefficients[1:]).sum(axis=0)
-        return coefficients[0] - reach, coefficients[0] + reach
+        # the convex hull of the Bezier control points: the curve of degree 5 in s = t / T has
+        # control points B c (c: normalised coefficients); its derivatives are Bezier curves whose
+        # control points are scaled differences of those (tight: a few per cent off the extremes)
+        key = ("bounds", order)
+        found = self.memo.get(key)
+        if found is None:
+            points = _TO_BERNSTEIN @ self._normalised
+            if order:
+                points = np.diff(points, n=order, axis=0) * (_FALLING[order] / self.duration**order)
+            found = self.memo[key] = (points.min(axis=0), points.max(axis=0))
+        return found  # type: ignore[return-value]
 
     def extremes(self, order: int) -> tuple[Array, Array]:
+        key = ("extremes", order)
+        found = self.memo.get(key)
+        if found is None:
+            found = self.memo[key] = self._extremes(order)
+        return found  # type: ignore[return-value]
+
+    def _extremes(self, order: int) -> tuple[Array, Array]:
         coefficients = self._derivatives[order]
         ends = self.sample(np.array([0.0, self.duration]))[order]
         lo, hi = ends.min(axis=0), ends.max(axis=0)
@@ -190,6 +207,20 @@ class PolynomialSegment(Segment):
 
     def __repr__(self) -> str:
         return f"PolynomialSegment(kind={self.kind!r}, duration={self.duration!r}, dof={self.dof})"
+
+
+def _bernstein_matrix(degree: int) -> Array:
+    """Power basis in s to Bernstein basis on [0, 1]: ``b_j = sum_{k<=j} C(j, k) / C(n, k) c_k``."""
+    matrix = np.zeros((degree + 1, degree + 1))
+    for j in range(degree + 1):
+        for k in range(j + 1):
+            matrix[j, k] = math.comb(j, k) / math.comb(degree, k)
+    return matrix
+
+
+_TO_BERNSTEIN = _bernstein_matrix(5)
+#: the k-th derivative of a degree-5 Bezier curve scales the k-th differences by 5!/(5-k)!
+_FALLING = (1.0, 5.0, 20.0, 60.0, 120.0)
 
 
 def _unit_roots(slope: Array) -> Array:
@@ -320,12 +351,14 @@ class RuckigSegment(Segment):
         "dof",
         "duration",
         "kind",
+        "memo",
         "trajectory",
     )
 
     def __init__(self, trajectory: ruckig.Trajectory, dof: int) -> None:
         self.kind = "ruckig"
         self.bounded_order = 3
+        self.memo: dict[object, object] = {}
         self.trajectory = trajectory
         self.dof = dof
         self.duration = float(trajectory.duration)
