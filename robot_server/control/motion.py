@@ -74,6 +74,8 @@ log = logging.getLogger(__name__)
 
 Array = NDArray[np.float64]
 
+#: a re-scale slows down by this much more than the limits need
+_RESCALE_MARGIN = 1.01
 #: how many times a trajectory is re-scaled for one point before the point is refused
 _MAX_RESCALES = 12
 #: a jerk-limited replacement may take at most this factor times the segment's time plus _MAX_LAG (s)
@@ -538,7 +540,7 @@ class MotionQueue:
         # 3. the limits: slow the trajectory down rather than refuse the point
         for e in built:
             self._check_position(e)
-        needed = max((self._excess(e)[0] for e in built if not e.transient), default=1.0)
+        needed = max((self._uniform_need(e) for e in built), default=1.0)
         if needed > 1.0:
             running, started, pending, trajectory = self._rescale(
                 running, started, pending, trajectory, needed=needed, knot=knot, messages=messages
@@ -743,6 +745,20 @@ class MotionQueue:
         segment.memo[self] = result
         return result
 
+    def _uniform_need(self, entry: _Entry) -> float:
+        """By how much the whole trajectory must slow down for this segment: its velocity and
+        acceleration excess; for a transient only its end state's (the start is the robot being
+        late, met locally; an end state beyond the limits is a plan too fast from there on)."""
+        if not entry.transient:
+            return self._excess(entry)[0]
+        end = entry.end
+        assert end is not None
+        lim = self.limits
+        speed = float(np.max(np.abs(end.velocity) / lim.velocity))
+        acceleration = float(np.max(np.abs(end.acceleration) / lim.acceleration))
+        need = max(speed, math.sqrt(acceleration))
+        return need if need > 1.0 + SLACK else 1.0
+
     def _within_positions(self, entry: _Entry) -> bool:
         segment = entry.segment
         assert segment is not None
@@ -777,12 +793,14 @@ class MotionQueue:
         """Time-scale what is not yet executed of the trajectory until it fits the limits."""
         was = trajectory.scale
         for _ in range(_MAX_RESCALES):
-            factor = needed * (1.0 + 1e-6)
+            # a margin: points rounded to float32 on the wire would otherwise put the next ones a
+            # hair over the limit, and every re-scale disturbs the segment under way
+            factor = needed * _RESCALE_MARGIN
             trajectory = replace(trajectory, scale=trajectory.scale * factor)
             running, started, pending = self._scaled(running, started, pending, trajectory, factor)
             mine = [e for e in [running, *pending] if e is not None and e.segment is not None]
             mine = [e for e in mine if e.trajectory == trajectory.number]
-            needed = max((self._excess(e)[0] for e in mine if not e.transient), default=1.0)
+            needed = max((self._uniform_need(e) for e in mine), default=1.0)
             if needed <= 1.0:
                 break
         else:
