@@ -87,14 +87,27 @@ def test_no_segment_overshoots_where_the_points_are_monotone(
         assert np.all(lo >= np.minimum(a, b) - tolerance) and np.all(hi <= np.maximum(a, b) + tolerance), k
 
 
-def test_a_joint_that_holds_still_has_no_velocity_and_a_reversal_keeps_its_estimate() -> None:
+def test_a_joint_that_holds_still_or_turns_back_is_reached_at_rest_unless_the_overshoot_is_negligible() -> None:
     start = State(np.array([0.0, 0.0]), np.array([0.5, 0.5]), np.zeros(2))
     position, after = np.array([0.1, 0.1]), np.array([0.1, 0.05])  # joint 1 holds, joint 2 turns back
     v, low, high = shape_preserving(
         start, 0.2, position, after=after, after_duration=0.2, velocity=np.array([0.3, 0.2])
     )
     assert v[0] == 0.0 and low[0] == high[0] == 0.0
-    assert v[1] == 0.2 and np.isinf(low[1]) and np.isinf(high[1])
+    assert v[1] == 0.0 and low[1] < 0.0 and high[1] == 0.0  # decelerating into the turn
+    # dense points of a smooth turn: the estimate stands (the curve turns between the samples)
+    t = np.array([-0.01, 0.0, 0.01])
+    q = 0.3 - 2.0 * (t - 0.002) ** 2  # the top at t = 2 ms, just after the middle sample
+    state = through_state(
+        State(np.array([q[0]]), np.array([-4.0 * (t[0] - 0.002)]), np.array([-4.0])),
+        0.01,
+        np.array([q[1]]),
+        after=np.array([q[2]]),
+        after_duration=0.01,
+        before=np.array([q[0]]),
+        before_duration=0.01,
+    )
+    assert state.velocity[0] == pytest.approx(0.008) and state.acceleration[0] == pytest.approx(-4.0)
 
 
 def test_the_end_acceleration_keeps_the_jerk_within_the_limit_when_it_can() -> None:

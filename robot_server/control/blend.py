@@ -26,16 +26,16 @@ takes at most :data:`RESERVE`, leaving the rest to the next point's choice); ``v
 satisfies them whenever the start left room (it does when it was chosen the same way); when it
 did not (a start too fast for its segment, given by the client or after a transient), the point
 is reached at rest, which keeps the unavoidable overshoot smallest. A point where the joint holds
-still on either side gets velocity and acceleration 0. Where the joint reverses (the slopes differ
-in sign), the points are not monotone and the estimate stands: the data's own smooth curve turns
-between the samples, and forcing the velocity to 0 at the sample nearest the turn (as Fritsch and
-Carlson's PCHIP does) would put a kink in the acceleration there.
+still on either side gets velocity and acceleration 0, and so does a point where it turns back (as
+in Fritsch and Carlson's PCHIP), decelerating into it.
 
 The conditions are sufficient, not necessary, so they are applied only where the plain
-estimate's control points show an overshoot beyond :data:`OVERSHOOT` (a tenth of a milliradian):
-at sharp corners of sparse waypoints and in the last points before a stop. Near a joint's turn,
-dense points leave tiny segments, and clamping there would force hard decelerations for a gain
-nobody could see. Everything is vectorised over joints and invariant under uniform time scaling.
+estimate's control points show an overshoot beyond :data:`OVERSHOOT` (a tenth of a milliradian),
+or beyond a position limit: at sharp corners and turns of sparse waypoints and in the last points
+before a stop. Near a joint's turn, dense points leave tiny segments; the data's own smooth curve
+turns between two samples, and clamping there (zero velocity at the sample nearest the turn) would
+put a kink in the acceleration for a gain nobody could see. Everything is vectorised over joints
+and invariant under uniform time scaling.
 
 **Jerk.** Within what the shape allows, the end acceleration is chosen to keep the segment's jerk
 within the limit (the jerk is linear in it, :func:`jerk_limited`): the parabola estimate is off
@@ -83,26 +83,34 @@ def through_state(
     before: Array,
     before_duration: float,
     jerk: Array | None = None,
+    lower: Array | None = None,
+    upper: Array | None = None,
 ) -> State:
     """The state at ``position`` for a segment that starts at ``start`` (``duration`` before it)
     and goes on to ``after``: the estimate from the points ``before -> position -> after``
     (``before_duration`` is the full time of the segment from ``before``, which may have started
-    earlier than ``start``), made shape-preserving, and with the jerk of the segment ending here
-    within ``jerk`` where an acceleration allowed by the shape can do it.
+    earlier than ``start``), made shape-preserving (never beyond the position limits ``lower``,
+    ``upper``), and with the jerk of the segment ending here within ``jerk`` where an acceleration
+    allowed by the shape can do it.
 
     Joint by joint on plain floats: for six joints that is several times faster than numpy on
     arrays of six (a point is planned while the controller runs)."""
     h1, t1, t2 = before_duration, duration, after_duration
-    limits = jerk.tolist() if jerk is not None else [math.inf] * position.size
+    n = position.size
+    jerks = jerk.tolist() if jerk is not None else [math.inf] * n
+    lows = lower.tolist() if lower is not None else [-math.inf] * n
+    highs = upper.tolist() if upper is not None else [math.inf] * n
     v_out, a_out = [], []
-    for p0, v0, a0, p, p2, pb, j in zip(
+    for p0, v0, a0, p, p2, pb, j, low_limit, high_limit in zip(
         start.position.tolist(),
         start.velocity.tolist(),
         start.acceleration.tolist(),
         position.tolist(),
         after.tolist(),
         before.tolist(),
-        limits,
+        jerks,
+        lows,
+        highs,
         strict=True,
     ):
         d1, d2 = (p - pb) / h1, (p2 - p) / t2
@@ -110,7 +118,7 @@ def through_state(
         a_est = 2.0 * (d2 - d1) / (h1 + t2)
         first = (p0, v0, a0)
         v, low, high = _shape(first, t1, p, (p2, t2), v_est)
-        if _harmless(first, t1, p, (p2, t2), (v_est, a_est)):
+        if _harmless(first, t1, p, (p2, t2), (v_est, a_est), limits=(low_limit, high_limit)):
             v, low, high = v_est, -math.inf, math.inf
         a = _jerk_limited(first, t1, (p, v), a_est, (low, high), jerk=j)
         v_out.append(v)
@@ -130,19 +138,22 @@ def _shape(
     if m1 <= _STILL or m2 <= _STILL:
         return 0.0, 0.0, 0.0  # holds still on one side: at rest here
     s1 = 1.0 if delta1 > 0.0 else -1.0
-    if (delta2 > 0.0) != (s1 > 0.0):
-        return v, -math.inf, math.inf  # a reversal: the estimate stands
     # the fixed start in the first segment's normalised frame, and how much of its budget it left
     alpha = v0 * s1 * t1 / m1
     curvature = a0 * s1 * t1 * t1 / m1
     used = curvature + 8.0 * alpha - 20.0  # <= 0 when the start leaves room
     low1 = used * m1 / (t1 * t1)
     room2 = 20.0 * (1.0 - RESERVE) * m2 / (t2 * t2)
-    u_max = min(-used * m1 / (4.0 * t1), 5.0 * (1.0 - RESERVE) * m2 / t2, (room2 - low1) / (8.0 / t1 + 8.0 / t2))
-    if u_max < 0.0:
+    if used > 0.0:
         # a start too fast for its segment leaves no monotone choice: the segment overshoots the
         # point whatever its state; arriving at rest keeps that overshoot smallest
         return 0.0, 0.0, 0.0
+    if (delta2 > 0.0) != (s1 > 0.0):
+        # the joint turns back here: reached at rest (as a monotone spline does), decelerating into
+        # the point within both segments' budgets
+        lo, hi = max(low1, -room2), 0.0
+        return (0.0, lo, hi) if s1 > 0.0 else (0.0, -hi, -lo)
+    u_max = min(-used * m1 / (4.0 * t1), 5.0 * (1.0 - RESERVE) * m2 / t2, (room2 - low1) / (8.0 / t1 + 8.0 / t2))
     u = min(max(v * s1, 0.0), u_max)
     w_lo = max(low1 + 8.0 * u / t1, -4.0 * u / t2)
     # u <= u_max makes the four bounds compatible; at u = u_max the interval is a single value,
@@ -154,15 +165,23 @@ def _shape(
 
 
 def _harmless(
-    start: tuple[float, float, float], t1: float, p: float, after: tuple[float, float], state: tuple[float, float]
+    start: tuple[float, float, float],
+    t1: float,
+    p: float,
+    after: tuple[float, float],
+    state: tuple[float, float],
+    *,
+    limits: tuple[float, float],
 ) -> bool:
     """One joint: the plain estimate ``state`` (velocity, acceleration) overshoots by no more than
-    OVERSHOOT (the convex hull of the Bezier control points of the segment ending here and the
-    start of the next one), and it leaves the next point room to choose."""
+    OVERSHOOT and not beyond the position ``limits`` (the convex hull of the Bezier control points
+    of the segment ending here and the start of the next one), and it leaves the next point room
+    to choose."""
     p0, v0, a0 = start
     p2, t2 = after
     v, a = state
-    lo1, hi1 = min(p0, p) - OVERSHOOT, max(p0, p) + OVERSHOOT
+    lower, upper = limits
+    lo1, hi1 = max(min(p0, p) - OVERSHOOT, lower), min(max(p0, p) + OVERSHOOT, upper)
     for c in (
         p0 + v0 * t1 / 5.0,
         p0 + 2.0 * v0 * t1 / 5.0 + a0 * t1 * t1 / 20.0,
@@ -171,7 +190,7 @@ def _harmless(
     ):
         if not lo1 <= c <= hi1:
             return False
-    lo2, hi2 = min(p, p2) - OVERSHOOT, max(p, p2) + OVERSHOOT
+    lo2, hi2 = max(min(p, p2) - OVERSHOOT, lower), min(max(p, p2) + OVERSHOOT, upper)
     for c in (p + v * t2 / 5.0, p + 2.0 * v * t2 / 5.0 + a * t2 * t2 / 20.0):
         if not lo2 <= c <= hi2:
             return False

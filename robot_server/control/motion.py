@@ -561,6 +561,8 @@ class MotionQueue:
             before=entry.before,
             before_duration=entry.before_duration,
             jerk=self.limits.jerk,
+            lower=self.limits.lower,
+            upper=self.limits.upper,
         )
         segment = _connect(entry.start, entry.start_order, end, 2, entry.duration)
         return replace(entry, end=end, segment=segment, after=after, after_duration=after_duration)
@@ -655,6 +657,8 @@ class MotionQueue:
             before=running.before,
             before_duration=running.before_duration,
             jerk=self.limits.jerk,
+            lower=self.limits.lower,
+            upper=self.limits.upper,
         )
         segment = _connect(start, 2, end, 2, remaining)
         entry = replace(
