@@ -62,6 +62,9 @@ of it the controller takes). ``--cadence`` sleeps between points like the stream
   computes them; acc/plan divides the peak by the plan's own peak acceleration (case heading);
 * final error (rad): the largest |final commanded position - last planned point|.
 
+Last, **planning a streamed point**: in process, the controller's own work when a JOINT_TRAJ_PT arrives
+(checks, through-state, segment, limits, slowing down), each ``add`` timed alone; median, p90, max.
+
 A run that fails (server crash, timeout, refused handshake) prints its row with the reason; when the
 record exists its metrics are still shown. Rows also note refusal reasons (from the server's log),
 queues that ran dry and alarms. ``--keep DIR`` keeps each run's CSV record and server log.
@@ -1017,6 +1020,42 @@ async def run(cases: Sequence[Case], policies: Sequence[str], cadence: float, wo
         print("(no blend or JOINT_TRAJ_PT_FULL row in this run)")
 
 
+def planning_table(cases: Sequence[Case], model: RobotModel, repeats: int = 5) -> None:
+    """Planning a streamed point: the controller's own work when a JOINT_TRAJ_PT arrives (checks,
+    through-state, segment, limits, slowing down), timed in process under the default policy."""
+    from robot_server.control import Controller, ControllerConfig, Point
+
+    print("### planning a streamed point (target: median <= 250 us)")
+    print()
+    print("In process, each point of the case handed to a controller with the default policy as soon as it")
+    print(f"arrives (a queue large enough for all), {repeats} runs, every `add` timed alone.")
+    print()
+    print("| case | points | median (us) | p90 (us) | max (us) |")
+    print("|---|---:|---:|---:|---:|")
+    for case in cases:
+        if case.full:
+            continue
+        traj = Trajectory.plan(np.zeros(model.dof), case.planned_duration(model), case.points)
+        messages = list(traj_pt_messages(traj, model))
+        points = [
+            Point(np.array(m.joint_data[: model.dof]), duration=float(m.duration), velocity_ratio=float(m.velocity))
+            for m in messages
+        ]
+        times: list[float] = []
+        for _ in range(repeats):
+            controller = Controller(model, ControllerConfig(queue_capacity=len(points) + 1))
+            controller.start(points[0])
+            for point in points[1:]:
+                begin = time.perf_counter()
+                controller.add(point)
+                times.append(time.perf_counter() - begin)
+        us = np.array(times) * 1e6
+        print(
+            f"| {case.title} | {len(points)} | {np.median(us):.0f} | {np.percentile(us, 90):.0f} | {us.max():,.0f} |"
+        )
+    print()
+
+
 def main() -> None:
     policies = available_policies()
     slugs = [c.slug for c in CASES]
@@ -1042,9 +1081,11 @@ def main() -> None:
         if args.keep is not None:
             args.keep.mkdir(parents=True, exist_ok=True)
             asyncio.run(run(cases, selected, args.cadence, args.keep))
+            planning_table(cases, load_model(MODEL))
             return
         with tempfile.TemporaryDirectory(prefix="bench-streaming-") as tmp:
             asyncio.run(run(cases, selected, args.cadence, Path(tmp)))
+        planning_table(cases, load_model(MODEL))
     except KeyboardInterrupt:  # the running server was stopped on the way out
         print("interrupted", file=sys.stderr)
         sys.exit(130)

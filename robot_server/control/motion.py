@@ -549,21 +549,26 @@ class MotionQueue:
 
     # -- entries -----------------------------------------------------------------------------------
 
-    def _determine(self, entry: _Entry, after: Array, after_duration: float) -> _Entry:
-        """An estimated point's state, now that the next point is known."""
-        knot = _knot(entry)
-        end = blend.through_state(
+    def _through(self, entry: _Entry, duration: float, after: Array, after_duration: float) -> State:
+        """The state at an estimated point for a segment from ``entry.start`` taking ``duration``,
+        with the next point ``after`` (:func:`.blend.through_state`)."""
+        lim = self.limits
+        return blend.through_state(
             entry.start,
-            entry.duration,
-            knot.position,
+            duration,
+            _knot(entry).position,
             after=after,
             after_duration=after_duration,
             before=entry.before,
             before_duration=entry.before_duration,
-            jerk=self.limits.jerk,
-            lower=self.limits.lower,
-            upper=self.limits.upper,
+            jerk=lim.jerk,
+            lower=lim.lower,
+            upper=lim.upper,
         )
+
+    def _determine(self, entry: _Entry, after: Array, after_duration: float) -> _Entry:
+        """An estimated point's state, now that the next point is known."""
+        end = self._through(entry, entry.duration, after, after_duration)
         segment = _connect(entry.start, entry.start_order, end, 2, entry.duration)
         return replace(entry, end=end, segment=segment, after=after, after_duration=after_duration)
 
@@ -644,22 +649,10 @@ class MotionQueue:
         remaining = self._started + running.duration - self._t
         if remaining < _MIN_REMAINDER:
             return None
-        knot = _knot(running)
         start = self._state
         # the point's state as if the segment had known the next point from its start (its
         # original start and time), then the rest of it from where the robot is now
-        end = blend.through_state(
-            running.start,
-            running.before_duration,
-            knot.position,
-            after=after,
-            after_duration=after_duration,
-            before=running.before,
-            before_duration=running.before_duration,
-            jerk=self.limits.jerk,
-            lower=self.limits.lower,
-            upper=self.limits.upper,
-        )
+        end = self._through(running, running.before_duration, after, after_duration)
         segment = _connect(start, 2, end, 2, remaining)
         entry = replace(
             running,
