@@ -117,7 +117,7 @@ class PolynomialSegment(Segment):
     which stays well conditioned for short segments (a 4 ms quintic has h_5 ~ 1e12 in seconds).
     """
 
-    __slots__ = ("_derivatives", "_normalised", "bounded_order", "dof", "duration", "kind", "memo")
+    __slots__ = ("_normalised", "bounded_order", "dof", "duration", "kind", "memo")
 
     def __init__(
         self, coefficients: ArrayLike, duration: float, kind: str = "polynomial", bounded_order: int = 3
@@ -148,13 +148,21 @@ class PolynomialSegment(Segment):
         self.kind = kind
         self.bounded_order = bounded_order
         self.memo: dict[object, object] = {}
-        # d/ds sum c_k s^k = sum k c_k s^(k-1); each derivative in t adds a factor 1/T. Up to the
-        # snap (order 4): the extremes of the jerk are where the snap vanishes.
-        derivatives = [self._normalised]
-        for _ in range(4):
-            prev = derivatives[-1]
-            derivatives.append(prev[1:] * np.arange(1, prev.shape[0])[:, None] / duration)
-        self._derivatives = derivatives
+
+    @property
+    def _derivatives(self) -> list[Array]:
+        """Coefficients of the position and its first four derivatives (computed when first needed:
+        a segment planned and never sampled costs nothing more). d/ds sum c_k s^k = sum k c_k
+        s^(k-1); each derivative in t adds a factor 1/T. Up to the snap (order 4): the extremes of
+        the jerk are where the snap vanishes."""
+        found = self.memo.get("derivatives")
+        if found is None:
+            derivatives = [self._normalised]
+            for _ in range(4):
+                prev = derivatives[-1]
+                derivatives.append(prev[1:] * np.arange(1, prev.shape[0])[:, None] / self.duration)
+            found = self.memo["derivatives"] = derivatives
+        return found  # type: ignore[return-value]
 
     @property
     def coefficients(self) -> Array:
@@ -178,7 +186,10 @@ class PolynomialSegment(Segment):
         key = ("bounds", order)
         found = self.memo.get(key)
         if found is None:
-            points = _TO_BERNSTEIN @ self._normalised
+            points = self.memo.get("bezier")
+            if points is None:
+                points = self.memo["bezier"] = _TO_BERNSTEIN @ self._normalised
+            assert isinstance(points, np.ndarray)
             if order:
                 points = np.diff(points, n=order, axis=0) * (_FALLING[order] / self.duration**order)
             found = self.memo[key] = (points.min(axis=0), points.max(axis=0))
