@@ -242,6 +242,28 @@ async def test_sigint_decelerates_to_rest_and_exits_0(tmp_path: Path) -> None:
     assert "decelerating to rest" in server.log.read_text()
 
 
+async def test_record_writes_every_servo_tick_on_exit(tmp_path: Path) -> None:
+    record = tmp_path / "trace.csv"
+    async with robot_server(tmp_path, "--speedup", str(SPEEDUP), "--record", str(record)) as server:
+        motion = await RawPeer.connect(server.ports["motion"])
+        state = StateWatch(await RawPeer.connect(server.ports["state"]))
+        await state.until(lambda: True)
+        target = [0.2, -0.1, 0.1, 0.2, -0.1, 0.3]
+        await stream(motion, ramp(state.position, target, 10))
+        await state.until(lambda: state.status["in_motion"] == 1)
+        await state.until(lambda: state.status["in_motion"] == 0, timeout=60.0)
+        server.proc.send_signal(signal.SIGINT)
+        assert await server.exited() == 0
+    lines = record.read_text().splitlines()
+    header = lines[0].split(",")
+    assert header[0] == "time" and header[-1] == "points" and len(header) == 1 + 7 * MODEL.dof + 1
+    rows = np.array([line.split(",") for line in lines[1:]], dtype=float)
+    assert np.allclose(np.diff(rows[:, 0]), 0.001)  # every servo tick
+    assert rows[0, -1] == 0 and rows[-1, -1] == 10  # the points column counts the arrivals
+    assert np.allclose(rows[-1, 1 : 1 + MODEL.dof], target, atol=1e-6)  # the command reached the last point
+    assert "ticks written to" in server.log.read_text()
+
+
 async def test_bad_arguments_fail_with_one_line(tmp_path: Path) -> None:
     for args, words in (
         (["--model", "nosuchrobot"], "nosuchrobot"),

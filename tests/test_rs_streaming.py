@@ -165,6 +165,19 @@ async def test_motoros_runs_a_full_stream_with_the_planned_accelerations(duratio
     assert abs(m.peak_acceleration / plan.peak_acceleration - 1.0) <= 0.05
 
 
+async def test_motoros_slows_a_stream_too_fast_for_the_joints_down_and_never_answers_3014() -> None:
+    """1.8x faster than the acceleration limit allows, on a whole-millisecond grid (MotoROS cuts
+    times to whole milliseconds): MotoROS never refuses a point for its acceleration (3014 is
+    defined and never sent); the emulator slows the motion down instead."""
+    plan = Plan.make(0.42, 43)  # a point every 10 ms
+    assert 1.79 < plan.peak_acceleration / float(AMAX.min()) < 1.83
+    record, accepted, _busy = await stream_motoros(plan)
+    assert accepted == plan.count
+    m = measure(record, MODEL, plan, 4)
+    assert 1.0 < m.executed / plan.duration <= 1.6 and m.stops == 0
+    assert np.all(np.abs(record.get("command_acceleration")) <= AMAX * (1 + 1e-6))
+
+
 def test_motoros_milliseconds_are_computed_as_motoros_computes_them() -> None:
     """(int)(time * 1000) with a float time: float32 arithmetic, truncated. The 20 ms grid stays
     whole for 16 s and the 10 ms grid for 8 s, where truncating the double product lost a
