@@ -329,7 +329,16 @@ class ClosedFormIK:
         """q3 where axes 1 and 2 are skew and h2.v = m0 + ratio X: with L1 = (e0 - X) / 2|w| and
         L2 = (f0 - h12 ratio X) / sin a12, the elimination gives ``A X^2 + B X + C = 0``; each real
         X gives two q3 from ``n1 c3 + n2 s3 = X``. Returned like :func:`._quartic.trig_quadratic_roots`
-        (q3 x 4, valid x 4, double root x 4)."""
+        (q3 x 4, valid x 4, elbow x 4).
+
+        The elbow is singular where the two q3 of one X meet (|X| = |n|: the arm stretched or folded),
+        flagged as in the other cases by :func:`_trig_roots` (|X| / |n| within 1e-12 of 1, i.e. q3
+        within about 1.4e-6 rad of it). Not by the slope of F at the computed root: there q3 is known
+        only to about the square root of the rounding (|X| / |n| one ulp short of 1 puts each root
+        1.5e-8 rad off), so that slope is F'' = |2 A X + B| |n| (about 13 m^2 on the KUKA) times
+        1.5e-8 or more, and whether it fell under a fixed bound depended on the last bit of X. Where
+        instead the two X meet (disc = 0: the two shoulder sides, e.g. the wrist centre on axis 1)
+        the elbow branches stay apart: not an elbow singularity."""
         lam, h12, a2, s2 = self.ratio, self.h12, 4.0 * self.a * self.a, self.sigma * self.sigma
         quad = 1.0 / a2 + h12 * h12 * lam * lam / s2 + lam * lam
         lin = -2.0 * e0 / a2 - 2.0 * h12 * lam * f0 / s2 - 1.0 + 2.0 * self.m0 * lam
@@ -338,16 +347,14 @@ class ClosedFormIK:
         # a double X is still real if it misses by rounding (X within _REACH_TOL |n| of real)
         real = disc >= -4.0 * quad * quad * (_REACH_TOL * self.n_size) ** 2
         root = ops.sqrt(disc)
-        angles, valid, double = [], [], []
+        angles, valid, elbow = [], [], []
         for x in ((-lin + root) / (2.0 * quad), (-lin - root) / (2.0 * quad)):
-            q3a, q3b, ok3, _ = _trig_roots(ops, -x, self.n1, self.n2)
+            q3a, q3b, ok3, merged = _trig_roots(ops, -x, self.n1, self.n2)
             for q3 in (q3a, q3b):
-                # a double root of F(q3) = A X(q3)^2 + B X(q3) + C, as for the quartic
-                slope = (2.0 * quad * x + lin) * (self.n2 * ops.cos(q3) - self.n1 * ops.sin(q3))
                 angles.append(q3)
                 valid.append(real & ok3)
-                double.append(real & ok3 & (abs(slope) < 1e-7))
-        return (*angles, *valid, *double)
+                elbow.append(real & ok3 & merged)
+        return (*angles, *valid, *elbow)
 
     def _quartic_roots(self, ops: Any, e0: Any, f0: Any) -> tuple[Any, ...]:
         """q3 in the general case: the roots of the quartic (see the module doc)."""
