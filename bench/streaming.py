@@ -1055,9 +1055,7 @@ def planning_table(cases: Sequence[Case], model: RobotModel, passes: int = 3) ->
                 times.append(time.perf_counter() - begin)
             runs.append(times)
         us = np.min(np.array(runs), axis=0) * 1e6
-        print(
-            f"| {case.title} | {len(points)} | {np.median(us):.0f} | {np.percentile(us, 90):.0f} | {us.max():,.0f} |"
-        )
+        print(f"| {case.title} | {len(points)} | {np.median(us):.0f} | {np.percentile(us, 90):.0f} | {us.max():,.0f} |")
     print()
 
 

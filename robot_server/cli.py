@@ -31,6 +31,9 @@ from .model import ModelError
 
 log = logging.getLogger("robot_server.cli")
 
+#: the longest record kept in memory (s of controller time)
+MAX_RECORD_SECONDS = 3600.0
+
 _EPILOG = "fault commands (stdin, one per line, or --fault SECONDS:COMMAND):\n" + "\n".join(
     f"  {name:<20} {text}" for name, text in FAULT_COMMANDS.items()
 )
@@ -112,7 +115,8 @@ def parser() -> argparse.ArgumentParser:
         type=_positive,
         default=120.0,
         metavar="SECONDS",
-        help="keep the last SECONDS of the record (default 120)",
+        help=f"keep the last SECONDS of the record (default 120, at most {MAX_RECORD_SECONDS:g}: "
+        "about 0.3 MB a second for six joints at 1 ms)",
     )
     p.add_argument("--fault", type=_fault, action="append", default=[], metavar="SECONDS:COMMAND")
     p.add_argument("--no-stdin", action="store_true", help="do not read fault commands from stdin")
@@ -128,6 +132,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.state_rate > MAX_STATE_RATE:
             raise ValueError(f"--state-rate is at most {MAX_STATE_RATE:g} Hz")
+        if args.record_seconds > MAX_RECORD_SECONDS:
+            raise ValueError(f"--record-seconds is at most {MAX_RECORD_SECONDS:g} s")
         for _, command in args.fault:
             _check_command(command)
         config = EmulatorConfig(
@@ -154,6 +160,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         recorders = emulator.record(args.record_seconds) if args.record else []
     except (ValueError, ModelError, OSError) as exc:
         print(f"robot-server: {exc}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print("robot-server: not enough memory for the record: a smaller --record-seconds", file=sys.stderr)
         return 2
     try:
         code = asyncio.run(_serve(emulator, args.fault, read_stdin=not args.no_stdin))

@@ -99,7 +99,8 @@ def full_points(plan: Plan, accelerations: bool = True) -> list[Point]:
 def stream(controller: Controller, points: list[Point], cadence: float, extra: float = 3.0) -> Recorder:
     """Hand ``points`` to ``controller`` one per ``cadence`` seconds of controller time (0: as
     many as it takes at once), waiting while its queue is full, and run until it has settled
-    (``extra`` seconds at most after the last point). Every point must be accepted."""
+    (``extra`` seconds at most after the motion queued with the last point). Every point must be
+    accepted."""
     sub = controller.servo_ticks_per_interpolation
     recorder = Recorder(controller.dof, capacity=round(120.0 / controller.config.servo_period))
     sent, next_time, deadline = 0, 0.0, None
@@ -117,16 +118,11 @@ def stream(controller: Controller, points: list[Point], cadence: float, extra: f
         for _ in range(sub):
             recorder.add(controller.step())
         if sent == len(points):
-            deadline = deadline if deadline is not None else controller.time + extra + points_time(points)
+            # the time the queued motion still takes (slowed down or not), and some to settle
+            deadline = deadline if deadline is not None else controller.time + controller.remaining + extra
             if not controller.in_motion or controller.time > deadline:
                 return recorder
         assert controller.time < 600.0, "the stream never finished"
-
-
-def points_time(points: list[Point]) -> float:
-    if points[-1].time is not None:
-        return points[-1].time
-    return sum(p.duration or 0.0 for p in points[1:])
 
 
 @dataclass(frozen=True)

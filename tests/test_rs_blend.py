@@ -8,13 +8,25 @@ controller times and every run is exactly repeatable; test_rs_streaming.py does 
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robot_server.control import Controller, ControllerConfig, Point, Recorder, State, quintic_hermite
+from robot_server.control import (
+    SOFT_LIMIT_ALARM,
+    Controller,
+    ControllerConfig,
+    Point,
+    PointRejected,
+    Reason,
+    Recorder,
+    State,
+    quintic_hermite,
+    submit_together,
+)
 from robot_server.control.blend import OVERSHOOT, estimate, jerk_limited, shape_preserving, through_state
 from robot_server.loader import load_model
 from tests.streams import MONOTONE_JOINTS, Plan, full_points, measure, ros_points, stream
@@ -252,10 +264,132 @@ def test_the_same_arrivals_give_the_same_motion_bit_for_bit() -> None:
 
 
 def test_the_paper_policies_stay_rest_to_rest() -> None:
-    """linear, cubic and quintic still stop at every point (the paper's experiment)."""
+    """cubic and quintic still stop at every point (the paper's experiment; linear keeps its
+    constant speed between points, its velocity stepping at each)."""
     plan = Plan.make(6.0, 11)
     for policy in ("cubic", "quintic"):
         ctl = controller(policy=policy)
         record = stream(ctl, ros_points(plan, VMAX), 0.0)
         m = measure(record, MODEL, plan, ctl.servo_ticks_per_interpolation)
         assert m.stops == plan.count - 2, policy
+
+
+# -- robustness ------------------------------------------------------------------------------------
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    count=st.integers(3, 25),
+    spacing=st.sampled_from([0.005, 0.01, 0.02, 0.1, 0.5]),
+    span=st.sampled_from([0.001, 0.05, 0.3, 1.5]),
+    full=st.booleans(),
+)
+def test_any_stream_within_the_limits_moves_within_them(
+    seed: int, count: int, spacing: float, span: float, full: bool
+) -> None:
+    """Random points inside the limits (a margin from them), random steps, streamed whole: every
+    point accepted or refused with a reason, no alarm, and the command stays within every position,
+    velocity and acceleration limit and ends on the last point."""
+    rng = np.random.default_rng(seed)
+    lower, upper = MODEL.lower + 0.3, MODEL.upper - 0.3
+    ctl = controller()
+    q = np.zeros(N)
+    points = [Point(q.copy(), duration=0.0)]
+    for i in range(1, count):
+        q = np.clip(q + rng.uniform(-span, span, N), lower, upper)
+        if full:
+            points.append(Point(q.copy(), rng.uniform(-0.5, 0.5, N) * VMAX, time=i * spacing))
+        else:
+            points.append(Point(q.copy(), duration=spacing * rng.uniform(0.5, 1.5), velocity_ratio=0.5))
+    record = stream(ctl, points, 0.0)
+    assert not ctl.in_error, ctl.error_message
+    command = record.get("command_position")
+    assert np.all(command >= MODEL.lower - 1e-9) and np.all(command <= MODEL.upper + 1e-9)
+    assert np.all(np.abs(record.get("command_velocity")) <= VMAX * (1 + 1e-6))
+    assert np.all(np.abs(record.get("command_acceleration")) <= AMAX * (1 + 1e-6))
+    if not full:  # (a given velocity at the last point makes the robot stop past it)
+        assert np.allclose(command[-1], points[-1].positions, atol=1e-9)
+
+
+def test_a_point_arriving_during_a_dry_stop_goes_on_from_where_the_robot_is() -> None:
+    ctl = controller()
+    z = np.zeros(N)
+    ctl.start(Point(z, z, z, time=0.0))
+    ctl.add(Point(np.full(N, 0.3), np.full(N, 0.8), time=0.5))  # ends moving: nothing follows
+    record = Recorder(N, capacity=3000)
+    ctl.run_for(0.52, record)  # the dry stop has begun
+    moving = np.array(ctl.command.command_velocity)
+    assert np.all(moving > 0.0) and ctl.moving
+    ctl.add(Point(np.full(N, 0.6), np.full(N, 0.0), time=1.0))
+    ctl.run_for(2.0, record)
+    command = record.get("command_position")
+    assert np.allclose(command[-1], 0.6, atol=1e-9)
+    assert np.all(np.abs(np.diff(command, axis=0)) <= VMAX * 0.001 * (1 + 1e-9))  # no jump
+    assert np.all(np.abs(record.get("command_acceleration")) <= AMAX * (1 + 1e-6))
+
+
+def test_motion_groups_moving_together_share_one_time_scale() -> None:
+    a, b = controller(), controller()
+    z = np.zeros(N)
+    submit_together([(a, Point(z, time=0.0)), (b, Point(z, time=0.0))], first=True)
+    for i in range(1, 21):
+        t = 0.02 * i
+        fast = z + 0.8 * (t / 0.4) ** 2  # group a: 10 rad/s^2 over the limit
+        slow = z + 0.05 * (t / 0.4)
+        submit_together([(a, Point(fast, time=t)), (b, Point(slow, time=t))])
+    assert a.queue.scale > 1.0 and a.queue.scale == pytest.approx(b.queue.scale, rel=1e-9)
+    assert sum(s.duration for s in a.queue.segments()) > 0.4
+
+
+def test_a_command_beyond_a_position_limit_is_an_alarm_not_a_motion(caplog: pytest.LogCaptureFixture) -> None:
+    """A given velocity towards a limit and then nothing: the robot cannot stop before the
+    limit: the soft-limit alarm stops it instead of commanding it past the limit."""
+    start = MODEL.upper.copy() - 0.2
+    ctl = controller(initial_position=tuple(start))
+    z = np.zeros(N)
+    ctl.start(Point(start, z, z, time=0.0))
+    near = start + 0.15
+    ctl.add(Point(near, VMAX * 0.9, time=0.1))
+    record = Recorder(N, capacity=2000)
+    with caplog.at_level(logging.WARNING):
+        ctl.run_for(1.0, record)
+    assert ctl.in_error and SOFT_LIMIT_ALARM < ctl.error_code <= SOFT_LIMIT_ALARM + N
+    assert np.all(record.get("command_position") <= MODEL.upper + 1e-9)
+    assert "soft limit" in ctl.error_message
+
+
+def test_a_download_is_slowed_down_once_and_dropped_whole_when_a_point_cannot_be_planned(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    plan = Plan.with_peak_acceleration(1.8 * float(AMAX.min()), 41)
+    points = ros_points(plan, VMAX)
+    ctl = controller()
+    with caplog.at_level(logging.WARNING, logger="robot_server.control.motion"):
+        ctl.start_download(points[0])
+        for p in points[1:-1]:
+            ctl.add(p)
+        ctl.finish_download(points[-1])
+    assert 1.34 < ctl.queue.scale < 1.4
+    assert len([r for r in caplog.records if "slowed down" in r.getMessage()]) == 1
+    # a download whose slowing down would need segments beyond the maximum time: none of it runs
+    # (each 10.5 ms segment may take at most 12 ms; the first point is where the robot is)
+    other = controller(max_segment_time=0.012)
+    other.start_download(replace(points[0], duration=0.0))
+    for p in points[1:-1]:
+        other.add(p)
+    with pytest.raises(PointRejected) as err:
+        other.finish_download(points[-1])
+    assert err.value.reason is Reason.TIMING and not other.moving and other.queue_fill == 0
+
+
+def test_a_plan_is_good_only_until_the_controller_steps() -> None:
+    ctl = controller()
+    ctl.start(Point(np.zeros(N), duration=0.0))
+    plan = ctl.prepare(Point(np.full(N, 0.1), duration=0.5), first=False)
+    ctl.step()
+    ctl.step()
+    ctl.step()
+    ctl.step()  # an interpolation instant: the queue was sampled
+    with pytest.raises(RuntimeError, match="plan the point again"):
+        ctl.commit(plan)

@@ -10,6 +10,7 @@ Independent of sockets and of the wire: points arrive in SI units (:mod:`.points
 from .clock import Clock, RealTimeClock, SimulatedClock, SteppedClock
 from .controller import (
     FOLLOWING_ERROR_ALARM,
+    SOFT_LIMIT_ALARM,
     Controller,
     ControllerConfig,
     ControlLoop,
@@ -43,6 +44,7 @@ __all__ = [
     "SimulatedClock",
     "SteppedClock",
     "FOLLOWING_ERROR_ALARM",
+    "SOFT_LIMIT_ALARM",
     "ControlLoop",
     "Controller",
     "ControllerConfig",

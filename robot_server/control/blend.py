@@ -66,11 +66,17 @@ OVERSHOOT = 1e-4
 
 
 def estimate(before: Array, h1: float, position: Array, h2: float, after: Array) -> tuple[Array, Array]:
-    """The parabola estimate of the velocity and acceleration at ``position`` (module doc)."""
-    d1 = (position - before) / h1
-    d2 = (after - position) / h2
-    total = h1 + h2
-    return (h2 * d1 + h1 * d2) / total, 2.0 * (d2 - d1) / total
+    """The parabola estimate of the velocity and acceleration at ``position`` (module doc), per joint."""
+    pairs = [
+        _estimate(b, h1, p, h2, a) for b, p, a in zip(before.tolist(), position.tolist(), after.tolist(), strict=True)
+    ]
+    v, acc = (np.array(column) for column in zip(*pairs, strict=True))
+    return v, acc
+
+
+def _estimate(before: float, h1: float, position: float, h2: float, after: float) -> tuple[float, float]:
+    d1, d2 = (position - before) / h1, (after - position) / h2
+    return (h2 * d1 + h1 * d2) / (h1 + h2), 2.0 * (d2 - d1) / (h1 + h2)
 
 
 def through_state(
@@ -113,9 +119,7 @@ def through_state(
         highs,
         strict=True,
     ):
-        d1, d2 = (p - pb) / h1, (p2 - p) / t2
-        v_est = (t2 * d1 + h1 * d2) / (h1 + t2)
-        a_est = 2.0 * (d2 - d1) / (h1 + t2)
+        v_est, a_est = _estimate(pb, h1, p, t2, p2)
         first = (p0, v0, a0)
         v, low, high = _shape(first, t1, p, (p2, t2), v_est)
         if _harmless(first, t1, p, (p2, t2), (v_est, a_est), limits=(low_limit, high_limit)):

@@ -29,9 +29,11 @@ The next point then starts a new trajectory.
 motion is abandoned at once, the holding brakes keep every joint where it is, and points are
 refused until :meth:`Controller.power_on`.
 
-**Alarms.** A following error beyond a joint's limit raises alarm ``4100 + joint number``: the
-queue is emptied, the command is set to the actual position (the drives brake at full torque
-under their own loops) and new points are refused until :meth:`Controller.reset`.
+**Alarms.** A following error beyond a joint's limit raises alarm ``4100 + joint number``, and a
+command beyond a joint's position limit (the soft limit: a motion that could not stop in time, as
+when a stream ends with the robot racing towards a limit) raises ``4200 + joint number`` instead of
+being commanded: the queue is emptied, the command is set to the actual position (the drives brake
+at full torque under their own loops) and new points are refused until :meth:`Controller.reset`.
 """
 
 from __future__ import annotations
@@ -59,6 +61,8 @@ __all__ = [
     "LoopStats",
     "Tick",
     "FOLLOWING_ERROR_ALARM",
+    "SOFT_LIMIT_ALARM",
+    "MOTION_ALARM",
     "run_simulated",
     "submit_together",
 ]
@@ -67,6 +71,10 @@ log = logging.getLogger(__name__)
 
 #: alarm code of a following-error alarm is this plus the joint number (1-based)
 FOLLOWING_ERROR_ALARM = 4100
+#: alarm code of a soft-limit alarm (a command beyond a joint's position limit) is this plus the joint number
+SOFT_LIMIT_ALARM = 4200
+#: alarm code of a failure to compute the motion (a defect: logged with its traceback)
+MOTION_ALARM = 4300
 
 
 @dataclass(frozen=True)
@@ -78,7 +86,9 @@ class ControllerConfig:
     interpolation_period: float = 0.004
     servo_period: float = 0.001
     queue_capacity: int = 64
-    download_capacity: int = 10_000
+    #: points a download holds; it is planned when its last point arrives (about 0.2 ms a point,
+    #: more when it must be slowed down), all at once, so this bounds that pause too
+    download_capacity: int = 1_000
     #: a trajectory's first point must be this close to the current position (None: no check)
     start_tolerance: float | None = 0.01
     #: the longest segment a point may ask for (s); longer ones are refused
@@ -136,6 +146,8 @@ class Controller:
         else:
             start = np.clip(np.zeros(n), self.limits.lower, self.limits.upper)
         self.policy = policy(config.policy)
+        slack = 1e-9 * np.maximum(1.0, np.abs(self.limits.lower)), 1e-9 * np.maximum(1.0, np.abs(self.limits.upper))
+        self._lower, self._upper = self.limits.lower - slack[0], self.limits.upper + slack[1]
         self.queue = MotionQueue(
             self.limits,
             self.policy,
@@ -252,11 +264,12 @@ class Controller:
             return
         self.commit(self.prepare(point, first=False))
 
-    def prepare(self, point: Point, *, first: bool) -> Plan:
+    def prepare(self, point: Point, *, first: bool, min_scale: float = 1.0) -> Plan:
         """Check a streamed point and plan it without changing anything (:meth:`commit` applies
-        it): several controllers can accept points all together or not at all."""
+        it, before the next step): several controllers can accept points all together or not at
+        all. ``min_scale``: slow the trajectory down to at least this time scale."""
         self._check_ready()
-        return self.queue.plan(point, first=first)
+        return self.queue.plan(point, first=first, min_scale=min_scale)
 
     def commit(self, plan: Plan) -> None:
         self.queue.commit(plan)
@@ -353,8 +366,24 @@ class Controller:
         i = self._tick % self._sub
         if i == 0:
             self._previous = self._next
-            state = self.queue.sample((self._tick + self._sub) * self.config.servo_period)
-            self._next = (state.position.tolist(), state.velocity.tolist(), state.acceleration.tolist())
+            try:
+                state = self.queue.sample((self._tick + self._sub) * self.config.servo_period)
+            except Exception:  # a defect must not end the control loop: the motion stops with an alarm
+                log.exception("the motion could not be sampled")
+                state = State.rest(np.array(self.servo.position))
+                self.raise_alarm(MOTION_ALARM, "internal motion planning failure (see the log)")
+            beyond = np.flatnonzero((state.position < self._lower) | (state.position > self._upper))
+            if self.in_error:
+                pass
+            elif beyond.size:
+                j = int(beyond[0])
+                self.raise_alarm(
+                    SOFT_LIMIT_ALARM + j + 1,
+                    f"soft limit: joint {j + 1} ({self.model.joints[j].name}) commanded to "
+                    f"{state.position[j]:.6g}, limits {self.limits.lower[j]:.6g}..{self.limits.upper[j]:.6g}",
+                )
+            else:
+                self._next = (state.position.tolist(), state.velocity.tolist(), state.acceleration.tolist())
         self._tick += 1
         f = (i + 1) / self._sub
         g = 1.0 - f
@@ -411,9 +440,18 @@ class Controller:
 def submit_together(pairs: Sequence[tuple[Controller, Point]], *, first: bool = False) -> None:
     """Streamed points for several controllers that move as one (the motion groups of a MotoROS
     JOINT_TRAJ_PT_FULL_EX; ``first``: they start a trajectory): every point is accepted, or none is
-    and nothing changes."""
-    plans = [(ctl, ctl.prepare(point, first=first)) for ctl, point in pairs]
-    for ctl, plan in plans:
+    and nothing changes. They share one time scale: when one group must slow down, all do, so
+    that they stay together."""
+    plans = [ctl.prepare(point, first=first) for ctl, point in pairs]
+    for _ in range(3):  # a group slowed down to the shared scale may ask for a little more
+        scale = max(plan.trajectory.scale for plan in plans)
+        if all(plan.trajectory.scale >= scale * (1.0 - 1e-9) for plan in plans):
+            break
+        plans = [
+            plan if plan.trajectory.scale >= scale else ctl.prepare(point, first=first, min_scale=scale)
+            for (ctl, point), plan in zip(pairs, plans, strict=True)
+        ]
+    for (ctl, _), plan in zip(pairs, plans, strict=True):
         ctl.commit(plan)
 
 

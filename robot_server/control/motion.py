@@ -54,9 +54,10 @@ Everything here is sans-I/O and deterministic; the controller owns the clock.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from enum import Enum
 
@@ -64,7 +65,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import blend
-from .points import SLACK, Limits, Point, PointRejected, Reason, State, check_point, within
+from .points import MIN_DURATION, SLACK, Limits, Point, PointRejected, Reason, State, check_point, within
 from .policies import Policy
 from .segments import PlanningError, RuckigSegment, Segment, cubic_hermite, hold, linear, quintic_hermite
 
@@ -167,6 +168,8 @@ class _Trajectory:
     time: float = 0.0
     last_position: Array | None = None
     warned_scale: bool = False
+    #: the scale last logged (further slowing down is logged once per 10 %)
+    logged_scale: float = 1.0
     warned_dry: bool = False
 
 
@@ -179,6 +182,10 @@ class Plan:
     pending: tuple[_Entry, ...]
     trajectory: _Trajectory
     messages: tuple[tuple[int, str], ...] = ()
+    #: the controller time the plan was made at (a plan is good only until the queue is sampled)
+    at: float = 0.0
+    #: by how much the trajectory must still slow down (plans made with the slowing down deferred)
+    needed: float = 1.0
 
 
 class MotionQueue:
@@ -264,20 +271,43 @@ class MotionQueue:
 
     # -- points --------------------------------------------------------------------------------
 
-    def plan(self, point: Point, *, first: bool, bounded: bool = True) -> Plan:
+    def plan(self, point: Point, *, first: bool, min_scale: float = 1.0, bounded: bool = True) -> Plan:
         """The queue with ``point`` added (``first``: it starts a trajectory; ``bounded``: refuse it
         when the queue is full), without changing anything; raises :class:`PointRejected`. Apply
-        the result with :meth:`commit`."""
+        the result with :meth:`commit` before the queue is sampled again. ``min_scale``: slow the
+        trajectory down to at least this time scale (motion groups that move together share one)."""
+        with _typed():
+            return self._plan_scaled(point, first=first, min_scale=min_scale, bounded=bounded)
+
+    def _plan_scaled(self, point: Point, *, first: bool, min_scale: float, bounded: bool) -> Plan:
+        plan = self._plan(point, first=first, bounded=bounded, defer=False)
+        if min_scale > plan.trajectory.scale * (1.0 + SLACK):
+            running, started, pending, trajectory = self._rescale(
+                plan.running,
+                plan.started,
+                list(plan.pending),
+                plan.trajectory,
+                needed=min_scale / (plan.trajectory.scale * _RESCALE_MARGIN),
+                knot=None,
+                messages=(messages := list(plan.messages)),
+            )
+            plan = Plan(running, started, tuple(pending), trajectory, tuple(messages), self._t)
+        return plan
+
+    def _plan(self, point: Point, *, first: bool, bounded: bool, defer: bool) -> Plan:
         positions = check_point(point, self.limits, self.max_duration)
         trajectory = self._trajectory
         if first or not trajectory.open:
             return self._plan_start(point, positions)
         if bounded and self.fill >= self.capacity:
             raise PointRejected(Reason.QUEUE_FULL, f"the point queue is full ({self.capacity} points)")
-        return self._plan_point(point, positions, Plan(self._running, self._started, self._pending, trajectory))
+        base = Plan(self._running, self._started, self._pending, trajectory, at=self._t)
+        return self._plan_point(point, positions, base, defer=defer)
 
     def commit(self, plan: Plan) -> None:
         """Apply a :class:`Plan` of :meth:`plan` (made since the last commit or sample)."""
+        if plan.at != self._t:
+            raise RuntimeError("a plan made before the queue was sampled again: plan the point again")
         self._running, self._started, self._pending, self._trajectory = (
             plan.running,
             plan.started,
@@ -289,14 +319,34 @@ class MotionQueue:
 
     def add_all(self, points: Sequence[Point]) -> None:
         """A downloaded trajectory: its first point starts it, the others follow; all are accepted
-        or none is (and nothing changes)."""
+        or none is (and nothing changes). The trajectory is slowed down, if it must be, once at
+        the end (not at every point that asks for more, which re-plans everything each time)."""
         saved = (self._running, self._started, self._pending, self._trajectory)
         try:
-            for i, point in enumerate(points):
-                self.commit(self.plan(point, first=i == 0, bounded=False))
-        except PointRejected:
+            with _typed():
+                self._add_all(points)
+        except BaseException:
             self._running, self._started, self._pending, self._trajectory = saved
             raise
+
+    def _add_all(self, points: Sequence[Point]) -> None:
+        needed = 1.0
+        for i, point in enumerate(points):
+            plan = self._plan(point, first=i == 0, bounded=False, defer=True)
+            self.commit(plan)
+            needed = max(needed, plan.needed)
+        if needed > 1.0:
+            messages: list[tuple[int, str]] = []
+            running, started, pending, trajectory = self._rescale(
+                self._running,
+                self._started,
+                list(self._pending),
+                self._trajectory,
+                needed=needed,
+                knot=None,
+                messages=messages,
+            )
+            self.commit(Plan(running, started, tuple(pending), trajectory, tuple(messages), self._t))
 
     def check_start(self, point: Point) -> None:
         """Refuse ``point`` as the first point of a trajectory starting now (PointRejected)."""
@@ -395,16 +445,20 @@ class MotionQueue:
             time=point.time if point.time is not None and not away else 0.0,
             last_position=origin.position,
         )
-        opened = Plan(self._running, self._started, tuple(pending), trajectory, tuple(messages))
+        opened = Plan(self._running, self._started, tuple(pending), trajectory, tuple(messages), self._t)
         if away:  # no start check: the robot goes to the first point from where it is
-            return self._plan_point(point, positions, opened)
+            if point.time is not None and point.time <= 0.0:
+                raise PointRejected(
+                    Reason.TIMING, "the first point is away from the robot and its time is 0: no time to get there"
+                )
+            return self._plan_point(point, positions, opened, defer=False)
         return opened
 
-    def _plan_point(self, point: Point, positions: Array, base: Plan) -> Plan:
+    def _plan_point(self, point: Point, positions: Array, base: Plan, *, defer: bool) -> Plan:
         knot = self._knot(point, positions, base.trajectory)
         if knot is None:  # already there and no time to spend: nothing to do
             return replace(base, trajectory=replace(base.trajectory, points=base.trajectory.points + 1))
-        return self._plan_knot(knot, base)
+        return self._plan_knot(knot, base, defer=defer)
 
     def _knot(self, point: Point, positions: Array, trajectory: _Trajectory) -> _Knot | None:
         """The queued form of a point after the first (None: nothing to do)."""
@@ -415,10 +469,11 @@ class MotionQueue:
         number, index = trajectory.number, trajectory.points
         if point.time is not None:
             duration = point.time - trajectory.time
-            if not duration > 0.0:
+            if not duration >= MIN_DURATION:
                 raise PointRejected(
                     Reason.TIMING,
-                    f"time {point.time:g} s does not follow the previous point's time {trajectory.time:g} s",
+                    f"time {point.time:g} s does not follow the previous point's time {trajectory.time:g} s "
+                    f"(by {MIN_DURATION:g} s at least)",
                 )
             if duration > self.max_duration:
                 raise PointRejected(
@@ -449,10 +504,20 @@ class MotionQueue:
             delta = positions - before
             if not np.any(delta):
                 return None
-            duration_or_none = policy.segment_time(delta, ratio, self.limits)
+            computed = policy.segment_time(delta, ratio, self.limits)
+            assert computed is not None
+            self._check_duration(computed, "the time the velocity ratio gives this segment")
+            duration_or_none = max(computed, MIN_DURATION)
         return _Knot(positions, duration_or_none, _Kind.ESTIMATED, number, index, ratio=ratio)
 
-    def _plan_knot(self, knot: _Knot, base: Plan) -> Plan:
+    def _check_duration(self, duration: float, what: str) -> None:
+        if duration > self.max_duration:
+            raise PointRejected(
+                Reason.TIMING,
+                f"{what} would be {duration:g} s, beyond the maximum segment time ({self.max_duration:g} s)",
+            )
+
+    def _plan_knot(self, knot: _Knot, base: Plan, *, defer: bool) -> Plan:
         trajectory = base.trajectory
         scale = trajectory.scale
         pending = list(base.pending)
@@ -502,7 +567,12 @@ class MotionQueue:
             segment = self._rest_segment(knot, start)
             if segment is None:
                 return Plan(
-                    running, started, tuple(pending), replace(trajectory, points=trajectory.points + 1), tuple(messages)
+                    running,
+                    started,
+                    tuple(pending),
+                    replace(trajectory, points=trajectory.points + 1),
+                    tuple(messages),
+                    self._t,
                 )
             entry = _Entry(
                 knot,
@@ -517,6 +587,7 @@ class MotionQueue:
             )
         else:
             duration = _need(knot.duration) * scale
+            self._check_duration(duration, "slowed down as the trajectory is, this segment")
             entry = _Entry(
                 knot,
                 trajectory.last_position,
@@ -540,12 +611,15 @@ class MotionQueue:
         # 3. the limits: slow the trajectory down rather than refuse the point
         for e in built:
             self._check_position(e)
+        if defer:  # what the points' states ask for; the re-scale at the end settles the segments
+            needed = max((self._end_need(e) for e in built), default=1.0)
+            return Plan(running, started, tuple(pending), trajectory, tuple(messages), self._t, needed)
         needed = max((self._uniform_need(e) for e in built), default=1.0)
         if needed > 1.0:
             running, started, pending, trajectory = self._rescale(
                 running, started, pending, trajectory, needed=needed, knot=knot, messages=messages
             )
-        return Plan(running, started, tuple(pending), trajectory, tuple(messages))
+        return Plan(running, started, tuple(pending), trajectory, tuple(messages), self._t)
 
     # -- entries -----------------------------------------------------------------------------------
 
@@ -596,10 +670,12 @@ class MotionQueue:
         controller's command smoothing does, instead of slowing the whole trajectory down. A
         transient (a segment from rest where the plan has the robot moving) gets the same for its
         velocity and acceleration too, however long it takes: the plan is not too fast, the robot
-        is late."""
+        is late. So does a polynomial that would swing beyond its points by more than the robot
+        needs to brake (a fast start over a long segment): ruckig's motion stays within that."""
         excess = self._excess(entry)
-        if entry.transient:
-            if max(excess) <= 1.0:
+        swings = not entry.is_kind(_Kind.GIVEN) and self._swings(entry)
+        if entry.transient or swings:
+            if max(excess) <= 1.0 and not swings:
                 return entry
         elif entry.is_kind(_Kind.GIVEN) or excess[1] <= 1.0:
             return entry  # given states are followed as given (ros2_control, MotoROS)
@@ -612,12 +688,20 @@ class MotionQueue:
         except PlanningError as exc:  # an end state beyond the limits: keep the polynomial
             log.debug("point %d: no jerk-limited motion to its state (%s)", entry.index, exc)
             return entry
-        if not entry.transient and segment.duration > _MAX_LAG_FACTOR * entry.duration + _MAX_LAG:
+        if not (entry.transient or swings) and segment.duration > _MAX_LAG_FACTOR * entry.duration + _MAX_LAG:
             # synchronising all joints on moving end states can take ruckig much longer than the
             # segment; a lag that long would distort the path more than the jerk matters
             log.debug("point %d: a jerk-limited segment would take %.3f s", entry.index, segment.duration)
             return entry
-        return replace(entry, segment=segment, duration=segment.duration)
+        if segment.duration > self.max_duration:
+            return entry
+        replaced = replace(entry, segment=segment, duration=segment.duration)
+        if not self._within_positions(replaced):
+            # ruckig knows no position limits: its motion would leave them; the polynomial stays
+            # (beyond the velocity or acceleration limit it slows the trajectory down)
+            log.debug("point %d: a jerk-limited segment would leave the position limits", entry.index)
+            return entry
+        return replaced
 
     def _to_rest(self, entry: _Entry, messages: list[tuple[int, str]]) -> _Entry:
         """An estimated point reached with no next point queued: it ends at rest, within the
@@ -625,14 +709,15 @@ class MotionQueue:
         knot = _knot(entry)
         end = State.rest(knot.position)
         segment = _connect(entry.start, entry.start_order, end, 2, entry.duration)
-        if max(self._excess(replace(entry, segment=segment))) > 1.0:
+        candidate = replace(entry, end=end, segment=segment)
+        if max(self._excess(candidate)) > 1.0 or self._swings(candidate):
             lim = self.limits
             try:
                 segment = RuckigSegment.plan(
                     entry.start, end, lim.velocity, lim.acceleration, lim.jerk, minimum_duration=entry.duration
                 )
-            except PlanningError:  # pragma: no cover - ruckig plans to rest from any state within the limits
-                log.exception("no motion to rest at point %d within the limits", knot.index)
+            except PlanningError as exc:  # a start beyond the limits: the polynomial stands
+                log.warning("point %d: no motion to rest there within the limits (%s)", knot.index, exc)
             else:
                 messages.append(
                     (
@@ -681,6 +766,7 @@ class MotionQueue:
             orders = self.policy.checked_orders
         if segment is None:
             return None
+        self._check_duration(segment.duration, "this segment")
         for order in (0, *orders):
             lower, upper = (lim.lower, lim.upper) if order == 0 else (-_limit(lim, order), _limit(lim, order))
             lo, hi = segment.bounds(order)  # cheap; the exact extremes only when the bounds do not settle it
@@ -742,12 +828,38 @@ class MotionQueue:
         segment.memo[self] = result
         return result
 
+    def _swings(self, entry: _Entry) -> bool:
+        """The segment goes beyond its two points by more than OVERSHOOT plus what the robot needs
+        to brake from its start (its Bezier hull says so: cheap, and exact enough to flag a fast
+        start over a long segment, which a quintic turns into a long excursion)."""
+        segment = entry.segment
+        assert segment is not None and entry.end is not None
+        lo, hi = segment.bounds(0)
+        lim = self.limits
+        v0, a0 = np.abs(entry.start.velocity), np.abs(entry.start.acceleration)
+        ramp = (a0 + lim.acceleration) / lim.jerk  # time to turn the acceleration round
+        fastest = v0 + a0 * ramp
+        braking = fastest * ramp + fastest * fastest / (2.0 * lim.acceleration) + blend.OVERSHOOT
+        p0, p1 = entry.start.position, entry.end.position
+        return bool(np.any(lo < np.minimum(p0, p1) - braking) or np.any(hi > np.maximum(p0, p1) + braking))
+
     def _uniform_need(self, entry: _Entry) -> float:
         """By how much the whole trajectory must slow down for this segment: its velocity and
-        acceleration excess; for a transient only its end state's (the start is the robot being
-        late, met locally; an end state beyond the limits is a plan too fast from there on)."""
+        acceleration excess; for a transient first its end state's (the start is the robot being
+        late, met locally; an end state beyond the limits is a plan too fast from there on), then,
+        if the local fix failed, its own."""
         if not entry.transient:
             return self._excess(entry)[0]
+        need = self._end_need(entry)
+        if need > 1.0:
+            return need
+        # an end state within the limits that the local fix could still not reach (it would have
+        # to go faster than the limits to get there in time): the segment's own excess
+        return self._excess(entry)[0]
+
+    def _end_need(self, entry: _Entry) -> float:
+        """By how much the trajectory must slow down for the segment's end state to be within the
+        velocity and acceleration limits (1: it is)."""
         end = entry.end
         assert end is not None
         lim = self.limits
@@ -784,16 +896,25 @@ class MotionQueue:
         trajectory: _Trajectory,
         *,
         needed: float,
-        knot: _Knot,
+        knot: _Knot | None,
         messages: list[tuple[int, str]],
     ) -> tuple[_Entry | None, float, list[_Entry], _Trajectory]:
-        """Time-scale what is not yet executed of the trajectory until it fits the limits."""
+        """Time-scale what is not yet executed of the trajectory until it fits the limits (``knot``:
+        the point that asks for it; None: a download as a whole, or motion groups that share one
+        time scale)."""
         was = trajectory.scale
+        cause = f"point {knot.index}" if knot is not None else "the trajectory"
         for _ in range(_MAX_RESCALES):
             # a margin: points rounded to float32 on the wire would otherwise put the next ones a
             # hair over the limit, and every re-scale disturbs the segment under way
             factor = needed * _RESCALE_MARGIN
             trajectory = replace(trajectory, scale=trajectory.scale * factor)
+            for e in pending:  # refused before the segments are built: they could overflow
+                if e.trajectory == trajectory.number and e.knot is not None and e.knot.duration is not None:
+                    self._check_duration(
+                        e.knot.duration * trajectory.scale,
+                        f"slowed down to fit the limits, the segment to point {e.index}",
+                    )
             running, started, pending = self._scaled(running, started, pending, trajectory, factor)
             mine = [e for e in [running, *pending] if e is not None and e.segment is not None]
             mine = [e for e in mine if e.trajectory == trajectory.number]
@@ -801,21 +922,25 @@ class MotionQueue:
             if needed <= 1.0:
                 break
         else:
-            raise PointRejected(
-                Reason.TIMING, f"point {knot.index}: the trajectory cannot be slowed down to fit the limits"
-            )
+            raise PointRejected(Reason.TIMING, f"{cause}: the trajectory cannot be slowed down to fit the limits")
         for e in mine:
             self._check_position(e)
+        for e in pending:  # decided or not
+            if e.trajectory == trajectory.number:
+                self._check_duration(e.duration, f"slowed down to fit the limits, the segment to point {e.index}")
         text = (
-            f"trajectory {trajectory.number}: point {knot.index} is too fast for the joints' limits: the rest of "
+            f"trajectory {trajectory.number}: {cause} is too fast for the joints' limits: the rest of "
             f"the trajectory is slowed down to x{trajectory.scale:.3f} its time ({(trajectory.scale - 1) * 100:.1f}% "
             f"longer)"
         )
-        if trajectory.warned_scale:
-            messages.append((logging.INFO, f"{text}, was x{was:.3f}"))
-        else:
+        if not trajectory.warned_scale:
             messages.append((logging.WARNING, text))
-            trajectory = replace(trajectory, warned_scale=True)
+            trajectory = replace(trajectory, warned_scale=True, logged_scale=trajectory.scale)
+        elif trajectory.scale >= 1.1 * trajectory.logged_scale:  # more: at INFO, once per 10 % (no flood)
+            messages.append((logging.INFO, f"{text}, was x{was:.3f}"))
+            trajectory = replace(trajectory, logged_scale=trajectory.scale)
+        else:
+            messages.append((logging.DEBUG, f"{text}, was x{was:.3f}"))
         return running, started, pending, trajectory
 
     def _scaled(
@@ -909,6 +1034,17 @@ _REFUSALS = {
 
 def _limit(limits: Limits, order: int) -> Array:
     return {1: limits.velocity, 2: limits.acceleration, 3: limits.jerk}[order]
+
+
+@contextlib.contextmanager
+def _typed() -> Iterator[None]:
+    """Planning failures of the numbers themselves (a point so extreme that a polynomial
+    overflows, ruckig giving up) become a refused point with a reason, never an untyped error."""
+    try:
+        yield
+    except (PlanningError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        log.debug("a point could not be planned", exc_info=True)
+        raise PointRejected(Reason.TIMING, f"the point cannot be planned ({exc})") from None
 
 
 def _connect(start: State, start_order: int, end: State, end_order: int, duration: float) -> Segment:

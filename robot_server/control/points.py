@@ -12,7 +12,9 @@ duration is 0), or a ``time`` from the trajectory's start (JOINT_TRAJ_PT_FULL) w
 :func:`check_point` refuses only what a real controller refuses (simple-message.md §8.1 for
 MotoROS's checks): the wrong number of joints, NaN or infinity, positions outside the limits,
 explicit velocities above the maximum (a velocity ratio above 1 included), a negative duration or
-time, and a segment longer than the documented maximum. A segment that is merely too fast for the
+time, a segment shorter than :data:`MIN_DURATION` (1 us) or longer than the documented maximum
+(``ControllerConfig.max_segment_time``, 3600 s: also after a segment's time is computed from the
+velocity ratio or stretched to slow the trajectory down). A segment that is merely too fast for the
 joints' acceleration or jerk is not a reason to refuse under the ``blend`` policy: it is slowed
 down (:mod:`.motion`).
 """
@@ -29,7 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..model import RobotModel
 
-__all__ = ["Point", "State", "Limits", "Reason", "PointRejected", "check_point", "within"]
+__all__ = ["Point", "State", "Limits", "Reason", "PointRejected", "check_point", "within", "MIN_DURATION"]
 
 Array = NDArray[np.float64]
 
@@ -105,6 +107,10 @@ class Limits:
         return int(self.lower.size)
 
 
+#: the shortest segment a point may ask for (s): a non-zero duration or time step below it is refused
+MIN_DURATION = 1e-6
+
+
 def check_point(point: Point, limits: Limits, max_duration: float) -> Array:
     """Refuse a point a real controller refuses (module doc); returns its positions."""
     dof = limits.dof
@@ -128,6 +134,10 @@ def check_point(point: Point, limits: Limits, max_duration: float) -> Array:
             raise PointRejected(Reason.NOT_FINITE, f"the {what} is {number}")
         if number < 0.0:
             raise PointRejected(Reason.TIMING, f"the {what} cannot be negative ({number:g})")
+    if point.duration is not None and 0.0 < point.duration < MIN_DURATION:
+        raise PointRejected(
+            Reason.TIMING, f"the duration {point.duration:g} s is shorter than the minimum ({MIN_DURATION:g} s)"
+        )
     if point.duration is not None and point.duration > max_duration:
         raise PointRejected(
             Reason.TIMING, f"the duration {point.duration:g} s is beyond the maximum segment time ({max_duration:g} s)"

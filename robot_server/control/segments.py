@@ -427,7 +427,11 @@ class RuckigSegment(Segment):
         trajectory = ruckig.Trajectory(n)
         try:
             result = ruckig.Ruckig(n).calculate(inp, trajectory)
-        except (RuntimeError, ruckig.RuckigError) as exc:  # ruckig raises for input it cannot plan
+        # ruckig raises RuckigError or RuntimeError for input it cannot plan, and ValueError for a
+        # result code its Python binding does not know (0.19.4: -101 for durations over 7600 s)
+        except ValueError:
+            raise PlanningError("ruckig cannot plan this motion (longer than it supports, about 7600 s?)") from None
+        except (RuntimeError, ruckig.RuckigError) as exc:
             raise PlanningError(f"ruckig: {exc}") from None
         if result not in (ruckig.Result.Working, ruckig.Result.Finished):
             raise PlanningError(f"ruckig could not plan this motion ({result.name})")

@@ -352,7 +352,9 @@ class MotorosMotion:
         self._group(group)
         if valid_fields & _REQUIRED != _REQUIRED:
             raise _Refused(MotoResult.INVALID, InvalidSubcode.DATA_INSUFFICIENT)
-        if not time < MOTOROS_MAX_TIME:  # also NaN
+        if not (math.isfinite(time) and 0.0 <= time < MOTOROS_MAX_TIME):
+            # MotoROS refuses a time from 14400 s; a negative or non-finite one it would turn into
+            # a meaningless millisecond count (and skip the segment): refused here too
             raise _Refused(MotoResult.INVALID, InvalidSubcode.DATA_TIME)
         if sequence < 0:
             raise _Refused(MotoResult.INVALID, InvalidSubcode.SEQUENCE)
