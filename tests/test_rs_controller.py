@@ -160,6 +160,9 @@ def test_full_points_need_time_and_positions_and_increasing_times() -> None:
         ("blend", pt([2.6, 0, 0, 0, 0, 0], ratio=-0.5), Reason.TIMING),
         ("blend", pt([2.6, 0, 0, 0, 0, 0], duration=-1.0), Reason.TIMING),
         ("blend", pt([2.6, 0, 0, 0, 0, 0], duration=1e9), Reason.TIMING),  # beyond max_segment_time
+        ("blend", pt([2.6, 0, 0, 0, 0, 0], duration=1e-9), Reason.TIMING),  # below MIN_DURATION
+        ("blend", pt([2.6, 0, 0, 0, 0, 0], ratio=1e-6), Reason.TIMING),  # a computed time beyond the maximum
+        ("quintic", pt([2.6, 0, 0, 0, 0, 0], ratio=1e-6), Reason.TIMING),
         ("blend", full(1.0, [2.5, 0, 0, 0, 0, 0], [9.0] * N), Reason.VELOCITY_LIMIT),
         ("blend", full(-1.0, [2.5, 0, 0, 0, 0, 0]), Reason.TIMING),
         ("blend", full(5000.0, [2.5, 0, 0, 0, 0, 0]), Reason.TIMING),  # 5000 s after the last point

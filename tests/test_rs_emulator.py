@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import os
 import struct
 from collections.abc import AsyncIterator
@@ -386,6 +387,8 @@ async def test_motoros_motion_control_and_point_checks() -> None:
         assert await ctrl(CHECK_MOTION_READY) == (0, 0)
         assert await send(point(0, 0.0, [0.0] * 6, vf=3)) == (3, 3015)  # velocity required
         assert await send(point(0, 14400.0, [0.0] * 6)) == (3, 3016)
+        for bad_time in (-math.inf, math.inf, math.nan, -3e38, 3e38):  # refused before any conversion
+            assert await send(point(0, bad_time, [0.0] * 6)) == (3, 3016), bad_time
         assert await send(point(-4, 0.0, [0.0] * 6)) == (3, 3005)
         assert await send(point(0, 0.0, [0.01] + [0.0] * 5)) == (3, 3011)  # not where the robot is
         assert await send(point(0, 0.0, [0.0] * 6, [9.0] + [0.0] * 5)) == (3, 3013)  # beyond the speed limit

@@ -10,12 +10,14 @@ import pytest
 import ruckig
 
 from robot_server.control import (
+    Chain,
     PlanningError,
     PolynomialSegment,
     RuckigSegment,
     cubic,
     cubic_hermite,
     hold,
+    launch,
     linear,
     quintic,
     quintic_hermite,
@@ -245,3 +247,82 @@ def test_ruckig_brake_phase_from_beyond_the_limits() -> None:
         close(s.position, p, 1e-9)
         close(s.velocity, v, 1e-9)
         close(s.acceleration, a, 1e-9)
+
+
+# -- launch: from rest as a plan starts ----------------------------------------------------------
+
+JERK = np.full(N, 500.0)
+
+
+def test_a_launch_starts_at_rest_ramps_at_the_jerk_limit_and_ends_in_the_given_state() -> None:
+    (p0, _, _), (p1, v1, a1) = states(2)
+    p1 = p0 + 0.05 * (p1 - p0)  # a short move: the start acceleration stays a few rad/s^2
+    segment = launch(p0, (p1, v1, a1), 1.5, JERK)
+    assert isinstance(segment, Chain) and segment.kind == "launch" and segment.bounded_order == 3
+    start, end = segment.sample(0.0), segment.sample(1.5)
+    close(start.position, p0), close(start.velocity, np.zeros(N)), close(start.acceleration, np.zeros(N))
+    close(end.position, p1, 1e-12), close(end.velocity, v1, 1e-11), close(end.acceleration, a1, 1e-10)
+    ramp = segment.parts[0].duration
+    assert 0.0 < ramp <= 0.25 * 1.5
+    # the jerk is at the limit on the slowest joint of the ramp, and never beyond it
+    lo, hi = segment.parts[0].extremes(3)
+    ramp_jerk = np.maximum(-lo, hi) / JERK
+    assert np.all(ramp_jerk <= 1.0 + 1e-9) and np.max(ramp_jerk) >= 1.0 - 1e-9
+    # C2 where the ramp hands over to the quintic
+    before, after = segment.sample(ramp - 1e-9), segment.sample(ramp + 1e-9)
+    for order in range(3):
+        close(before[order], after[order], 1e-6)
+
+
+def test_a_launch_follows_a_plan_that_starts_with_a_constant_acceleration() -> None:
+    """End state of p = a t^2 / 2 at T: the launch is that parabola but for the ramp's lag (a
+    step vs a ramp of tau: a velocity short by a tau / 2), where the quintic from rest at zero
+    acceleration trails it by far more."""
+    a, tf = np.linspace(0.1, 0.6, N), 1.5
+    p0 = np.zeros(N)
+    end = (a * tf**2 / 2, a * tf, a)
+    segment = launch(p0, end, tf, JERK)
+    assert segment is not None
+    times = np.linspace(0.0, tf, 1501)
+    plan = a * times[:, None] ** 2 / 2
+    tau = float(np.max(a / JERK))
+    lag = np.max(np.abs(segment.sample(times).position - plan))
+    assert lag <= np.max(a) * tau * tf  # a velocity short by a tau / 2, made up over the segment
+    from_rest = quintic_hermite((p0, p0, p0), end, tf)
+    assert np.max(np.abs(from_rest.sample(times).position - plan)) > 100 * lag
+    # the start acceleration is the plan's
+    close(segment.sample(tau).acceleration, a, 1e-9)
+
+
+def test_a_launch_whose_ramp_would_be_long_is_not_made() -> None:
+    """A start acceleration the jerk limit needs more than a quarter of the segment to reach: no
+    launch (the caller keeps the quintic from rest and its own jerk handling)."""
+    p0 = np.zeros(N)
+    assert launch(p0, (np.full(N, 0.016), np.full(N, 3.2), np.full(N, 3.2)), 0.01, JERK) is None
+    still = launch(p0, (p0, p0, p0), 0.5, JERK)  # nothing to accelerate for: the quintic from rest
+    assert still is not None and still.kind == "quintic"
+
+
+def test_a_chain_samples_vectorised_and_bounds_its_parts() -> None:
+    (p0, _, _), (p1, v1, a1) = states(2)
+    segment = launch(p0, (p0 + 0.05 * (p1 - p0), v1, a1), 0.9, JERK)
+    assert segment is not None
+    times = np.linspace(-0.1, 1.0, 1101)
+    s = segment.sample(times)
+    assert s.position.shape == (1101, N) and s.jerk.shape == (1101, N)
+    for i in (0, 1, 50, 600, 1100):
+        close(s.position[i], segment.sample(times[i]).position)
+        close(s.jerk[i], segment.sample(times[i]).jerk)
+    assert segment.sample(times[:1100].reshape(11, 100)).velocity.shape == (11, 100, N)
+    dense = segment.sample(np.linspace(0, segment.duration, 200_001))
+    for order in range(4):
+        lo, hi = segment.extremes(order)
+        scale = max(1.0, float(np.max(np.abs(dense[order]))))
+        assert np.all(lo <= dense[order].min(axis=0) + 1e-9 * scale)
+        assert np.all(hi >= dense[order].max(axis=0) - 1e-9 * scale)
+        bound_lo, bound_hi = segment.bounds(order)
+        assert np.all(bound_lo <= lo + 1e-9 * scale) and np.all(bound_hi >= hi - 1e-9 * scale)
+    with pytest.raises(PlanningError):
+        Chain(())
+    with pytest.raises(PlanningError):
+        Chain((hold(p0, 1.0), hold(p0[:2], 1.0)))

@@ -4,6 +4,7 @@ in real time; MotoROS's timing, queue count, DH reply and joint slots."""
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import math
 import struct
@@ -29,6 +30,16 @@ CHECK_MOTION_READY, CHECK_QUEUE_CNT, START_TRAJ_MODE = 200101, 200102, 200121
 ALL_FIELDS = 0x0F
 
 
+#: wall-clock bound of one step of the stepped clock (the loop answers within milliseconds)
+STEP_TIMEOUT = 10.0
+
+
+async def step(clock: SteppedClock, seconds: float) -> None:
+    """Advance the controller by ``seconds``, bounded: a loop that died fails the test, never hangs it."""
+    async with asyncio.timeout(STEP_TIMEOUT):
+        await clock.advance(seconds)
+
+
 @contextlib.asynccontextmanager
 async def stepped(**options: Any) -> AsyncIterator[tuple[Emulator, SteppedClock, Recorder]]:
     """An emulator whose controller time moves only when the test advances it, recording."""
@@ -39,7 +50,7 @@ async def stepped(**options: Any) -> AsyncIterator[tuple[Emulator, SteppedClock,
     clock = SteppedClock()
     async with Emulator(EmulatorConfig(**options), clock=clock) as emu:
         record = emu.record(30.0)[0]
-        await clock.advance(0.0)  # the loop has run its first period and waits
+        await step(clock, 0.0)  # the loop has run its first period and waits
         yield emu, clock, record
 
 
@@ -47,7 +58,7 @@ async def settle(emu: Emulator, clock: SteppedClock, limit: float = 20.0) -> Non
     """Advance until the robot has settled (at most ``limit`` s of controller time)."""
     while emu.cell.in_motion:
         assert emu.cell.groups[0].time < limit, "the robot never settled"
-        await clock.advance(0.004)
+        await step(clock, 0.004)
 
 
 def ros_frames(plan: Plan) -> list[bytes]:
@@ -69,7 +80,7 @@ async def stream_generic(cadence: float, duration: float = 1.0) -> tuple[Recorde
         for frame in ros_frames(plan):
             reply = await motion.request(frame)
             accepted += reply.reply_code == 1
-            await clock.advance(cadence)
+            await step(clock, cadence)
         await settle(emu, clock)
         await motion.close()
     return record, plan, accepted
@@ -81,6 +92,9 @@ async def test_a_stream_over_tcp_on_a_stepped_clock_runs_as_planned_and_repeats_
     assert accepted == plan.count
     m = measure(a, MODEL, plan, 4)
     assert m.stops == 0 and abs(m.executed - plan.duration) <= 0.02 * plan.duration
+    # moving within 10 ms of the point that gives it somewhere to go (the first point, sequence 0,
+    # is the start; point 1 follows ``cadence`` later)
+    assert m.start <= cadence + 0.010
     assert m.deviation_command <= 0.05e-3 and m.final_error <= 1e-7  # the float32 of the last point
     b, _, _ = await stream_generic(cadence)
     for quantity in ("command_position", "command_velocity", "actual_position", "following_error"):
@@ -143,7 +157,7 @@ async def stream_motoros(plan: Plan) -> tuple[Recorder, int, int]:
                 if code != 1:
                     break
                 busy += 1
-                await clock.advance(0.004)
+                await step(clock, 0.004)
             assert code == 0, (i, code, subcode)
             accepted += 1
             queued = result(await motion.request(moto_ctrl(CHECK_QUEUE_CNT)))
@@ -160,7 +174,7 @@ async def test_motoros_runs_a_full_stream_with_the_planned_accelerations(duratio
     assert accepted == plan.count and busy > 0  # the 200-increment buffer fills: BUSY, as an FS100 says
     m = measure(record, MODEL, plan, 4)
     assert abs(m.executed - duration) <= 0.02 * duration and m.stops == 0 and m.final_error <= 1e-7
-    assert m.deviation_command <= 0.05e-3
+    assert m.deviation_command <= 0.05e-3 and m.start <= 0.010
     # MotoROS's cubic from positions and velocities: the planned accelerations, to 5 %
     assert abs(m.peak_acceleration / plan.peak_acceleration - 1.0) <= 0.05
 

@@ -24,6 +24,7 @@ from .points import Limits, Point, PointRejected, Reason, State, check_point
 from .policies import DEFAULT_POLICY, POLICIES, Policy, policy
 from .recorder import QUANTITIES, Recorder
 from .segments import (
+    Chain,
     PlanningError,
     PolynomialSegment,
     RuckigSegment,
@@ -32,6 +33,7 @@ from .segments import (
     cubic,
     cubic_hermite,
     hold,
+    launch,
     linear,
     quintic,
     quintic_hermite,
@@ -65,6 +67,7 @@ __all__ = [
     "policy",
     "QUANTITIES",
     "Recorder",
+    "Chain",
     "PlanningError",
     "PolynomialSegment",
     "RuckigSegment",
@@ -73,6 +76,7 @@ __all__ = [
     "cubic",
     "cubic_hermite",
     "hold",
+    "launch",
     "linear",
     "quintic",
     "quintic_hermite",

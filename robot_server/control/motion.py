@@ -67,7 +67,7 @@ from numpy.typing import NDArray
 from . import blend
 from .points import MIN_DURATION, SLACK, Limits, Point, PointRejected, Reason, State, check_point, within
 from .policies import Policy
-from .segments import PlanningError, RuckigSegment, Segment, cubic_hermite, hold, linear, quintic_hermite
+from .segments import PlanningError, RuckigSegment, Segment, cubic_hermite, hold, launch, linear, quintic_hermite
 
 __all__ = ["MotionQueue", "Plan"]
 
@@ -641,9 +641,16 @@ class MotionQueue:
         )
 
     def _determine(self, entry: _Entry, after: Array, after_duration: float) -> _Entry:
-        """An estimated point's state, now that the next point is known."""
+        """An estimated point's state, now that the next point is known. A transient from rest
+        (a trajectory's first segment, a restart after the queue ran dry) starts as the client's
+        plan does, with an acceleration (:func:`.segments.launch`); the quintic from rest would
+        start as t^3 and trail a plan over a long first segment by a tenth of a second and more."""
         end = self._through(entry, entry.duration, after, after_duration)
-        segment = _connect(entry.start, entry.start_order, end, 2, entry.duration)
+        segment: Segment | None = None
+        if entry.transient and not (_moving(entry.start.velocity) or _moving(entry.start.acceleration)):
+            segment = launch(entry.start.position, end, entry.duration, self.limits.jerk)
+        if segment is None:
+            segment = _connect(entry.start, entry.start_order, end, 2, entry.duration)
         return replace(entry, end=end, segment=segment, after=after, after_duration=after_duration)
 
     def _given(self, entry: _Entry, scale: float) -> _Entry:
@@ -849,7 +856,7 @@ class MotionQueue:
         late, met locally; an end state beyond the limits is a plan too fast from there on), then,
         if the local fix failed, its own."""
         if not entry.transient:
-            return self._excess(entry)[0]
+            return max(self._excess(entry)[0], self._end_need(entry) if entry.end is not None else 1.0)
         need = self._end_need(entry)
         if need > 1.0:
             return need
@@ -859,14 +866,10 @@ class MotionQueue:
 
     def _end_need(self, entry: _Entry) -> float:
         """By how much the trajectory must slow down for the segment's end state to be within the
-        velocity and acceleration limits (1: it is)."""
+        velocity and acceleration limits (1: it is), :func:`_state_need`."""
         end = entry.end
         assert end is not None
-        lim = self.limits
-        speed = float(np.max(np.abs(end.velocity) / lim.velocity))
-        acceleration = float(np.max(np.abs(end.acceleration) / lim.acceleration))
-        need = max(speed, math.sqrt(acceleration))
-        return need if need > 1.0 + SLACK else 1.0
+        return _state_need(end, self.limits)
 
     def _within_positions(self, entry: _Entry) -> bool:
         segment = entry.segment
@@ -1055,6 +1058,32 @@ def _connect(start: State, start_order: int, end: State, end_order: int, duratio
     if order == 1:
         return cubic_hermite(start.position, start.velocity, end.position, end.velocity, duration)
     return linear(start.position, end.position, duration)
+
+
+def _state_need(state: State, limits: Limits) -> float:
+    """By how much a trajectory must slow down (velocities / k, accelerations / k^2) for one of its
+    states to be within the velocity and acceleration limits (1: it is), counting the speed a joint
+    still gains while its acceleration is brought to 0 at the jerk limit (a^2 / 2 J, when the
+    acceleration speeds it up): from a state beyond that, every motion leaves the velocity limit,
+    the controller's stop included."""
+    speed = np.abs(state.velocity)
+    push = state.acceleration * np.sign(state.velocity)
+    gain = np.where(push > 0.0, push * push / (2.0 * limits.jerk), 0.0)  # at k = 1; / k^4 when scaled
+    need = max(1.0, float(np.max(speed / limits.velocity)))
+    need = max(need, math.sqrt(float(np.max(np.abs(state.acceleration) / limits.acceleration))))
+
+    def fits(k: float) -> bool:
+        return bool(np.all(speed / k + gain / k**4 <= limits.velocity * (1.0 + SLACK)))
+
+    if not fits(need):
+        # both terms fall with k: at ``high`` each is at most half the limit
+        low, high = need, max(need, float(np.max(2.0 * speed / limits.velocity)))
+        high = max(high, float(np.max(2.0 * gain / limits.velocity)) ** 0.25)
+        for _ in range(48):
+            middle = 0.5 * (low + high)
+            low, high = (low, middle) if fits(middle) else (middle, high)
+        need = high
+    return need if need > 1.0 + SLACK else 1.0
 
 
 def _knot(entry: _Entry) -> _Knot:

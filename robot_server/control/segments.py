@@ -10,7 +10,9 @@ Polynomial segments (``h_0 + h_1 t + ... + h_5 t^5`` per joint, local time):
 * :func:`linear`: constant velocity, C0 at the joins (the jittery baseline the paper measures);
 * :func:`cubic`: rest to rest; :func:`cubic_hermite`: boundary velocities (C1 when chained);
 * :func:`quintic`: rest to rest (the paper's eq. 6-10); :func:`quintic_hermite`: boundary
-  velocities and accelerations (C2 when chained).
+  velocities and accelerations (C2 when chained);
+* :func:`launch`: from rest to a moving state the way a plan starts, its acceleration ramped up at
+  the jerk limit (a :class:`Chain` of two polynomials).
 
 :class:`RuckigSegment` is the time-optimal jerk-limited state-to-state motion of ruckig (Community
 features only: no intermediate waypoints, which go through a network service; no position limits,
@@ -37,6 +39,8 @@ __all__ = [
     "cubic_hermite",
     "quintic",
     "quintic_hermite",
+    "launch",
+    "Chain",
     "hold",
     "PlanningError",
 ]
@@ -342,6 +346,97 @@ def quintic_hermite(
     c4 = (-30.0 * delta + (14.0 * v1 + 16.0 * v0) * tf + (3.0 * a0 - 2.0 * a1) * t2) / 2.0
     c5 = (12.0 * delta - 6.0 * (v1 + v0) * tf - (a0 - a1) * t2) / 2.0
     return PolynomialSegment.normalised([p0, v0 * tf, a0 * t2 / 2.0, c3, c4, c5], tf, "quintic", 3)
+
+
+def launch(
+    start: ArrayLike,
+    end: tuple[ArrayLike, ArrayLike, ArrayLike],
+    duration: float,
+    jerk: ArrayLike,
+    *,
+    max_share: float = 0.25,
+) -> Segment | None:
+    """From rest at ``start`` to the state ``end`` as a plan starts: with an acceleration.
+
+    Of the quintics from rest to ``end`` whose start acceleration is free, the one with the least
+    integral of the squared jerk has zero jerk at the start (the natural boundary condition of that
+    variational problem) and starts with ``a0 = (20 D - 8 v1 T + a1 T^2) / (3 T^2)`` (from
+    p(T) = p1, p'(T) = v1, p''(T) = a1 with h3 = 0). A plan that starts with a constant acceleration
+    (a time-optimal planner's: they step the acceleration at the start) is followed exactly, where
+    the quintic from rest at zero acceleration starts as t^3 and lags it. In normalised form the
+    segment is monotone under the same condition as that quintic (``a0`` has the sign of the move
+    exactly when its start jerk has).
+
+    The robot cannot step its acceleration: a constant-jerk ramp at the jerk limit (one ramp time
+    for all joints, the slowest one's) brings it from rest to ``a0``, and the quintic from the
+    state the ramp ends in reaches ``end`` over the rest of ``duration``. None when that ramp would
+    take more than ``max_share`` of ``duration`` (the start is then no step at this time scale).
+    """
+    p0 = _vector(start, "start")
+    n = p0.size
+    v1, a1 = _vector(end[1], "end velocity", n), _vector(end[2], "end acceleration", n)
+    delta = _vector(end[0], "end", n) - p0
+    tf = _duration(duration)
+    a0 = (20.0 * delta - 8.0 * v1 * tf + a1 * tf * tf) / (3.0 * tf * tf)
+    limit = _vector(jerk, "jerk", n)
+    ramp = float(np.max(np.abs(a0) / limit))
+    if not math.isfinite(ramp) or ramp > max_share * tf:
+        return None
+    zero = np.zeros(n)
+    if ramp <= _SHORTEST_RAMP * tf:  # no acceleration to speak of: the quintic from rest
+        return quintic_hermite((p0, zero, zero), end, tf)
+    up = PolynomialSegment.normalised([p0, zero, zero, a0 * ramp * ramp / 6.0], ramp, "ramp", 3)
+    s = up.end()
+    return Chain((up, quintic_hermite((s.position, s.velocity, s.acceleration), end, tf - ramp)), "launch")
+
+
+def _hull(ranges: list[tuple[Array, Array]]) -> tuple[Array, Array]:
+    return np.min([lo for lo, _ in ranges], axis=0), np.max([hi for _, hi in ranges], axis=0)
+
+
+#: a launch ramp shorter than this share of its segment is no ramp (rounding noise)
+_SHORTEST_RAMP = 1e-9
+
+
+class Chain(Segment):
+    """Segments run one after the other (each from the state the previous one ends in)."""
+
+    __slots__ = ("_offsets", "bounded_order", "dof", "duration", "kind", "memo", "parts")
+
+    def __init__(self, parts: tuple[Segment, ...], kind: str = "chain") -> None:
+        if not parts or len({p.dof for p in parts}) != 1:
+            raise PlanningError("a chain needs segments of the same number of joints")
+        self.parts = parts
+        self._offsets = np.cumsum([0.0, *(p.duration for p in parts)])
+        self.duration = float(self._offsets[-1])
+        self.dof = parts[0].dof
+        self.kind = kind
+        self.bounded_order = min(p.bounded_order for p in parts)
+        self.memo: dict[object, object] = {}
+
+    def sample(self, t: ArrayLike) -> Samples:
+        times = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
+        which = np.clip(np.searchsorted(self._offsets, times, side="right") - 1, 0, len(self.parts) - 1)
+        if times.ndim == 0:
+            i = int(which)
+            return self.parts[i].sample(times - self._offsets[i])
+        flat, which = times.reshape(-1), which.reshape(-1)
+        out = [np.zeros((flat.size, self.dof)) for _ in range(4)]
+        for i, part in enumerate(self.parts):
+            mask = which == i
+            if np.any(mask):
+                for values, part_values in zip(out, part.sample(flat[mask] - self._offsets[i]), strict=True):
+                    values[mask] = part_values
+        return Samples(*(values.reshape(*times.shape, self.dof) for values in out))
+
+    def extremes(self, order: int) -> tuple[Array, Array]:
+        return _hull([p.extremes(order) for p in self.parts])
+
+    def bounds(self, order: int) -> tuple[Array, Array]:
+        return _hull([p.bounds(order) for p in self.parts])
+
+    def __repr__(self) -> str:
+        return f"Chain(kind={self.kind!r}, duration={self.duration!r}, parts={list(self.parts)!r})"
 
 
 class RuckigSegment(Segment):
