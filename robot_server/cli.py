@@ -136,6 +136,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ValueError(f"--record-seconds is at most {MAX_RECORD_SECONDS:g} s")
         for _, command in args.fault:
             _check_command(command)
+        if args.record is not None:
+            _check_writable(Path(args.record))
         config = EmulatorConfig(
             models=tuple(args.model or ["jibot_zxs"]),
             profile=args.profile,
@@ -175,6 +177,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"robot-server: cannot write the record: {exc}", file=sys.stderr)
         return 1
     return code
+
+
+def _check_writable(path: Path) -> None:
+    """Refuse a record the server could not write when it exits (before the session, not after)."""
+    folder = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise ValueError(f"--record {path}: is a directory")
+    if not folder.is_dir():
+        raise ValueError(f"--record {path}: no directory {folder}")
+    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise ValueError(f"--record {path}: not writable")
 
 
 def _write_records(path: str | None, recorders: list[Recorder], emulator: Emulator) -> None:

@@ -269,6 +269,9 @@ async def test_bad_arguments_fail_with_one_line(tmp_path: Path) -> None:
         (["--model", "nosuchrobot"], "nosuchrobot"),
         (["--state-rate", "5000"], "state-rate"),
         (["--fault", "1:explode"], "explode"),
+        (["--record", str(tmp_path / "missing" / "run.csv")], "no directory"),  # refused before, not after
+        (["--record", str(tmp_path)], "is a directory"),
+        (["--record-seconds", "7200"], "record-seconds"),
     ):
         proc = await asyncio.create_subprocess_exec(
             sys.executable, "-m", "robot_server", *args, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE

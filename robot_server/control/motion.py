@@ -36,7 +36,9 @@ and jerk limits (exact extremes), and a segment beyond them is not refused:
   much. The scale only grows within a trajectory; the next one starts at 1. (The running segment
   keeps its speed at the instant of the change, so the first re-planned segment absorbs the
   difference.)
-* beyond the jerk limit only, the segment alone is stretched until it fits. Time-optimal planners
+* beyond the jerk limit only, the segment alone is replaced by ruckig's jerk-limited motion to the
+  same state (when that takes at most 1.5x the segment plus 10 ms and stays within the position
+  limits; otherwise the segment keeps its jerk, beyond the limit). Time-optimal planners
   without a jerk limit (MoveIt's TOTG, IPTP) step the acceleration at the start, the end and
   every phase change; blending such a step within the jerk limit needs a few milliseconds more
   than one dense segment has. Stretching that segment costs the robot a few milliseconds of lag
