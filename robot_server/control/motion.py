@@ -30,7 +30,9 @@ alarm, the next point starts a trajectory whatever it says.
 **Slowing down.** Given and estimated segments are checked against the velocity, acceleration
 and jerk limits (exact extremes), and a segment beyond them is not refused:
 
-* beyond the velocity or acceleration limit, the trajectory is too fast for the robot: the part
+* beyond the velocity or acceleration limit (a point's state included: the speed its acceleration
+  still adds, and the room to brake before the position limit it heads for, :func:`_state_need`),
+  the trajectory is too fast for the robot: the part
   not yet executed (the rest of the running segment and everything pending) is time-scaled
   uniformly (velocities / k, accelerations / k^2) until everything fits, and one WARNING says by how
   much. The scale only grows within a trajectory; the next one starts at 1. (The running segment
@@ -719,7 +721,8 @@ class MotionQueue:
         end = State.rest(knot.position)
         segment = _connect(entry.start, entry.start_order, end, 2, entry.duration)
         candidate = replace(entry, end=end, segment=segment)
-        if max(self._excess(candidate)) > 1.0 or self._swings(candidate):
+        fits = max(self._excess(candidate)) <= 1.0 and self._within_positions(candidate)
+        if not fits or self._swings(candidate) or _overshoot(candidate) > blend.OVERSHOOT:
             lim = self.limits
             try:
                 segment = RuckigSegment.plan(
@@ -728,6 +731,10 @@ class MotionQueue:
             except PlanningError as exc:  # a start beyond the limits: the polynomial stands
                 log.warning("point %d: no motion to rest there within the limits (%s)", knot.index, exc)
             else:
+                if fits and _overshoot(replace(candidate, segment=segment)) >= _overshoot(candidate):
+                    # the robot cannot stop short of the point from where it is: of the two, the
+                    # motion that goes least beyond it
+                    return replace(candidate, dry=True)
                 messages.append(
                     (
                         logging.INFO,
@@ -1069,23 +1076,44 @@ def _state_need(state: State, limits: Limits) -> float:
     acceleration speeds it up): from a state beyond that, every motion leaves the velocity limit,
     the controller's stop included."""
     speed = np.abs(state.velocity)
-    push = state.acceleration * np.sign(state.velocity)
+    direction = np.sign(state.velocity)
+    push = state.acceleration * direction
     gain = np.where(push > 0.0, push * push / (2.0 * limits.jerk), 0.0)  # at k = 1; / k^4 when scaled
     need = max(1.0, float(np.max(speed / limits.velocity)))
     need = max(need, math.sqrt(float(np.max(np.abs(state.acceleration) / limits.acceleration))))
+    # room to brake before the position limit the joint heads for
+    room = np.where(direction > 0.0, limits.upper - state.position, state.position - limits.lower)
 
     def fits(k: float) -> bool:
-        return bool(np.all(speed / k + gain / k**4 <= limits.velocity * (1.0 + SLACK)))
+        v, a = speed / k, np.maximum(push, 0.0) / (k * k)
+        if not np.all(v + gain / k**4 <= limits.velocity * (1.0 + SLACK)):
+            return False
+        ramp = (a + limits.acceleration) / limits.jerk  # to turn the acceleration round
+        fastest = v + a * ramp
+        braking = fastest * ramp + fastest * fastest / (2.0 * limits.acceleration)
+        return bool(np.all(braking <= room + SLACK))
 
     if not fits(need):
         # both terms fall with k: at ``high`` each is at most half the limit
         low, high = need, max(need, float(np.max(2.0 * speed / limits.velocity)))
-        high = max(high, float(np.max(2.0 * gain / limits.velocity)) ** 0.25)
+        high = max(high, float(np.max(2.0 * gain / limits.velocity) ** 0.25))
+        while not fits(high):  # braking room: the braking distance falls as 1 / k (at least)
+            if high > 1e6:
+                return high  # no room at all (a joint at its limit, moving on): slowing cannot help
+            high *= 2.0
         for _ in range(48):
             middle = 0.5 * (low + high)
             low, high = (low, middle) if fits(middle) else (middle, high)
         need = high
     return need if need > 1.0 + SLACK else 1.0
+
+
+def _overshoot(entry: _Entry) -> float:
+    """How far the segment goes beyond its two end positions (the largest over the joints)."""
+    assert entry.segment is not None and entry.end is not None
+    lo, hi = entry.segment.extremes(0)
+    p0, p1 = entry.start.position, entry.end.position
+    return float(max(np.max(np.minimum(p0, p1) - lo), np.max(hi - np.maximum(p0, p1)), 0.0))
 
 
 def _knot(entry: _Entry) -> _Knot:
