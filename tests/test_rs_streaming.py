@@ -212,11 +212,17 @@ def test_motoros_milliseconds_are_computed_as_motoros_computes_them() -> None:
 
 async def test_motoros_ignores_the_slots_beyond_the_group_and_the_generic_server_does_not() -> None:
     seven = [0.0] * 6 + [0.7]  # a value in slot 7 of a 6-axis group
-    async with stepped(profile="motoros") as (emu, _clock, _record):
+    async with stepped(profile="motoros") as (emu, clock, _record):
         motion = await RawPeer.connect(emu.ports["motion"])
         assert result(await motion.request(moto_ctrl(START_TRAJ_MODE))) == (0, 0)
         frame = joint_traj_pt_full(JTPF, 0, 0, 7, 0.0, seven, [0.0] * 7)
         assert result(await motion.request(frame)) == (0, 0)
+        # a point that moves, with garbage in slots 7-10: the robot goes to the 6 axes' target
+        target = [0.1, -0.1, 0.05, 0.0, 0.2, -0.2]
+        moving = joint_traj_pt_full(JTPF, 0, 1, 7, 0.5, [*target, 9.0, -9.0, 1e30, -1e30], [0.0] * 10)
+        assert result(await motion.request(moving)) == (0, 0)
+        await settle(emu, clock)
+        assert np.allclose(emu.cell.groups[0].command.command_position, target, atol=1e-6)
         await motion.close()
     async with stepped() as (emu, _clock, _record):
         motion = await RawPeer.connect(emu.ports["motion"])
