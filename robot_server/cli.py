@@ -181,7 +181,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _check_writable(path: Path) -> None:
     """Refuse a record the server could not write when it exits (before the session, not after)."""
-    folder = path.parent if str(path.parent) else Path(".")
+    folder = path.parent
     if path.is_dir():
         raise ValueError(f"--record {path}: is a directory")
     if not folder.is_dir():

@@ -136,11 +136,6 @@ class _Entry:
     end_order: int = 2
     #: ends at rest because no next point was queued when it started
     dry: bool = False
-    #: the next point and the scaled time to it, when they decided this segment's end state
-    after: Array | None = None
-    after_duration: float = 0.0
-    #: the trajectory's time scale when the end state was decided
-    scale: float = 1.0
     #: controller time at which the point was queued
     queued: float = 0.0
     #: starts from a state the client's plan did not lead to (rest, after the queue ran dry):
@@ -365,7 +360,7 @@ class MotionQueue:
         self._running = None
         self._trajectory = replace(self._trajectory, open=False)
         state = self._state
-        if not (_moving(state.velocity) or _moving(state.acceleration)):
+        if _at_rest(state):
             return 0.0
         entry = self._stop_entry(state)
         self._running, self._started = entry, self._t
@@ -412,11 +407,7 @@ class MotionQueue:
         (``lookahead_wait``) for it, so that it can pass through the point: a streaming client
         sends one point at a time (industrial_robot_client: one per 5 ms), and without the next
         one the robot would have to stop at the first point."""
-        return (
-            entry.end is None
-            and not (_moving(entry.start.velocity) or _moving(entry.start.acceleration))
-            and self._t < entry.queued + self.lookahead_wait - 1e-12
-        )
+        return entry.end is None and _at_rest(entry.start) and self._t < entry.queued + self.lookahead_wait - 1e-12
 
     # -- planning --------------------------------------------------------------------------------
 
@@ -565,7 +556,7 @@ class MotionQueue:
         else:
             start, order = self._state, 2
         assert start is not None and trajectory.last_position is not None
-        if knot.index == 1 and not (_moving(start.velocity) or _moving(start.acceleration)):
+        if knot.index == 1 and _at_rest(start):
             transient = True
         if knot.kind is _Kind.REST:
             segment = self._rest_segment(knot, start)
@@ -651,11 +642,11 @@ class MotionQueue:
         start as t^3 and trail a plan over a long first segment by a tenth of a second and more."""
         end = self._through(entry, entry.duration, after, after_duration)
         segment: Segment | None = None
-        if entry.transient and not (_moving(entry.start.velocity) or _moving(entry.start.acceleration)):
+        if entry.transient and _at_rest(entry.start):
             segment = launch(entry.start.position, end, entry.duration, self.limits.jerk)
         if segment is None:
             segment = _connect(entry.start, entry.start_order, end, 2, entry.duration)
-        return replace(entry, end=end, segment=segment, after=after, after_duration=after_duration)
+        return replace(entry, end=end, segment=segment)
 
     def _given(self, entry: _Entry, scale: float) -> _Entry:
         """A given point's state at the trajectory's time scale, and the segment to it."""
@@ -671,7 +662,7 @@ class MotionQueue:
         else:
             end, order = State(knot.position, velocity, np.zeros_like(velocity)), 1
         segment = _connect(entry.start, entry.start_order, end, order, entry.duration)
-        return replace(entry, end=end, end_order=order, segment=segment, scale=scale)
+        return replace(entry, end=end, end_order=order, segment=segment)
 
     def _stretched(self, entry: _Entry) -> _Entry:
         """``entry`` within the jerk limit: a segment beyond it is replaced by ruckig's time-optimal
@@ -763,8 +754,6 @@ class MotionQueue:
             segment=segment,
             start_order=2,
             dry=False,
-            after=after,
-            after_duration=after_duration,
         )
         entry = self._stretched(entry)
         if self._excess(entry)[0] > 1.0 or not self._within_positions(entry):
@@ -875,10 +864,17 @@ class MotionQueue:
 
     def _end_need(self, entry: _Entry) -> float:
         """By how much the trajectory must slow down for the segment's end state to be within the
-        velocity and acceleration limits (1: it is), :func:`_state_need`."""
-        end = entry.end
+        velocity and acceleration limits (1: it is), :func:`_state_need`; kept with the segment
+        built to that state (a re-scale asks again for every pending segment)."""
+        end, segment = entry.end, entry.segment
         assert end is not None
-        return _state_need(end, self.limits)
+        if segment is None:
+            return _state_need(end, self.limits)
+        key = ("end need", self)
+        cached = segment.memo.get(key)
+        if cached is None:
+            cached = segment.memo[key] = _state_need(end, self.limits)
+        return cached  # type: ignore[return-value]
 
     def _within_positions(self, entry: _Entry) -> bool:
         segment = entry.segment
@@ -1124,6 +1120,11 @@ def _knot(entry: _Entry) -> _Knot:
 def _need(duration: float | None) -> float:
     assert duration is not None and math.isfinite(duration)
     return duration
+
+
+def _at_rest(state: State) -> bool:
+    """No velocity and no acceleration (beyond floating-point noise)."""
+    return not (_moving(state.velocity) or _moving(state.acceleration))
 
 
 def _moving(values: Array) -> bool:
