@@ -192,22 +192,24 @@ async def test_motoros_slows_a_stream_too_fast_for_the_joints_down_and_never_ans
     assert np.all(np.abs(record.get("command_acceleration")) <= AMAX * (1 + 1e-6))
 
 
-def test_motoros_milliseconds_are_computed_as_motoros_computes_them() -> None:
-    """(int)(time * 1000) with a float time: float32 arithmetic, truncated. The 20 ms grid stays
-    whole for 16 s and the 10 ms grid for 8 s, where truncating the double product lost a
-    millisecond on about half of the times; further on, MotoROS itself comes up a millisecond
-    short on some grid times, and so does the emulator."""
+def test_motoros_milliseconds_truncate_as_motoros_and_are_never_short_on_a_grid() -> None:
+    """(int)(time * 1000) with a float time truncates; a time on a clean grid, rounded to float32 on
+    the wire, is its whole millisecond however long the trajectory (MotoROS itself comes up a
+    millisecond short on some: float32(16.06) * 1000 is 16059.999...)."""
     assert motoros_milliseconds(float(np.float32(0.02))) == 20
     assert math.floor(float(np.float32(0.02)) * 1000.0) == 19  # what truncating the double gives
-    for step, until in ((0.02, 16.0), (0.01, 8.0), (0.1, 16.0), (0.005, 4.0)):
-        count = round(until / step)
-        grid = np.float32(np.arange(count) * step)
-        ms = np.array([motoros_milliseconds(float(t)) for t in grid])
-        assert np.array_equal(ms, np.rint(np.arange(count) * step * 1000).astype(int)), step
-    # as on the controller: float32(16.06) * 1000 is 16059.999..., float32(1.004) * 1000 is 1003.99...
-    assert motoros_milliseconds(float(np.float32(16.06))) == 16059
-    assert motoros_milliseconds(float(np.float32(1.004))) == 1003
+    assert int(np.float32(16.06) * np.float32(1000.0)) == 16059  # what MotoROS computes
+    assert motoros_milliseconds(float(np.float32(16.06))) == 16060
+    assert motoros_milliseconds(float(np.float32(1.004))) == 1004
+    ms = np.arange(0, 3_600_000, 7)  # every 7 ms for an hour, and the 1 ms grid for 100 s
+    for whole in (ms, np.arange(100_000)):
+        wire = np.float32(whole / 1000.0)
+        got = np.array([motoros_milliseconds(float(t)) for t in wire])
+        assert np.array_equal(got, whole)
+    # anything else is truncated as MotoROS truncates it
+    assert motoros_milliseconds(0.0199) == 19 and motoros_milliseconds(0.0199999) == 19
     assert motoros_milliseconds(1.5e-3) == 1 and motoros_milliseconds(0.0) == 0
+    assert motoros_milliseconds(2.9999) == 2999
 
 
 async def test_motoros_ignores_the_slots_beyond_the_group_and_the_generic_server_does_not() -> None:

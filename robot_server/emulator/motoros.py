@@ -18,8 +18,9 @@ MOTO_MOTION_REPLY (2002), header SUCCESS, the outcome in ``result``/``subcode`` 
   give 3013, other refusals their data subcode (position 3012, time 3016, anything else 3010);
   MotoROS never refuses a point for its acceleration (3014 is defined and never sent), and neither
   does the emulator: a segment too fast for the joints is slowed down (``control.motion``).
-  As MotoROS does, the time becomes whole milliseconds by ``(int)(time * 1000)`` in float32
-  arithmetic (:func:`motoros_milliseconds`: a client's 0.02 s is 20 ms, never 19), segments are
+  The time becomes whole milliseconds as MotoROS truncates it, except that a time within float32
+  precision of a whole millisecond is that millisecond (:func:`motoros_milliseconds`: a client's
+  grid time is never a millisecond short, where MotoROS loses one on some), segments are
   cubic in position and velocity (accelerations are not used), and values in the slots beyond the
   group's axes are ignored. CHECK_QUEUE_CNT never reports more than the 200 increments MotoROS's
   queue holds. Unlike MotoROS, every point is checked completely before it is acknowledged, so a
@@ -135,12 +136,22 @@ _CLOSING_TYPES = (MsgType.STATUS, MsgType.JOINT_FEEDBACK, MsgType.MOTO_MOTION_RE
 
 
 def motoros_milliseconds(time: float) -> int:
-    """A JOINT_TRAJ_PT_FULL time in whole milliseconds as MotoROS computes it:
-    ``(int)(jointTrajData->time * 1000)`` (``Ros_MotionServer_ConvertToJointMotionData``) with a
-    float ``time``, so the product is rounded to float32 and then truncated toward zero. The
-    float32 nearest 0.02 is 0.0199999995..., whose float32 product with 1000 is exactly 20.0:
-    clean client times stay whole (truncating the double product instead would give 19 ms)."""
-    return int(np.float32(time) * np.float32(1000.0))
+    """A JOINT_TRAJ_PT_FULL time in whole milliseconds, as MotoROS computes it and a millisecond
+    better where MotoROS loses one to float32.
+
+    MotoROS computes ``(int)(jointTrajData->time * 1000)`` (``Ros_MotionServer_ConvertToJointMotionData``)
+    with a float ``time``: the product is rounded to float32 and truncated toward zero. The float32
+    nearest 0.02 is 0.0199999995..., whose float32 product with 1000 is exactly 20.0, so clean client
+    times mostly stay whole (truncating the double product would give 19 ms). But not always: the
+    float32 nearest 16.06 times 1000 is 16059.999..., and MotoROS runs that point a millisecond
+    early. Here a time whose product lies within float32's precision (2^-23 relative) below a whole
+    millisecond is that millisecond, so a time a client computes on a clean grid is never a
+    millisecond short; any other time is truncated as MotoROS does (0.0199 s is 19 ms)."""
+    product = float(np.float32(time)) * 1000.0  # exact float32 time, product in double
+    whole = math.floor(product)
+    if whole + 1 - product <= abs(product) * 2.0**-23:
+        whole += 1
+    return int(whole)
 
 
 class _Refused(Exception):
