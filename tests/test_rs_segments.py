@@ -22,6 +22,7 @@ from robot_server.control import (
     quintic,
     quintic_hermite,
 )
+from robot_server.control.segments import run_up
 
 RNG = np.random.default_rng(5)
 N = 6
@@ -326,3 +327,16 @@ def test_a_chain_samples_vectorised_and_bounds_its_parts() -> None:
         Chain(())
     with pytest.raises(PlanningError):
         Chain((hold(p0, 1.0), hold(p0[:2], 1.0)))
+
+
+def test_run_up_is_the_shortest_way_to_a_speed() -> None:
+    """From rest to v at the jerk limit only (v <= A^2 / J): v sqrt(v / J); reaching the
+    acceleration limit: v^2 / 2A + v A / 2J; arriving decelerating needs more than arriving at
+    constant speed; from a speed already reached, nothing is added but the way at it."""
+    v_max, a_max, j_max = np.full(3, 3.0), np.full(3, 10.0), np.full(3, 500.0)
+    target = np.array([0.1, 1.0, 1.0])
+    d = run_up(np.zeros(3), np.zeros(3), target, np.zeros(3), limits=(v_max, a_max, j_max))
+    close(d[:2], [0.1 * math.sqrt(0.1 / 500.0), 1.0 / 20.0 + 10.0 / 1000.0], 1e-9)
+    slowing = run_up(np.zeros(3), np.zeros(3), target, np.array([0.0, 0.0, -5.0]), limits=(v_max, a_max, j_max))
+    assert slowing[2] > d[2] + 1e-3
+    assert run_up([0.5], [0.0], [0.5], [0.0], limits=([3.0], [10.0], [500.0]))[0] == 0.0

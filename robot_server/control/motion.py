@@ -71,7 +71,17 @@ from numpy.typing import NDArray
 from . import blend
 from .points import MIN_DURATION, SLACK, Limits, Point, PointRejected, Reason, State, check_point, within
 from .policies import Policy
-from .segments import PlanningError, RuckigSegment, Segment, cubic_hermite, hold, launch, linear, quintic_hermite
+from .segments import (
+    PlanningError,
+    RuckigSegment,
+    Segment,
+    cubic_hermite,
+    hold,
+    launch,
+    linear,
+    quintic_hermite,
+    run_up,
+)
 
 __all__ = ["MotionQueue", "Plan"]
 
@@ -88,6 +98,8 @@ _MAX_LAG_FACTOR = 1.5
 _MAX_LAG = 0.01
 #: re-planning the rest of a segment needs at least this much of it left (s)
 _MIN_REMAINDER = 1e-6
+#: a point's state is slowed down at most this much to stop at the last queued point (then: at rest)
+_MAX_BRAKING = 1024.0
 #: with the start check off, a first point farther than this (rad or m) is a move to it
 _SAME_PLACE = 1e-9
 
@@ -142,6 +154,9 @@ class _Entry:
     #: its limits are met locally (a jerk-limited segment, however long), never by slowing the
     #: rest of the trajectory down
     transient: bool = False
+    #: a transient from rest whose end state was slowed down to be reachable (:func:`_reachable`):
+    #: the next segment starts from a state the plan did not lead to either
+    slowed: bool = False
 
     @property
     def trajectory(self) -> int:
@@ -170,6 +185,8 @@ class _Trajectory:
     #: the scale last logged (further slowing down is logged once per 10 %)
     logged_scale: float = 1.0
     warned_dry: bool = False
+    #: controller time its first point was planned at
+    opened: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -439,6 +456,7 @@ class MotionQueue:
             points=0 if away else 1,
             time=point.time if point.time is not None and not away else 0.0,
             last_position=origin.position,
+            opened=self._t,
         )
         opened = Plan(self._running, self._started, tuple(pending), trajectory, tuple(messages), self._t)
         if away:  # no start check: the robot goes to the first point from where it is
@@ -525,7 +543,7 @@ class MotionQueue:
         transient = False
         # 1. the point before this one passes through it, now that it is known
         if pending and pending[-1].end is None:
-            pending[-1] = self._stretched(self._determine(pending[-1], knot.position, _need(knot.duration) * scale))
+            pending[-1] = self._determine(pending[-1], knot.position, _need(knot.duration) * scale)
             built.append(pending[-1])
         elif running is not None and running.dry and running.trajectory == knot.trajectory and not pending:
             late = self._replan_running(running, knot.position, _need(knot.duration) * scale)
@@ -556,7 +574,8 @@ class MotionQueue:
         else:
             start, order = self._state, 2
         assert start is not None and trajectory.last_position is not None
-        if knot.index == 1 and _at_rest(start):
+        before = pending[-1] if pending else running
+        if (knot.index == 1 and _at_rest(start)) or (before is not None and before.slowed):
             transient = True
         if knot.kind is _Kind.REST:
             segment = self._rest_segment(knot, start)
@@ -636,17 +655,32 @@ class MotionQueue:
         )
 
     def _determine(self, entry: _Entry, after: Array, after_duration: float) -> _Entry:
-        """An estimated point's state, now that the next point is known. A transient from rest
-        (a trajectory's first segment, a restart after the queue ran dry) starts as the client's
-        plan does, with an acceleration (:func:`.segments.launch`); the quintic from rest would
-        start as t^3 and trail a plan over a long first segment by a tenth of a second and more."""
+        """An estimated point's state, now that the next point is known, and the segment to it
+        (within the jerk limit: :meth:`_stretched`). A transient from rest (a trajectory's first
+        segment, a restart after the queue ran dry) starts as the client's plan does, with an
+        acceleration (:func:`.segments.launch`); the quintic from rest would start as t^3 and
+        trail a plan over a long first segment by a tenth of a second and more. When the plan
+        is moving too fast at the point for the robot to get there from rest without first
+        backing up to take a run-up, the point's state is slower (:func:`_reachable`)."""
         end = self._through(entry, entry.duration, after, after_duration)
-        segment: Segment | None = None
-        if entry.transient and _at_rest(entry.start):
-            segment = launch(entry.start.position, end, entry.duration, self.limits.jerk)
+        if not (entry.transient and _at_rest(entry.start)):
+            return self._stretched(
+                replace(entry, end=end, segment=_connect(entry.start, entry.start_order, end, 2, entry.duration))
+            )
+        launched = self._launched(entry, end)
+        if _overshoot(launched) <= blend.OVERSHOOT:
+            return launched
+        reachable = _reachable(entry.start, end, self.limits)
+        if reachable is end:
+            return launched
+        slower = replace(self._launched(entry, reachable), slowed=True)
+        return slower if _overshoot(slower) < _overshoot(launched) else launched
+
+    def _launched(self, entry: _Entry, end: State) -> _Entry:
+        segment = launch(entry.start.position, end, entry.duration, self.limits.jerk)
         if segment is None:
             segment = _connect(entry.start, entry.start_order, end, 2, entry.duration)
-        return replace(entry, end=end, segment=segment)
+        return self._stretched(replace(entry, end=end, segment=segment, slowed=False))
 
     def _given(self, entry: _Entry, scale: float) -> _Entry:
         """A given point's state at the trajectory's time scale, and the segment to it."""
@@ -682,11 +716,8 @@ class MotionQueue:
         elif entry.is_kind(_Kind.GIVEN) or excess[1] <= 1.0:
             return entry  # given states are followed as given (ros2_control, MotoROS)
         assert entry.end is not None
-        lim = self.limits
         try:
-            segment = RuckigSegment.plan(
-                entry.start, entry.end, lim.velocity, lim.acceleration, lim.jerk, minimum_duration=entry.duration
-            )
+            segment = self._jerk_limited(entry.start, entry.end, entry.duration)
         except PlanningError as exc:  # an end state beyond the limits: keep the polynomial
             log.debug("point %d: no jerk-limited motion to its state (%s)", entry.index, exc)
             return entry
@@ -714,11 +745,8 @@ class MotionQueue:
         candidate = replace(entry, end=end, segment=segment)
         fits = max(self._excess(candidate)) <= 1.0 and self._within_positions(candidate)
         if not fits or self._swings(candidate) or _overshoot(candidate) > blend.OVERSHOOT:
-            lim = self.limits
             try:
-                segment = RuckigSegment.plan(
-                    entry.start, end, lim.velocity, lim.acceleration, lim.jerk, minimum_duration=entry.duration
-                )
+                segment = self._jerk_limited(entry.start, end, entry.duration)
             except PlanningError as exc:  # a start beyond the limits: the polynomial stands
                 log.warning("point %d: no motion to rest there within the limits (%s)", knot.index, exc)
             else:
@@ -734,6 +762,11 @@ class MotionQueue:
                     )
                 )
         return replace(entry, end=end, segment=segment, duration=segment.duration, dry=True)
+
+    def _jerk_limited(self, start: State, end: State, duration: float) -> RuckigSegment:
+        """ruckig's time-optimal, jerk-limited motion from ``start`` to ``end`` taking ``duration`` at least."""
+        lim = self.limits
+        return RuckigSegment.plan(start, end, lim.velocity, lim.acceleration, lim.jerk, minimum_duration=duration)
 
     def _replan_running(self, running: _Entry, after: Array, after_duration: float) -> _Entry | None:
         """The rest of a segment heading for rest at its point, re-planned to pass through it now
@@ -805,7 +838,65 @@ class MotionQueue:
             entry = self._to_rest(entry, messages)
             for level, message in messages:
                 log.log(level, message)
+        elif len(self._pending) == 1 and self._pending[0].end is None and entry.is_kind(_Kind.ESTIMATED):
+            last = self._pending[0]
+            braking = entry if self._coming(entry, last, at) else self._braking(entry, last)
+            if braking is not entry:
+                entry = braking
+                assert entry.end is not None
+                self._pending = (replace(last, start=entry.end, start_order=2, transient=True),)
         self._running, self._started = entry, at
+
+    def _coming(self, entry: _Entry, last: _Entry, at: float) -> bool:
+        """The point after ``last`` will likely be queued before the robot sets off to ``last``
+        (``entry`` starting ``at``): the trajectory is open and its points keep coming at the
+        pace they have come so far. Points all queued at once (a download, a burst) say nothing
+        of more to come."""
+        trajectory = self._trajectory
+        if not trajectory.open or last.trajectory != trajectory.number or last.index < 1:
+            return False
+        gap = (last.queued - trajectory.opened) / last.index
+        return gap > 0.0 and last.queued + gap <= at + entry.duration
+
+    def _braking(self, entry: _Entry, last: _Entry) -> _Entry:
+        """``entry``, about to run, when the point after its own is the last one queued and no
+        next one is in sight (:meth:`_coming`): a state at its point from which the robot can
+        still come to rest at that last point without going beyond it. The state the neighbours gave is kept when it
+        allows that; otherwise its velocity (and acceleration) is scaled down as little as needed.
+        The last point's segment then starts from a state the plan did not lead to (a transient:
+        if more points come, the robot catches up within its limits, a little late)."""
+        end = entry.end
+        assert end is not None
+
+        def stop_overshoots(f: float) -> bool:
+            slower = State(end.position, end.velocity / f, end.acceleration / (f * f))
+            return _overshoot(self._to_rest(replace(last, start=slower, start_order=2), [])) > blend.OVERSHOOT
+
+        if not stop_overshoots(1.0):
+            return entry
+        low, high = 1.0, 2.0
+        while stop_overshoots(high):
+            if high >= _MAX_BRAKING:  # the last point is too close for any speed but rest
+                break
+            low, high = high, 2.0 * high
+        else:
+            for _ in range(12):
+                middle = 0.5 * (low + high)
+                low, high = (middle, high) if stop_overshoots(middle) else (low, middle)
+        slower = State(end.position, end.velocity / high, end.acceleration / (high * high))
+        if high >= _MAX_BRAKING:
+            slower = State.rest(end.position)
+        candidate = self._stretched(
+            replace(entry, end=slower, segment=_connect(entry.start, entry.start_order, slower, 2, entry.duration))
+        )
+        if (
+            self._excess(candidate)[0] > 1.0
+            or not self._within_positions(candidate)
+            or _overshoot(candidate) > max(blend.OVERSHOOT, _overshoot(entry))
+        ):
+            return entry  # it cannot brake that much on the way to its own point: as planned
+        log.debug("point %d: slower through it, to be able to stop at point %d", entry.index, last.index)
+        return candidate
 
     # -- limits ------------------------------------------------------------------------------------
 
@@ -985,13 +1076,14 @@ class MotionQueue:
                 ):
                     running, started, transition = candidate, self._t, False
         end, order = (running.end, running.end_order) if running is not None else (self._state, 2)
+        slowed = running is not None and running.slowed
         out: list[_Entry] = []
         for i, entry in enumerate(pending):
             if mine[i]:
                 duration = _need(_knot(entry).duration) * scale
                 assert end is not None
                 moved = replace(entry, start=end, start_order=order, duration=duration, before_duration=duration)
-                if transition:
+                if transition or slowed:
                     moved = replace(moved, transient=True)
                     transition = False
                 successor = pending[i + 1] if i + 1 < len(pending) and mine[i + 1] else None
@@ -999,7 +1091,7 @@ class MotionQueue:
                 if entry.segment is not None:
                     entry = self._stretched(entry)
             out.append(entry)
-            end, order = entry.end, entry.end_order
+            end, order, slowed = entry.end, entry.end_order, entry.slowed
         return running, started, out
 
     def _rebuilt(self, entry: _Entry, successor: _Entry | None, scale: float) -> _Entry:
@@ -1102,6 +1194,48 @@ def _state_need(state: State, limits: Limits) -> float:
             low, high = (low, middle) if fits(middle) else (middle, high)
         need = high
     return need if need > 1.0 + SLACK else 1.0
+
+
+def _reachable(start: State, state: State, limits: Limits) -> State:
+    """``state``, or the same state slower (velocities / k, accelerations / k^2, for all joints
+    alike) so that every joint can reach it from ``start`` without first moving away from it. To
+    gain the speed ``dv`` from ``v0`` at the jerk limit ``J`` a joint covers ``2 v0 sqrt(dv / J) +
+    dv sqrt(dv / J)`` (``v0 (dv / A + A / J) + dv^2 / 2A + dv A / 2J`` once it reaches the
+    acceleration limit ``A``); to arrive decelerating it must reach a higher speed first and cover
+    the way down from it too. A segment that starts where the plan did not lead (from rest: the
+    plan starts moving at once, or a point is far too soon for its distance) would otherwise have
+    the robot back up to take a run-up, or take a long detour in time to get up to speed."""
+    distance = state.position - start.position
+    direction = np.sign(distance)
+    speed = state.velocity * direction
+    initial = np.maximum(start.velocity * direction, 0.0)
+    room = np.abs(distance)
+
+    concerned = (speed > initial) & (room > 0.0)
+    if not np.any(concerned):
+        return state
+
+    def fits(k: float) -> bool:
+        # the shortest way to the speed and acceleration: ruckig's fastest way there, each joint on its own
+        target = np.where(concerned, speed / k, initial)
+        target_acc = np.where(concerned, state.acceleration * direction / (k * k), 0.0)
+        a0 = np.where(concerned, start.acceleration * direction, 0.0)
+        needed = run_up(initial, a0, target, target_acc, limits=(limits.velocity, limits.acceleration, limits.jerk))
+        return bool(np.all(np.where(concerned, needed <= room * (1.0 + SLACK) + 1e-12, True)))
+
+    if fits(1.0):
+        return state
+    low, high = 1.0, 2.0
+    while not fits(high):
+        if high > _MAX_BRAKING:
+            return State.rest(state.position)
+        low, high = high, 2.0 * high
+    for _ in range(24):
+        middle = 0.5 * (low + high)
+        low, high = (low, middle) if fits(middle) else (middle, high)
+    # within the limits too: slowing the trajectory down would not change a state chosen here
+    high = max(high, _state_need(state, limits) * (1.0 + SLACK))
+    return State(state.position, state.velocity / high, state.acceleration / (high * high))
 
 
 def _overshoot(entry: _Entry) -> float:

@@ -114,6 +114,65 @@ def _duration(duration: float) -> float:
     return duration
 
 
+#: phases of a RuckigSegment's joint: an optional two-phase brake, then ruckig's seven
+_PHASES = 9
+
+#: one phase of constant jerk: (duration, jerk, and the acceleration, velocity, position it starts with)
+_Phase = tuple[float, float, float, float, float]
+
+
+def _phases(profile: ruckig.Profile) -> list[_Phase]:
+    """A ruckig profile's phases (its brake's first)."""
+    if profile.accel.duration > 0.0:  # a post-profile only exists for targets beyond the limits
+        raise PlanningError("ruckig returned a target post-profile: the target state exceeds the limits")
+    parts = [(profile.brake, 2)] if profile.brake.duration > 0.0 else []
+    return [(x.t[k], x.j[k], x.a[k], x.v[k], x.p[k]) for x, count in [*parts, (profile, 7)] for k in range(count)]
+
+
+def run_up(
+    v0: ArrayLike, a0: ArrayLike, v1: ArrayLike, a1: ArrayLike, *, limits: tuple[ArrayLike, ArrayLike, ArrayLike]
+) -> Array:
+    """How far each joint moves on its own fastest way from velocity and acceleration ``v0``,
+    ``a0`` to ``v1``, ``a1`` within ``limits`` (velocity, acceleration, jerk): ruckig's velocity
+    interface, unsynchronised; infinite where ruckig finds no way."""
+    arrays = [_vector(x, "state") for x in (v0, a0, v1, a1, *limits)]
+    n = arrays[0].size
+    inp = ruckig.InputParameter(n)
+    inp.current_position, inp.target_position = [0.0] * n, [0.0] * n
+    inp.current_velocity, inp.current_acceleration, inp.target_velocity, inp.target_acceleration = (
+        a.tolist() for a in arrays[:4]
+    )
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = (a.tolist() for a in arrays[4:])
+    inp.control_interface = ruckig.ControlInterface.Velocity
+    inp.synchronization = ruckig.Synchronization.No
+    try:
+        trajectory = _calculate(inp)
+        return np.array([_phase_end(_phases(profile)[-1])[2] for profile in trajectory.profiles[0]])
+    except PlanningError:
+        return np.full(n, np.inf)
+
+
+def _phase_end(phase: _Phase) -> tuple[float, float, float]:
+    """The acceleration, velocity and position a phase ends with."""
+    t, j, a, v, p = phase
+    return a + j * t, v + (a + j * t / 2.0) * t, p + (v + (a / 2.0 + j * t / 6.0) * t) * t
+
+
+def _calculate(inp: ruckig.InputParameter) -> ruckig.Trajectory:
+    trajectory = ruckig.Trajectory(inp.degrees_of_freedom)
+    try:
+        result = ruckig.Ruckig(inp.degrees_of_freedom).calculate(inp, trajectory)
+    # ruckig raises RuckigError or RuntimeError for input it cannot plan, and ValueError for a
+    # result code its Python binding does not know (0.19.4: -101 for durations over 7600 s)
+    except ValueError:
+        raise PlanningError("ruckig cannot plan this motion (longer than it supports, about 7600 s?)") from None
+    except (RuntimeError, ruckig.RuckigError) as exc:
+        raise PlanningError(f"ruckig: {exc}") from None
+    if result not in (ruckig.Result.Working, ruckig.Result.Finished):
+        raise PlanningError(f"ruckig could not plan this motion ({result.name})")
+    return trajectory
+
+
 class PolynomialSegment(Segment):
     """Per joint a polynomial of degree <= 5 in local time: ``coefficients[k, i]`` is h_k of joint i.
 
@@ -470,23 +529,17 @@ class RuckigSegment(Segment):
         self.duration = float(trajectory.duration)
         starts, jerk, acc, vel, pos = [], [], [], [], []
         for profiles in trajectory.profiles[0]:
-            if profiles.accel.duration > 0.0:  # a post-profile only exists for targets beyond the limits
-                raise PlanningError("ruckig returned a target post-profile: the target state exceeds the limits")
-            # per phase (duration, jerk, and the acceleration, velocity, position it starts with)
-            parts = [(profiles.brake, 2)] if profiles.brake.duration > 0.0 else []
-            phases = [
-                (x.t[k], x.j[k], x.a[k], x.v[k], x.p[k]) for x, count in [*parts, (profiles, 7)] for k in range(count)
-            ]
-            # every joint gets 9 phases: pad in front with empty ones holding the start state (never selected,
-            # since the next phase starts at the same time)
-            phases = [(0.0, 0.0, *phases[0][2:])] * (9 - len(phases)) + phases
+            phases = _phases(profiles)
+            # every joint gets as many phases: pad in front with empty ones holding the start state
+            # (never selected, since the next phase starts at the same time)
+            phases = [(0.0, 0.0, *phases[0][2:])] * (_PHASES - len(phases)) + phases
             begin = np.concatenate([[0.0], np.cumsum([ph[0] for ph in phases])[:-1]])
             starts.append(begin)
             jerk.append([ph[1] for ph in phases])
             acc.append([ph[2] for ph in phases])
             vel.append([ph[3] for ph in phases])
             pos.append([ph[4] for ph in phases])
-        self._starts = np.array(starts)  # (dof, 9)
+        self._starts = np.array(starts)  # (dof, _PHASES)
         self._jerk, self._a, self._v, self._p = (np.array(x) for x in (jerk, acc, vel, pos))
 
     @classmethod
@@ -519,18 +572,7 @@ class RuckigSegment(Segment):
             inp.control_interface = ruckig.ControlInterface.Velocity
         if minimum_duration is not None:
             inp.minimum_duration = float(minimum_duration)
-        trajectory = ruckig.Trajectory(n)
-        try:
-            result = ruckig.Ruckig(n).calculate(inp, trajectory)
-        # ruckig raises RuckigError or RuntimeError for input it cannot plan, and ValueError for a
-        # result code its Python binding does not know (0.19.4: -101 for durations over 7600 s)
-        except ValueError:
-            raise PlanningError("ruckig cannot plan this motion (longer than it supports, about 7600 s?)") from None
-        except (RuntimeError, ruckig.RuckigError) as exc:
-            raise PlanningError(f"ruckig: {exc}") from None
-        if result not in (ruckig.Result.Working, ruckig.Result.Finished):
-            raise PlanningError(f"ruckig could not plan this motion ({result.name})")
-        return cls(trajectory, n)
+        return cls(_calculate(inp), n)
 
     def sample(self, t: ArrayLike) -> Samples:
         times = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
