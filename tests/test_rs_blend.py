@@ -494,3 +494,20 @@ def test_monotone_points_are_followed_without_backing_up_even_when_far_too_fast(
     assert float(np.max((command - points[-1].positions) * sign)) <= OVERSHOOT
     assert np.array_equal(command[-1], points[-1].positions)
     assert np.all(np.abs(record.get("command_acceleration")) <= AMAX * (1 + 1e-6))
+
+
+# a smooth curve whose turns fall between two samples: each sample nearest a turn used to force the
+# through-velocity to its largest monotone value, whose acceleration was 2.5x the curve's, and the
+# plan was slowed down by 1.43-1.45x
+@pytest.mark.parametrize(("frequency", "phase"), [(1.0, 0.3), (1.5, 0.0), (1.5, 0.3)])
+def test_a_curve_turning_between_samples_within_the_limits_is_not_slowed_down(frequency: float, phase: float) -> None:
+    spacing, omega = 0.02, 2.0 * np.pi * frequency
+    amplitude = 0.8 * float(AMAX.min()) / omega**2  # 80 % of the acceleration limit
+    t = np.arange(0.0, 1.0 + 1e-9, spacing)
+    q = amplitude * np.outer(1.0 - np.cos(omega * (t + phase * spacing)), np.ones(N))
+    ctl = controller(interpolation_period=0.004)
+    points = [Point(q[0], duration=10.0)] + [Point(q[i], duration=spacing) for i in range(1, len(t))]
+    record = stream(ctl, points, 0.0)
+    assert ctl.queue.scale == 1.0
+    assert np.all(np.abs(record.get("command_acceleration")) <= AMAX * (1 + 1e-6))
+    assert np.array_equal(record.get("command_position")[-1], q[-1])

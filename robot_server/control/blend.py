@@ -121,7 +121,7 @@ def through_state(
     ):
         v_est, a_est = _estimate(pb, h1, p, t2, p2)
         first = (p0, v0, a0)
-        v, low, high = _shape(first, t1, p, (p2, t2), v_est)
+        v, low, high = _shape(first, t1, p, (p2, t2), v_est, a=a_est)
         if _harmless(first, t1, p, (p2, t2), (v_est, a_est), limits=(low_limit, high_limit)):
             v, low, high = v_est, -math.inf, math.inf
         a = _jerk_limited(first, t1, (p, v), a_est, (low, high), jerk=j)
@@ -131,10 +131,20 @@ def through_state(
 
 
 def _shape(
-    start: tuple[float, float, float], t1: float, p: float, after: tuple[float, float], v: float
+    start: tuple[float, float, float],
+    t1: float,
+    p: float,
+    after: tuple[float, float],
+    v: float,
+    *,
+    a: float | None = None,
 ) -> tuple[float, float, float]:
     """One joint: the velocity clamped, and the acceleration's interval, for no overshoot
-    (``start``: position, velocity, acceleration; ``after``: the next position and the time to it)."""
+    (``start``: position, velocity, acceleration; ``after``: the next position and the time to it).
+    With the estimated acceleration ``a``, the velocity is clamped further where that keeps ``a``
+    within the interval: at the largest velocity the interval is a single value, far from the
+    curve's acceleration where the next point is close (a joint about to turn between two
+    samples), and the spike would slow the whole trajectory down."""
     p0, v0, a0 = start
     p2, t2 = after
     delta1, delta2 = p - p0, p2 - p
@@ -159,6 +169,13 @@ def _shape(
         return (0.0, lo, hi) if s1 > 0.0 else (0.0, -hi, -lo)
     u_max = min(-used * m1 / (4.0 * t1), 5.0 * (1.0 - RESERVE) * m2 / t2, (room2 - low1) / (8.0 / t1 + 8.0 / t2))
     u = min(max(v * s1, 0.0), u_max)
+    if a is not None:
+        # the velocities for which a (in this frame) lies within [w_lo, w_hi] below
+        a_n = a * s1
+        least = max(0.0, a_n * t1 / 4.0, -a_n * t2 / 4.0)
+        most = min(u_max, (room2 - a_n) * t2 / 8.0, (a_n - low1) * t1 / 8.0)
+        if least <= most:
+            u = min(max(u, least), most)
     w_lo = max(low1 + 8.0 * u / t1, -4.0 * u / t2)
     # u <= u_max makes the four bounds compatible; at u = u_max the interval is a single value,
     # which rounding may invert
