@@ -511,3 +511,27 @@ def test_a_curve_turning_between_samples_within_the_limits_is_not_slowed_down(fr
     assert ctl.queue.scale == 1.0
     assert np.all(np.abs(record.get("command_acceleration")) <= AMAX * (1 + 1e-6))
     assert np.array_equal(record.get("command_position")[-1], q[-1])
+
+
+def test_a_stream_that_starts_with_three_points_at_once_runs_as_planned() -> None:
+    """Three points queued at once, then one per 5 ms: the first segment sets off slowed down to
+    be able to stop at point 2 (perhaps the last); the points that follow in time cost nothing."""
+    plan = Plan.make(1.0, 101)
+    points = ros_points(plan, VMAX)
+    ctl = controller()
+    recorder = Recorder(ctl.dof, capacity=round(5.0 / ctl.config.servo_period))
+    ctl.start(points[0])
+    ctl.add(points[1])
+    ctl.add(points[2])
+    sent, next_time = 3, 0.006
+    while ctl.time < 3.0 and (sent < len(points) or ctl.in_motion):
+        if sent < len(points) and ctl.time >= next_time - 1e-12:
+            ctl.add(points[sent])
+            sent, next_time = sent + 1, ctl.time + 0.005
+        recorder.add(ctl.step())
+    assert sent == len(points) and not ctl.in_motion
+    for _ in range(500):  # the drives settle
+        recorder.add(ctl.step())
+    m = measure(recorder, MODEL, plan, ctl.servo_ticks_per_interpolation)
+    assert abs(m.executed / plan.duration - 1.0) <= 0.02 and m.stops == 0
+    assert m.deviation_command <= 0.05e-3 and m.final_error == 0.0

@@ -104,7 +104,7 @@ async def test_a_stream_over_tcp_on_a_stepped_clock_runs_as_planned_and_repeats_
 
 async def test_a_stream_over_real_tcp_in_real_time() -> None:
     """The same stream with the controller on the wall clock: every point accepted, the path
-    followed within the limits to the last point (nothing here depends on how fast the machine is)."""
+    followed within the limits to the last point, close to the plan however loaded the machine is."""
     plan = Plan.make(1.0, 101)
     config = EmulatorConfig(motion_port=0, state_port=0)
     async with Emulator(config) as emu:
@@ -118,7 +118,10 @@ async def test_a_stream_over_real_tcp_in_real_time() -> None:
     assert np.allclose(command[-1], plan.position[-1], atol=1e-7)  # float32 on the wire
     assert np.all(np.abs(record.get("command_acceleration")) <= AMAX * (1 + 1e-9))
     assert np.all(np.abs(np.diff(command, axis=0)) <= VMAX * 0.001 * (1 + 1e-9))
-    assert measure(record, MODEL, plan, 4).deviation_command <= 0.05e-3
+    # on the wall clock, arrivals depend on the machine's load: a point that comes too late for the
+    # look-ahead costs a re-plan (two busy loops on a 2-core machine: up to 0.11 mm, 0.07 mm before
+    # this project's look-ahead at the start); the stepped-clock test above pins 0.05 mm exactly
+    assert measure(record, MODEL, plan, 4).deviation_command <= 0.3e-3
 
 
 # -- MotoROS -------------------------------------------------------------------------------------
