@@ -47,6 +47,17 @@ and jerk limits (exact extremes), and a segment beyond them is not refused:
   there, as a real controller's command smoothing does; scaling the whole trajectory for such a
   transient would lengthen it by 20 % and more.
 
+**Points the robot could pass.** Two rules keep it from going beyond monotone points it cannot
+stop at. A segment from rest to a point where the plan is already moving fast gets a slower end
+state that the robot can reach going forward only (:func:`_reachable`), not one it would back up
+for to take a run-up; the next segment is then a transient too. And when the robot sets off to a
+point whose next point is the last one queued, with no more in sight (:meth:`MotionQueue._coming`:
+the points came all at once, or slower than the robot runs through them), the point's state is
+slowed down as much as it takes for the robot to come to rest at that last point without passing
+it (:meth:`MotionQueue._braking`). A stream whose points come in time and then stop while the plan
+is still fast can still end beyond its last point: one point of look-ahead cannot tell the last
+point from the next.
+
 **A queue that runs dry.** When a segment ends in motion (a given velocity) and nothing follows,
 the robot decelerates with the jerk-limited stop of :meth:`MotionQueue.stop`; when an estimated
 point's segment to rest would exceed the limits, the robot goes to rest at the point time-optimally
