@@ -22,7 +22,7 @@ from robot_server.control import (
     quintic,
     quintic_hermite,
 )
-from robot_server.control.segments import run_up
+from robot_server.control.segments import run_up, stop_travel
 
 RNG = np.random.default_rng(5)
 N = 6
@@ -340,3 +340,14 @@ def test_run_up_is_the_shortest_way_to_a_speed() -> None:
     slowing = run_up(np.zeros(3), np.zeros(3), target, np.array([0.0, 0.0, -5.0]), limits=(v_max, a_max, j_max))
     assert slowing[2] > d[2] + 1e-3
     assert run_up([0.5], [0.0], [0.5], [0.0], limits=([3.0], [10.0], [500.0]))[0] == 0.0
+
+
+def test_stop_travel_is_ruckigs_fastest_stop_in_closed_form() -> None:
+    rng = np.random.default_rng(11)
+    limits = (np.full(N, 3.0), np.full(N, 10.0), np.full(N, 500.0))
+    zero = np.zeros(N)
+    for _ in range(300):
+        # at rest, slow, fast; not accelerating, accelerating, braking (harder than a stop starts with too)
+        v = rng.uniform(-2.5, 2.5, N) * rng.choice([0.0, 0.01, 1.0], N)
+        a = rng.uniform(-10.0, 10.0, N) * rng.choice([0.0, 0.1, 1.0], N)
+        close(stop_travel(v, a, limits=limits), run_up(v, a, zero, zero, limits=limits), 1e-9)

@@ -141,10 +141,11 @@ def _shape(
 ) -> tuple[float, float, float]:
     """One joint: the velocity clamped, and the acceleration's interval, for no overshoot
     (``start``: position, velocity, acceleration; ``after``: the next position and the time to it).
-    With the estimated acceleration ``a``, the velocity is clamped further where that keeps ``a``
-    within the interval: at the largest velocity the interval is a single value, far from the
-    curve's acceleration where the next point is close (a joint about to turn between two
-    samples), and the spike would slow the whole trajectory down."""
+    With the estimated acceleration ``a``, the velocity (never above the estimate) is the one
+    nearest the estimate for which ``a`` lies within the interval, when there is one: at the
+    largest velocity the interval is a single value, far from the curve's acceleration where the
+    next point is close (a joint about to turn between two samples), and the spike would slow the
+    whole trajectory down."""
     p0, v0, a0 = start
     p2, t2 = after
     delta1, delta2 = p - p0, p2 - p

@@ -144,14 +144,15 @@ def motoros_milliseconds(time: float) -> int:
     nearest 0.02 is 0.0199999995..., whose float32 product with 1000 is exactly 20.0, so clean client
     times mostly stay whole (truncating the double product would give 19 ms). But not always: the
     float32 nearest 16.06 times 1000 is 16059.999..., and MotoROS runs that point a millisecond
-    early. Here a time whose product lies within float32's precision (2^-23 relative) below a whole
-    millisecond is that millisecond, so a time a client computes on a clean grid is never a
-    millisecond short; any other time is truncated as MotoROS does (0.0199 s is 19 ms)."""
+    early. Here a time whose product lies within float32's precision (2^-23 relative) of a whole
+    millisecond, above or below, is that millisecond, so a time a client computes on a clean grid
+    is never a millisecond short nor long, up to MotoROS's 14400 s; any other time is truncated as
+    MotoROS does (0.0199 s is 19 ms)."""
     product = float(np.float32(time)) * 1000.0  # exact float32 time, product in double
-    whole = math.floor(product)
-    if whole + 1 - product <= abs(product) * 2.0**-23:
-        whole += 1
-    return int(whole)
+    nearest = round(product)
+    if abs(product - nearest) <= abs(product) * 2.0**-23:
+        return int(nearest)  # float32's rounding of a whole millisecond, either way
+    return math.floor(product)
 
 
 class _Refused(Exception):
