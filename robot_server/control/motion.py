@@ -72,7 +72,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from enum import Enum
 
@@ -110,8 +110,9 @@ _MAX_LAG_FACTOR = 1.5
 _MAX_LAG = 0.01
 #: re-planning the rest of a segment needs at least this much of it left (s)
 _MIN_REMAINDER = 1e-6
-#: a point's state is slowed down at most this much to stop at the last queued point (then: at rest)
-_MAX_BRAKING = 1024.0
+#: a point's state is slowed down at most this much to be reachable or to let the robot stop at
+#: the last queued point (then: at rest)
+_MAX_SLOWING = 1024.0
 #: with the start check off, a first point farther than this (rad or m) is a move to it
 _SAME_PLACE = 1e-9
 
@@ -682,7 +683,7 @@ class MotionQueue:
         launched = self._launched(entry, end)
         if _overshoot(launched) <= blend.OVERSHOOT:
             return launched
-        reachable = _reachable(entry.start, end, self.limits)
+        reachable = _reachable(entry.start.position, end, self.limits)
         if reachable is end:
             return launched
         slower = replace(self._launched(entry, reachable), slowed=True)
@@ -895,18 +896,9 @@ class MotionQueue:
 
         if not stop_overshoots(1.0):
             return entry
-        low, high = 1.0, 2.0
-        while stop_overshoots(high):
-            if high >= _MAX_BRAKING:  # the last point is too close for any speed but rest
-                break
-            low, high = high, 2.0 * high
-        else:
-            for _ in range(8):  # within 0.4 % of the least slowing down (this runs in a tick)
-                middle = 0.5 * (low + high)
-                low, high = (middle, high) if stop_overshoots(middle) else (low, middle)
-        slower = State(end.position, end.velocity / high, end.acceleration / (high * high))
-        if high >= _MAX_BRAKING:
-            slower = State.rest(end.position)
+        # within 0.4 % of the least slowing down (this runs in a tick); at rest when the last point
+        # is too close for any speed
+        slower = _slowed(end, _least_slowing(lambda f: not stop_overshoots(f), steps=8))
         candidate = self._stretched(
             replace(entry, end=slower, segment=_connect(entry.start, entry.start_order, slower, 2, entry.duration))
         )
@@ -1217,46 +1209,53 @@ def _state_need(state: State, limits: Limits) -> float:
     return need if need > 1.0 + SLACK else 1.0
 
 
-def _reachable(start: State, state: State, limits: Limits) -> State:
+def _reachable(start: Array, state: State, limits: Limits) -> State:
     """``state``, or the same state slower (velocities / k, accelerations / k^2, for all joints
-    alike) so that every joint can reach it from ``start`` without first moving away from it. To
-    gain the speed ``dv`` from ``v0`` at the jerk limit ``J`` a joint covers ``2 v0 sqrt(dv / J) +
-    dv sqrt(dv / J)`` (``v0 (dv / A + A / J) + dv^2 / 2A + dv A / 2J`` once it reaches the
-    acceleration limit ``A``); to arrive decelerating it must reach a higher speed first and cover
-    the way down from it too. A segment that starts where the plan did not lead (from rest: the
-    plan starts moving at once, or a point is far too soon for its distance) would otherwise have
-    the robot back up to take a run-up, or take a long detour in time to get up to speed."""
-    distance = state.position - start.position
+    alike) so that every joint can reach it from rest at ``start`` without first moving away from
+    it: the shortest way to its speed and acceleration (:func:`.segments.run_up`) fits in the
+    distance. A plan that is already moving fast at its first point (one that starts at speed, or
+    a point far too soon for its distance) would otherwise have the robot back up to take a run-up."""
+    distance = state.position - start
     direction = np.sign(distance)
     speed = state.velocity * direction
-    initial = np.maximum(start.velocity * direction, 0.0)
     room = np.abs(distance)
-
-    concerned = (speed > initial) & (room > 0.0)
+    concerned = (speed > 0.0) & (room > 0.0)
     if not np.any(concerned):
         return state
+    zero = np.zeros_like(speed)
 
     def fits(k: float) -> bool:
-        # the shortest way to the speed and acceleration: ruckig's fastest way there, each joint on its own
-        target = np.where(concerned, speed / k, initial)
+        target = np.where(concerned, speed / k, 0.0)
         target_acc = np.where(concerned, state.acceleration * direction / (k * k), 0.0)
-        a0 = np.where(concerned, start.acceleration * direction, 0.0)
-        needed = run_up(initial, a0, target, target_acc, limits=(limits.velocity, limits.acceleration, limits.jerk))
+        needed = run_up(zero, zero, target, target_acc, limits=(limits.velocity, limits.acceleration, limits.jerk))
         return bool(np.all(np.where(concerned, needed <= room * (1.0 + SLACK) + 1e-12, True)))
 
     if fits(1.0):
         return state
+    k = _least_slowing(fits, steps=24)
+    # within the limits too: slowing the trajectory down would not change a state chosen here
+    return _slowed(state, None if k is None else max(k, _state_need(state, limits) * (1.0 + SLACK)))
+
+
+def _least_slowing(fits: Callable[[float], bool], *, steps: int) -> float | None:
+    """About the least factor k > 1 for which ``fits(k)`` (which must hold from some k on):
+    doubling, then ``steps`` bisections; None beyond :data:`_MAX_SLOWING`."""
     low, high = 1.0, 2.0
     while not fits(high):
-        if high > _MAX_BRAKING:
-            return State.rest(state.position)
+        if high >= _MAX_SLOWING:
+            return None
         low, high = high, 2.0 * high
-    for _ in range(24):
+    for _ in range(steps):
         middle = 0.5 * (low + high)
         low, high = (low, middle) if fits(middle) else (middle, high)
-    # within the limits too: slowing the trajectory down would not change a state chosen here
-    high = max(high, _state_need(state, limits) * (1.0 + SLACK))
-    return State(state.position, state.velocity / high, state.acceleration / (high * high))
+    return high
+
+
+def _slowed(state: State, k: float | None) -> State:
+    """``state`` as a trajectory k times slower passes it (None: at rest)."""
+    if k is None:
+        return State.rest(state.position)
+    return State(state.position, state.velocity / k, state.acceleration / (k * k))
 
 
 def _overshoot(entry: _Entry) -> float:

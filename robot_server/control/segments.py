@@ -42,6 +42,8 @@ __all__ = [
     "quintic_hermite",
     "launch",
     "Chain",
+    "run_up",
+    "stop_travel",
     "hold",
     "PlanningError",
 ]
