@@ -535,3 +535,27 @@ def test_a_stream_that_starts_with_three_points_at_once_runs_as_planned() -> Non
     m = measure(recorder, MODEL, plan, ctl.servo_ticks_per_interpolation)
     assert abs(m.executed / plan.duration - 1.0) <= 0.02 and m.stops == 0
     assert m.deviation_command <= 0.05e-3 and m.final_error == 0.0
+
+
+def test_a_point_slowed_for_a_last_point_gets_its_own_state_back_when_the_next_one_comes() -> None:
+    """The over-fast plan with its first two points in one servo tick and one per tick after (as
+    over loopback): the first segment sets off slowed down to be able to stop at point 2, the only
+    one after it so far; point 3 comes 1 ms later and the rest of the segment is planned again to
+    point 1's own state. Left slowed, the robot needed 90 ms to catch up with the plan and took
+    1.665x the planned time with a stop."""
+    plan = Plan.with_peak_acceleration(1.8 * float(AMAX.min()), 41)
+    points = ros_points(plan, VMAX)
+    ctl = controller()
+    recorder = Recorder(ctl.dof, capacity=round(5.0 / ctl.config.servo_period))
+    ctl.start(points[0])
+    ctl.add(points[1])
+    for point in points[2:]:
+        ctl.add(point)
+        recorder.add(ctl.step())
+    while ctl.in_motion and ctl.time < 3.0:
+        recorder.add(ctl.step())
+    for _ in range(300):  # the drives settle
+        recorder.add(ctl.step())
+    m = measure(recorder, MODEL, plan, ctl.servo_ticks_per_interpolation)
+    assert m.executed / plan.duration <= 1.6 and m.stops == 0 and m.final_error == 0.0
+    assert np.all(np.abs(recorder.get("command_acceleration")) <= AMAX * (1 + 1e-9))

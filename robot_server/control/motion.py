@@ -170,6 +170,9 @@ class _Entry:
     #: a transient from rest whose end state was slowed down to be reachable (:func:`_reachable`):
     #: the next segment starts from a state the plan did not lead to either
     slowed: bool = False
+    #: the state at its point before it was slowed down to be able to stop at the next point, the
+    #: last one queued (:meth:`MotionQueue._braking`): restored if a further point comes in time
+    unbraked: State | None = None
 
     @property
     def trajectory(self) -> int:
@@ -556,6 +559,13 @@ class MotionQueue:
         transient = False
         # 1. the point before this one passes through it, now that it is known
         if pending and pending[-1].end is None:
+            if len(pending) == 1 and running is not None and running.unbraked is not None:
+                # the point it slowed down for is not the last after all: back to the points' state
+                restored = self._unbraked(running, started)
+                if restored is not None:
+                    assert restored.end is not None
+                    running, started = restored, self._t
+                    pending[-1] = replace(pending[-1], start=restored.end, start_order=2, transient=running.slowed)
             pending[-1] = self._determine(pending[-1], knot.position, _need(knot.duration) * scale)
             built.append(pending[-1])
         elif running is not None and running.dry and running.trajectory == knot.trajectory and not pending:
@@ -909,7 +919,31 @@ class MotionQueue:
         ):
             return entry  # it cannot brake that much on the way to its own point: as planned
         log.debug("point %d: slower through it, to be able to stop at point %d", entry.index, last.index)
-        return candidate
+        return replace(candidate, unbraked=end)
+
+    def _unbraked(self, running: _Entry, started: float) -> _Entry | None:
+        """The rest of a running segment slowed down to be able to stop at the next point
+        (:meth:`_braking`), re-planned to the state the points give its own now that a further
+        point has come (None: too late, or beyond the limits)."""
+        end = running.unbraked
+        assert end is not None
+        remaining = started + running.duration - self._t
+        if remaining < _MIN_REMAINDER:
+            return None
+        segment = _connect(self._state, 2, end, 2, remaining)
+        entry = self._stretched(
+            replace(
+                running, start=self._state, start_order=2, duration=remaining, end=end, segment=segment, unbraked=None
+            )
+        )
+        if (
+            entry.duration > _MAX_LAG_FACTOR * remaining + _MAX_LAG  # as late as a jerk replacement may be
+            or self._excess(entry)[0] > 1.0
+            or not self._within_positions(entry)
+            or _overshoot(entry) > blend.OVERSHOOT
+        ):
+            return None
+        return entry
 
     # -- limits ------------------------------------------------------------------------------------
 
@@ -1076,6 +1110,7 @@ class MotionQueue:
                         start_order=2,
                         duration=remaining,
                         before_duration=running.before_duration * factor,
+                        unbraked=None,
                     ),
                     successor,
                     scale,
