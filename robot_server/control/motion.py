@@ -52,11 +52,12 @@ stop at. A segment from rest to a point where the plan is already moving fast ge
 state that the robot can reach going forward only (:func:`_reachable`), not one it would back up
 for to take a run-up; the next segment is then a transient too. And when the robot sets off to a
 point whose next point is the last one queued, with no more in sight (:meth:`MotionQueue._coming`:
-the points came all at once, or slower than the robot runs through them), the point's state is
-slowed down as much as it takes for the robot to come to rest at that last point without passing
-it (:meth:`MotionQueue._braking`). A stream whose points come in time and then stop while the plan
-is still fast can still end beyond its last point: one point of look-ahead cannot tell the last
-point from the next.
+the points came all at once, slower than the robot runs through them, or the next one is overdue),
+or whose next point has joints at rest (holding still or turning there), the point's state is
+slowed down as much as it takes for those joints to come to rest at that next point without
+passing it (:meth:`MotionQueue._braking`). A stream whose points come in time and then stop, the
+last one just as the robot sets off to the point before it, while the plan is still fast, can
+still end beyond its last point: one point of look-ahead cannot tell the last point from the next.
 
 **A queue that runs dry.** When a segment ends in motion (a given velocity) and nothing follows,
 the robot decelerates with the jerk-limited stop of :meth:`MotionQueue.stop`; when an estimated
@@ -861,34 +862,51 @@ class MotionQueue:
             entry = self._to_rest(entry, messages)
             for level, message in messages:
                 log.log(level, message)
-        elif len(self._pending) == 1 and self._pending[0].end is None and entry.is_kind(_Kind.ESTIMATED):
-            last = self._pending[0]
-            braking = entry if self._coming(entry, last, at) else self._braking(entry, last)
-            if braking is not entry:
-                entry = braking
-                assert entry.end is not None
-                self._pending = (replace(last, start=entry.end, start_order=2, transient=True),)
+        elif self._pending and entry.is_kind(_Kind.ESTIMATED):
+            after = self._pending[0]
+            if after.end is None:
+                if len(self._pending) == 1 and not self._coming(entry, after, at):
+                    braking = self._braking(entry, after, np.ones(after.start.position.shape, dtype=bool))
+                    if braking is not entry:
+                        entry = braking
+                        assert entry.end is not None
+                        self._pending = (replace(after, start=entry.end, start_order=2, transient=True),)
+            elif np.any(holds := after.end.velocity == 0.0):
+                # joints that hold still or turn at the point after this one: decided, so the
+                # robot must be able to stop there (a burst: the points all queued at once)
+                braking = self._braking(entry, after, holds)
+                if braking is not entry:
+                    entry = replace(braking, unbraked=None)
+                    assert entry.end is not None
+                    segment = _connect(entry.end, 2, after.end, after.end_order, after.duration)
+                    after = replace(after, start=entry.end, start_order=2, segment=segment, transient=True)
+                    self._pending = (self._stretched(after), *self._pending[1:])
         self._running, self._started = entry, at
 
     def _coming(self, entry: _Entry, last: _Entry, at: float) -> bool:
         """The point after ``last`` will likely be queued before the robot sets off to ``last``
         (``entry`` starting ``at``): the trajectory is open and its points keep coming at the
         pace they have come so far. Points all queued at once (a download, a burst) say nothing
-        of more to come."""
+        of more to come, and nor does a stream whose next point is overdue by more than its
+        pace (the client has likely sent its last point; if one still comes, the robot gets
+        the state back, :meth:`_unbraked`)."""
         trajectory = self._trajectory
         if not trajectory.open or last.trajectory != trajectory.number or last.index < 1:
             return False
         gap = (last.queued - trajectory.opened) / last.index
-        return gap > 0.0 and last.queued + gap <= at + entry.duration
+        expected = last.queued + gap
+        return gap > 0.0 and expected <= at + entry.duration and at <= expected + gap
 
-    def _braking(self, entry: _Entry, last: _Entry) -> _Entry:
-        """``entry``, about to run, when the point after its own is the last one queued and no
-        next one is in sight (:meth:`_coming`): a state at its point from which the robot can
-        still come to rest at that last point without going beyond it (its fastest stop ends
-        short of it). The state the neighbours gave is kept when it allows that; otherwise its
-        velocity (and acceleration) is scaled down as little as needed.
-        The last point's segment then starts from a state the plan did not lead to (a transient:
-        if more points come, the robot catches up within its limits, a little late)."""
+    def _braking(self, entry: _Entry, last: _Entry, stops: NDArray[np.bool_]) -> _Entry:
+        """``entry``, about to run, when the joints ``stops`` may have to come to rest at the
+        point after its own, ``last``: it is the last one queued and no next one is in sight
+        (:meth:`_coming`; all joints), or its state has them at rest (holding still, turning).
+        A state at ``entry``'s point from which those joints can still come to rest at ``last``
+        without going beyond it (their fastest stop ends short of it). The state the neighbours
+        gave is kept when it allows that; otherwise its velocity (and acceleration) is scaled
+        down as little as needed.
+        The next segment then starts from a state the plan did not lead to (a transient: the
+        robot catches up within its limits, a little late)."""
         end = entry.end
         assert end is not None
         lim = self.limits
@@ -902,7 +920,7 @@ class MotionQueue:
                 end.velocity / f, end.acceleration / (f * f), limits=(lim.velocity, lim.acceleration, lim.jerk)
             )
             beyond = np.maximum(travel - np.maximum(ahead, 0.0), np.minimum(ahead, 0.0) - travel)
-            return bool(np.max(beyond) > blend.OVERSHOOT)
+            return bool(np.max(np.where(stops, beyond, 0.0)) > blend.OVERSHOOT)
 
         if not stop_overshoots(1.0):
             return entry
