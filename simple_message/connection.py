@@ -1,18 +1,15 @@
 """One simple_message connection over any byte stream: send, receive, request/reply, topics.
 
-The asyncio layer over the sans-I/O core, kept thin (architecture.md). A :class:`Connection` owns
-one reader task that cuts frames, decodes them and routes each message:
+The asyncio layer over the sans-I/O :class:`~.link.Link`, which owns the protocol's rules (frames,
+byte order, which reply answers which request, requests given up on). A :class:`Connection`
+moves bytes and time: one reader task feeds what arrives to its link and acts on the events.
 
-* a SERVICE_REPLY answers the oldest pending request. simple_message has no correlation id, so
-  replies are matched in order (FIFO). A request whose caller gave up (timeout, cancellation) keeps
-  its place as a *tombstone* so that its late reply, if it comes, is consumed instead of being
-  handed to the next request. A reply that cannot answer the head request (another type, reply_code
-  INVALID, a malformed body) fails that request with :class:`~.errors.UnexpectedReply`: the
-  reference client takes whatever arrives next as "the reply" (simple-message.md §0 item 5, §3);
-  we check. Vendor shapes are accepted: same type header-only or echoed (ABB, C++), REP's
-  dummy_data, Fanuc's JOINT_POSITION ack of a JOINT_TRAJ_PT, and MotoROS's MOTO_MOTION_REPLY (2002),
-  which it sends for every request except PING (§3, §8.1).
-* anything else goes to the connection's message handler (servers) and to every subscription.
+* A reply that answers a request completes its caller's future; a reply that cannot answer it
+  (another type, reply_code INVALID, a malformed body) fails it with
+  :class:`~.errors.UnexpectedReply`. Which replies may answer which requests is the peer's
+  dialect (``answers``; :mod:`.dialects`).
+* Anything else goes to the connection's message handler (servers; a body that does not decode
+  arrives as the :class:`~.errors.MalformedMessage` itself) and to every subscription.
 
 Subscriptions are bounded: a subscriber that does not keep up loses its *oldest* messages, and the
 loss is counted (:attr:`Subscription.dropped`). It never blocks the reader or grows memory.
@@ -36,28 +33,42 @@ from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
 
 from .constants import CommType, MsgType, ReplyCode
+from .dialects import any_dialect_answers
 from .errors import (
     ConnectionClosed,
-    FrameError,
     LocalProtocolError,
     MalformedMessage,
     RequestFailed,
     RequestTimeout,
     UnexpectedReply,
 )
-from .framing import DEFAULT_MAX_LENGTH, FrameDecoder
-from .messages import Message, decode, encode
+from .framing import DEFAULT_MAX_LENGTH
+from .link import (
+    NEED_DATA,
+    Answered,
+    Ended,
+    LateReply,
+    Link,
+    Malformed,
+    Received,
+    ReplyRule,
+    Request,
+    StrayReply,
+    Unanswerable,
+)
+from .messages import Message
 from .transport import READ_SIZE, StreamPair, set_nodelay
 from .wire import DEFAULT_FORMAT, WireFormat
 
-__all__ = ["Connection", "ConnectionState", "Subscription", "MessageHandler", "reply_matches", "malformed_error"]
+__all__ = ["Connection", "ConnectionState", "Subscription", "MessageHandler"]
 
 log = logging.getLogger(__name__)
 frames_log = logging.getLogger(__name__ + ".frames")
 
-#: Called by the reader for every message that is not a SERVICE_REPLY, in arrival order. It may
-#: return an awaitable, which the reader awaits before reading on (back-pressure).
-MessageHandler = Callable[[Message], Awaitable[None] | None]
+#: Called by the reader for every message that is not a SERVICE_REPLY, in arrival order (a body
+#: that does not decode: the MalformedMessage). It may return an awaitable, which the reader
+#: awaits before reading on (back-pressure).
+MessageHandler = Callable[[Message | MalformedMessage], Awaitable[None] | None]
 
 
 class ConnectionState(enum.Enum):
@@ -67,14 +78,6 @@ class ConnectionState(enum.Enum):
     CONNECTED = "connected"
     RECONNECTING = "reconnecting"
     CLOSED = "closed"
-
-
-def reply_matches(request_type: int, reply: Message) -> bool:
-    """Whether ``reply`` can be the answer to a request of ``request_type`` (vendor shapes, §3)."""
-    reply_type = reply.msg_type
-    if reply_type in (request_type, MsgType.MOTO_MOTION_REPLY):
-        return True
-    return request_type == MsgType.JOINT_TRAJ_PT and reply_type == MsgType.JOINT_POSITION
 
 
 class Subscription:
@@ -142,19 +145,13 @@ class Subscription:
             raise StopAsyncIteration from None
 
 
-class _Pending:
-    __slots__ = ("future", "msg_type")
-
-    def __init__(self, msg_type: int, future: asyncio.Future[Message] | None) -> None:
-        self.msg_type = msg_type
-        self.future = future  # None: a tombstone, the caller gave up
-
-
 class Connection:
     """A simple_message link over one stream pair (TCP socket, serial port, memory pair).
 
     ``autodetect`` detects the byte order from the peer's first frame (servers); until then, and for
-    everything sent, ``wire`` applies. Call :meth:`start` (or use ``async with``) to begin reading.
+    everything sent, ``wire`` applies. ``answers``: which replies may answer which requests (the
+    peer's dialect, :meth:`.dialects.Dialect.answers`; default: what any dialect may send). Call
+    :meth:`start` (or use ``async with``) to begin reading.
     """
 
     def __init__(
@@ -169,18 +166,19 @@ class Connection:
         subscriptions: list[Subscription] | None = None,
         drain_timeout: float = 5.0,
         max_write_buffer: int = 256 * 1024,
+        answers: ReplyRule = any_dialect_answers,
     ) -> None:
         self.reader, self.writer = streams
         set_nodelay(self.writer)
-        self.wire = wire
+        #: the protocol state (sans-I/O): frames, byte order, requests and replies
+        self.link = Link(wire, autodetect=autodetect, max_length=max_length, answers=answers)
         self.name = name or str(self.writer.get_extra_info("peername") or "link")
-        self.decoder = FrameDecoder(None if autodetect else wire.byte_order, max_length=max_length)
         self.drain_timeout = drain_timeout
         self.max_write_buffer = max_write_buffer
         self.on_message = on_message
         #: Shared with a reconnecting client, so subscriptions outlive one connection.
         self.subscriptions: list[Subscription] = subscriptions if subscriptions is not None else []
-        self._pending: deque[_Pending] = deque()
+        self._futures: dict[Request, asyncio.Future[Message]] = {}
         self._task: asyncio.Task[None] | None = None
         self._closed = asyncio.Event()
         self.state = ConnectionState.CONNECTED
@@ -190,6 +188,15 @@ class Connection:
         #: If set, called when reading ends (EOF or a frame error) instead of closing at once, so a
         #: server can still answer the requests it already read; it must close the connection.
         self.on_read_end: Callable[[BaseException | None], None] | None = None
+
+    @property
+    def wire(self) -> WireFormat:
+        """The wire format spoken: as given, or as detected from the peer's first frame."""
+        return self.link.wire
+
+    @wire.setter
+    def wire(self, wire: WireFormat) -> None:
+        self.link.set_wire(wire)
 
     # -- lifecycle -----------------------------------------------------------------------------
 
@@ -243,10 +250,11 @@ class Connection:
             if self.writer.transport is not None:
                 self.writer.transport.abort()
         error = ConnectionClosed(f"{self.name}: connection closed" + (f" ({reason})" if reason else ""))
-        while self._pending:
-            entry = self._pending.popleft()
-            if entry.future is not None and not entry.future.done():
-                entry.future.set_exception(error)
+        self.link.close()
+        futures, self._futures = self._futures, {}
+        for future in futures.values():
+            if not future.done():
+                future.set_exception(error)
         if self._inbox is not None:
             self._inbox.close()
         self._closed.set()
@@ -255,23 +263,22 @@ class Connection:
 
     async def _read_loop(self) -> None:
         reason: BaseException | None = None
+        link = self.link
+        if frames_log.isEnabledFor(logging.DEBUG):
+            link.on_frame = lambda frame: frames_log.debug("%s <- %s", self.name, frame.hex())
         try:
             while True:
                 data = await self.reader.read(READ_SIZE)
-                if not data:
+                detected = link.detected
+                link.receive_data(data)
+                if link.detected and not detected:
+                    log.info("%s: detected %s byte order", self.name, link.wire.byte_order.value)
+                ended = await self._events()
+                if self.state is ConnectionState.CLOSED:
+                    return
+                if ended is not None:
+                    reason = ended.error
                     break
-                self.decoder.feed(data)
-                if self.decoder.detected and self.decoder.byte_order is not self.wire.byte_order:
-                    self.wire = self.wire.with_byte_order(self.decoder.byte_order)  # type: ignore[arg-type]
-                    log.info("%s: detected %s byte order", self.name, self.wire.byte_order.value)
-                for frame in self.decoder:
-                    if frames_log.isEnabledFor(logging.DEBUG):
-                        frames_log.debug("%s <- %s", self.name, frame.hex())
-                    await self._route_frame(frame)
-                    if self.state is ConnectionState.CLOSED:
-                        return
-        except FrameError as exc:
-            reason = exc
         except (ConnectionError, OSError) as exc:
             reason = exc
         except asyncio.CancelledError:
@@ -288,56 +295,55 @@ class Connection:
         else:
             self._shutdown(reason)
 
-    async def _route_frame(self, frame: bytes) -> None:
-        try:
-            msg = decode(frame, self.wire)
-        except MalformedMessage as exc:
-            if exc.comm_type == CommType.SERVICE_REPLY:
-                self._on_reply(None, exc)
-            elif self.on_message is not None:
-                await self._call(_MalformedFrame(exc))
+    async def _events(self) -> Ended | None:
+        """Act on the link's events, in order, until it needs data (or the input ended)."""
+        link = self.link
+        while True:
+            event = link.next_event()
+            if event is NEED_DATA:
+                return None
+            if isinstance(event, Received):
+                msg = event.message
+                if self.on_message is not None:
+                    await self._call(msg)
+                for sub in self.subscriptions:
+                    if sub.wants(msg):
+                        sub.put(msg)
+                if self._inbox is not None:
+                    self._inbox.put(msg)
+            elif isinstance(event, Answered):
+                future = self._futures.pop(event.request, None)
+                if future is not None and not future.done():
+                    future.set_result(event.reply)
+            elif isinstance(event, Unanswerable):
+                future = self._futures.pop(event.request, None)
+                if future is not None and not future.done():
+                    future.set_exception(
+                        UnexpectedReply(
+                            f"{self.name}: {event.describe()} cannot answer a {_type_name(event.request.msg_type)} "
+                            "request",
+                            event.reply,
+                        )
+                    )
+            elif isinstance(event, Malformed):
+                if self.on_message is not None:
+                    await self._call(event.error)
+                else:
+                    log.warning("%s: dropped malformed message: %s", self.name, event.error)
+            elif isinstance(event, LateReply):
+                log.info("%s: late reply to an abandoned request consumed: %s", self.name, event.reply.name)
+            elif isinstance(event, StrayReply):
+                log.debug("%s: stray reply ignored: %s", self.name, event.reply.name if event.reply else event.error)
             else:
-                log.warning("%s: dropped malformed message: %s", self.name, exc)
-            return
-        if msg.comm_type == CommType.SERVICE_REPLY:
-            self._on_reply(msg, None)
-            return
-        if self.on_message is not None:
-            await self._call(msg)
-        for sub in self.subscriptions:
-            if sub.wants(msg):
-                sub.put(msg)
-        if self._inbox is not None:
-            self._inbox.put(msg)
+                return event
+            if self.state is ConnectionState.CLOSED:
+                return None
 
-    async def _call(self, msg: Message) -> None:
+    async def _call(self, msg: Message | MalformedMessage) -> None:
         assert self.on_message is not None
         result = self.on_message(msg)
         if result is not None:
             await result
-
-    def _on_reply(self, reply: Message | None, error: MalformedMessage | None) -> None:
-        while self._pending:
-            head = self._pending[0]
-            if reply is not None and reply_matches(head.msg_type, reply):
-                self._pending.popleft()
-                if head.future is None:
-                    log.info("%s: late reply to an abandoned request consumed: %s", self.name, reply.name)
-                elif not head.future.done():
-                    head.future.set_result(reply)
-                return
-            if head.future is None:
-                # The abandoned request's reply never came; this reply is for a later request.
-                self._pending.popleft()
-                continue
-            self._pending.popleft()
-            what = str(error) if error is not None else f"{reply.name if reply else '?'} reply"
-            if not head.future.done():
-                head.future.set_exception(
-                    UnexpectedReply(f"{self.name}: {what} cannot answer a {_type_name(head.msg_type)} request", reply)
-                )
-            return
-        log.debug("%s: stray reply ignored: %s", self.name, reply.name if reply else error)
 
     def subscribe(self, maxsize: int = 256, msg_types: Iterable[int] | None = None) -> Subscription:
         """A new bounded subscription to received topics (``msg_types``: only these types)."""
@@ -364,7 +370,7 @@ class Connection:
     def _write(self, msg: Message) -> None:
         if self.state is ConnectionState.CLOSED:
             raise ConnectionClosed(f"{self.name}: connection closed")
-        self._write_frame(encode(msg, self.wire))
+        self._write_frame(self.link.send(msg))
 
     def _write_frame(self, frame: bytes) -> None:
         if frames_log.isEnabledFor(logging.DEBUG):
@@ -379,6 +385,15 @@ class Connection:
         """Send ``msg``; if the peer lets ``max_write_buffer`` bytes pile up, wait at most
         ``drain_timeout`` s for it, then close the connection and raise ConnectionClosed."""
         self._write(msg)
+        await self._drained()
+
+    async def _send_frame(self, frame: bytes) -> None:
+        if self.state is ConnectionState.CLOSED:
+            raise ConnectionClosed(f"{self.name}: connection closed")
+        self._write_frame(frame)
+        await self._drained()
+
+    async def _drained(self) -> None:
         if self.write_buffer_size() > self.max_write_buffer:
             try:
                 await asyncio.wait_for(self.writer.drain(), self.drain_timeout)
@@ -391,7 +406,7 @@ class Connection:
         unread is closed. Returns whether the message was queued."""
         if self.state is ConnectionState.CLOSED:
             return False
-        return self.send_frame_nowait(encode(msg, self.wire))
+        return self.send_frame_nowait(self.link.send(msg))
 
     def send_frame_nowait(self, frame: bytes) -> bool:
         """:meth:`send_nowait` of a frame already encoded in this connection's :attr:`wire` format
@@ -413,24 +428,24 @@ class Connection:
         """
         if msg.comm_type != CommType.SERVICE_REQUEST:
             raise LocalProtocolError(f"request() sends SERVICE_REQUESTs, not comm_type {msg.comm_type}")
-        if self.state is ConnectionState.CLOSED:
+        if self.state is ConnectionState.CLOSED or self.link.ended:
             raise ConnectionClosed(f"{self.name}: connection closed")
         loop = asyncio.get_running_loop()
         future: asyncio.Future[Message] = loop.create_future()
-        entry = _Pending(msg.msg_type, future)
-        self._pending.append(entry)
+        request, frame = self.link.send_request(msg)
+        self._futures[request] = future
         # A timer on the future itself, not wait_for(): no extra task per request on the hot path.
         timer = loop.call_later(timeout, _expire, future) if timeout is not None else None
         try:
-            await self.send(msg)
+            await self._send_frame(frame)
             reply = await future
         except asyncio.CancelledError:
-            entry.future = None  # keep the place in the FIFO: a late reply must not go to the next request
+            self._give_up(request)
             if future.cancelled() and getattr(future, "expired", False):
                 raise RequestTimeout(f"{self.name}: no reply to {msg.name} within {timeout} s") from None
             raise
         except BaseException:
-            entry.future = None
+            self._give_up(request)
             raise
         finally:
             if timer is not None:
@@ -441,25 +456,14 @@ class Connection:
             raise RequestFailed(f"{self.name}: {msg.name} request answered FAILURE", reply)
         raise UnexpectedReply(f"{self.name}: reply to {msg.name} has reply_code {reply.reply_code}", reply)
 
+    def _give_up(self, request: Request) -> None:
+        # keep its place in the FIFO: a late reply must not go to the next request
+        if self._futures.pop(request, None) is not None:
+            self.link.abandon(request)
+
     @property
     def pending_requests(self) -> int:
-        return sum(1 for p in self._pending if p.future is not None)
-
-
-class _MalformedFrame(Message):
-    """Internal: hands a MalformedMessage to a server's handler in arrival order."""
-
-    __slots__ = ("error",)
-    error: MalformedMessage
-
-    def __init__(self, error: MalformedMessage) -> None:
-        object.__setattr__(self, "comm_type", error.comm_type)
-        object.__setattr__(self, "reply_code", 0)
-        object.__setattr__(self, "error", error)
-
-    @property
-    def msg_type(self) -> int:
-        return self.error.msg_type or 0
+        return self.link.pending_requests
 
 
 def _expire(future: asyncio.Future[Message]) -> None:
@@ -479,8 +483,3 @@ def _type_name(msg_type: int) -> str:
 def _hang_up(reason: BaseException) -> bool:
     """The peer went away (normal life of a connection, not a warning)."""
     return isinstance(reason, BrokenPipeError | ConnectionResetError)
-
-
-def malformed_error(msg: Message) -> MalformedMessage | None:
-    """The decoding error carried by a message handed to a server handler, if any."""
-    return msg.error if isinstance(msg, _MalformedFrame) else None

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import enum
 import inspect
 import logging
 import random
@@ -44,9 +45,9 @@ from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from .connection import Connection, ConnectionState, Subscription, malformed_error
+from .connection import Connection, ConnectionState, Subscription
 from .constants import CommType, MsgType, ReplyCode
-from .errors import ConnectionClosed, NotConnected
+from .errors import ConnectionClosed, MalformedMessage, NotConnected
 from .framing import DEFAULT_MAX_LENGTH
 from .header import header_error
 from .messages import HeaderOnly, Message, Ping
@@ -97,7 +98,7 @@ class Session:
     def end_of_input(self, reason: BaseException | None) -> None:
         """The peer stopped sending (EOF or a frame error): answer what is queued, then close."""
         self.end_reason = reason
-        self._end_task = asyncio.get_running_loop().create_task(self.queue.put(_END))
+        self._end_task = asyncio.get_running_loop().create_task(self.queue.put(_Marker.END))
 
     def send_nowait(self, msg: Message) -> bool:
         return self.connection.send_nowait(msg)
@@ -272,14 +273,10 @@ class Server:
 
     # -- per-connection pipeline ---------------------------------------------------------------
 
-    def _arrived(self, session: Session, msg: Message) -> Awaitable[None] | None:
-        if msg.comm_type == CommType.SERVICE_REQUEST:
+    def _arrived(self, session: Session, msg: Message | MalformedMessage) -> Awaitable[None] | None:
+        if isinstance(msg, Message) and msg.comm_type == CommType.SERVICE_REQUEST:
             hook = self._arrival.get(msg.msg_type)
-            if (
-                hook is not None
-                and malformed_error(msg) is None
-                and header_error(msg.msg_type, msg.comm_type, msg.reply_code) is None
-            ):
+            if hook is not None and header_error(msg.msg_type, msg.comm_type, msg.reply_code) is None:
                 try:
                     hook(msg, session)
                 except Exception:
@@ -291,7 +288,7 @@ class Server:
             out = self._dispatch_now(session, msg)
             if out is None:
                 return None
-            if out is _CLOSE:
+            if out is _Marker.CLOSE:
                 log.info("%s: closed by the server", session.name)
                 session.connection.abort()
                 return None
@@ -309,7 +306,7 @@ class Server:
     async def _work(self, session: Session) -> None:
         while True:
             item = await session.queue.get()
-            if item is _END:
+            if item is _Marker.END:
                 session.connection.abort(session.end_reason)
                 return
             session.busy = True
@@ -329,8 +326,10 @@ class Server:
     async def _dispatch(self, session: Session, item: _Item) -> Message | None:
         if isinstance(item, _Ready):
             return item.reply
+        if isinstance(item, _Marker):
+            raise CloseConnection if item is _Marker.CLOSE else AssertionError(item)
         out = item if isinstance(item, _Later) else self._dispatch_now(session, item)
-        if out is _CLOSE:
+        if out is _Marker.CLOSE:
             raise CloseConnection
         if not isinstance(out, _Later):
             return out
@@ -342,13 +341,14 @@ class Server:
             return self._handler_failed(session, out.msg)
         return self._finish(out.msg, result)
 
-    def _dispatch_now(self, session: Session, msg: Message) -> Message | _Later | None:
+    def _dispatch_now(
+        self, session: Session, msg: Message | MalformedMessage
+    ) -> Message | _Later | Literal[_Marker.CLOSE] | None:
         """Everything up to the handler's result: the reply, nothing, or an awaitable to finish."""
         is_request = msg.comm_type == CommType.SERVICE_REQUEST
-        error = malformed_error(msg)
-        if error is not None:
-            log.warning("%s: malformed message: %s", session.name, error)
-            return HeaderOnly(msg.msg_type, reply_code=ReplyCode.FAILURE) if is_request else None
+        if isinstance(msg, MalformedMessage):
+            log.warning("%s: malformed message: %s", session.name, msg)
+            return HeaderOnly(msg.msg_type or 0, reply_code=ReplyCode.FAILURE) if is_request else None
         problem = header_error(msg.msg_type, msg.comm_type, msg.reply_code)
         if problem is not None:
             log.warning("%s: %s", session.name, problem)
@@ -367,7 +367,7 @@ class Server:
         try:
             result = handler(msg, session)
         except CloseConnection:
-            return _CLOSE
+            return _Marker.CLOSE
         except Exception:
             return self._handler_failed(session, msg)
         if inspect.isawaitable(result):
@@ -411,14 +411,14 @@ class _Ready:
         self.reply = reply
 
 
-_Item = Message | _Later | _Ready
+class _Marker(enum.Enum):
+    #: what the handler's CloseConnection turns into on the way to the worker
+    CLOSE = "close"
+    #: queued after the last message of a connection whose input ended
+    END = "end"
 
-#: What the handler's CloseConnection turns into on the way to the worker.
-_CLOSE = HeaderOnly(0, reply_code=ReplyCode.INVALID)
 
-
-#: Queued after the last message of a connection whose input ended.
-_END = HeaderOnly(0)
+_Item = Message | MalformedMessage | _Later | _Ready | _Marker
 
 
 def _addr(sock: socket.socket) -> str:

@@ -264,10 +264,10 @@ class Emulator:
         if not sessions:
             return
         if self.config.byte_order == "auto":
-            spoken = [s.connection.wire for s in self.motion_server.sessions if s.connection.decoder.detected]
+            spoken = [s.connection.wire for s in self.motion_server.sessions if s.connection.link.detected]
             if spoken:  # clients that never speak get the order the motion port was spoken in
                 for s in sessions:
-                    if not s.connection.decoder.detected:
+                    if not s.connection.link.detected:
                         s.connection.wire = spoken[-1]
         self._publish(self.state_server, sessions)
 

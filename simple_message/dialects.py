@@ -1,0 +1,157 @@
+"""What each family of real peers makes of simple_message, as data: one :class:`Dialect` each.
+
+The protocol leaves open which ports a controller listens on, its byte order, how it answers a
+request and which topics its state port sends. Each controller family settled these differently
+(the project's protocol notes, §1.3, §3, §6, §8): the reference C++ library echoes a request's body
+in its reply, ABB's RAPID server replies header-only, Fanuc's KAREL server acknowledges a
+JOINT_TRAJ_PT with a JOINT_POSITION reply and speaks big-endian, MotoROS answers every request but
+PING with a MOTO_MOTION_REPLY (type 2002) on its own ports. A link that knows its peer's dialect
+matches replies by that dialect's rule (:meth:`Dialect.answers`); one that does not accepts what
+any registered dialect would send (:func:`any_dialect_answers`).
+
+Adding a dialect is one :class:`Dialect` value passed to :func:`register` (in its own module or
+here, with its tests).
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from .constants import MsgType, Port
+from .messages import Message
+from .wire import BE32, LE32, WireFormat
+
+__all__ = [
+    "ABB",
+    "DIALECTS",
+    "FANUC",
+    "GENERIC",
+    "MOTOROS",
+    "Dialect",
+    "ReplyStyle",
+    "any_dialect_answers",
+    "dialect",
+    "register",
+]
+
+
+class ReplyStyle(enum.Enum):
+    """How a server answers a request it accepts."""
+
+    #: the request's message with its body, comm_type SERVICE_REPLY (the C++ library)
+    ECHO = "echo"
+    #: the request's type with no body (ABB)
+    HEADER_ONLY = "header-only"
+    #: a JOINT_TRAJ_PT answered by a JOINT_POSITION carrying its sequence (Fanuc)
+    JOINT_POSITION_ACK = "joint-position-ack"
+    #: a MOTO_MOTION_REPLY whose body says the outcome (MotoROS; PING is echoed)
+    MOTO_MOTION_REPLY = "moto-motion-reply"
+
+
+@dataclass(frozen=True)
+class Dialect:
+    """One family of peers: where it listens, what it speaks, how it answers."""
+
+    name: str
+    description: str
+    motion_port: int
+    state_port: int
+    #: the I/O port, if the family has one
+    io_port: int | None
+    #: byte order and float size it speaks by default
+    wire: WireFormat
+    reply_style: ReplyStyle
+    #: reply types that answer a request of any type, besides the request's own
+    replies_to_any: frozenset[int] = frozenset()
+    #: per request type, reply types that answer it besides its own (replaces replies_to_any)
+    replies: Mapping[int, frozenset[int]] = field(default_factory=dict)
+    #: topics its state port publishes, in the order of one round
+    state_topics: tuple[int, ...] = (MsgType.JOINT_POSITION, MsgType.STATUS)
+
+    def answers(self, request_type: int, reply: Message) -> bool:
+        """Whether ``reply`` can be this dialect's answer to a request of ``request_type``."""
+        reply_type = reply.msg_type
+        if reply_type == request_type:
+            return True
+        return reply_type in self.replies.get(request_type, self.replies_to_any)
+
+    @property
+    def ports(self) -> dict[str, int]:
+        """Its default ports by role (``motion``, ``state`` and, if it has one, ``io``)."""
+        ports = {"motion": self.motion_port, "state": self.state_port}
+        if self.io_port is not None:
+            ports["io"] = self.io_port
+        return ports
+
+
+GENERIC = Dialect(
+    name="generic",
+    description="the ROS-Industrial C++ reference library (industrial_robot_client's peers)",
+    motion_port=Port.MOTION,
+    state_port=Port.STATE,
+    io_port=Port.IO,
+    wire=LE32,
+    reply_style=ReplyStyle.ECHO,
+)
+ABB = Dialect(
+    name="abb",
+    description="ABB IRC5, abb_driver's RAPID servers",
+    motion_port=Port.MOTION,
+    state_port=Port.STATE,
+    io_port=None,
+    wire=LE32,
+    reply_style=ReplyStyle.HEADER_ONLY,
+)
+FANUC = Dialect(
+    name="fanuc",
+    description="Fanuc, the fanuc_driver KAREL servers (ros_relay, ros_state)",
+    motion_port=Port.MOTION,
+    state_port=Port.STATE,
+    io_port=None,
+    wire=BE32,
+    reply_style=ReplyStyle.JOINT_POSITION_ACK,
+    replies={MsgType.JOINT_TRAJ_PT: frozenset({MsgType.JOINT_POSITION})},
+)
+MOTOROS = Dialect(
+    name="motoros",
+    description="Yaskawa Motoman, MotoROS (DX100, DX200, YRC1000; the FS100 speaks big-endian)",
+    motion_port=Port.MOTOROS_MOTION,
+    state_port=Port.MOTOROS_STATE,
+    io_port=Port.MOTOROS_IO,
+    wire=LE32,
+    reply_style=ReplyStyle.MOTO_MOTION_REPLY,
+    replies_to_any=frozenset({MsgType.MOTO_MOTION_REPLY}),
+    replies={MsgType.PING: frozenset()},
+    state_topics=(MsgType.JOINT_FEEDBACK, MsgType.STATUS),
+)
+
+#: Every registered dialect by name.
+DIALECTS: dict[str, Dialect] = {}
+
+
+def register(value: Dialect, *, replace: bool = False) -> Dialect:
+    """Make ``value`` known by its name (``replace``: over one of the same name)."""
+    if value.name in DIALECTS and not replace:
+        raise ValueError(f"a dialect named {value.name!r} is already registered")
+    DIALECTS[value.name] = value
+    return value
+
+
+def dialect(name: str) -> Dialect:
+    """The registered dialect called ``name``; :class:`KeyError` names the known ones."""
+    try:
+        return DIALECTS[name]
+    except KeyError:
+        raise KeyError(f"unknown dialect {name!r} (known: {', '.join(sorted(DIALECTS))})") from None
+
+
+def any_dialect_answers(request_type: int, reply: Message) -> bool:
+    """Whether any registered dialect would answer a request of ``request_type`` with ``reply``
+    (the rule of a link that does not know its peer)."""
+    return any(d.answers(request_type, reply) for d in DIALECTS.values())
+
+
+for _dialect in (GENERIC, ABB, FANUC, MOTOROS):
+    register(_dialect)

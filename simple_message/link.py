@@ -1,0 +1,275 @@
+"""One simple_message link without I/O: framing, byte order and the request/reply rules.
+
+The asyncio :class:`~.connection.Connection` (and anything else: a test, a capture reader, a
+serial loop) moves bytes and time; a :class:`Link` decides what they mean, after h11. Feed it
+what arrived with :meth:`Link.receive_data` (``b""`` at the end of the stream) and take
+:meth:`Link.next_event` until it says :data:`NEED_DATA`; turn messages into bytes with
+:meth:`Link.send` and, for a SERVICE_REQUEST whose reply you want, :meth:`Link.send_request`.
+
+The rules of replies. simple_message has no correlation id, so replies are matched to requests in
+order (FIFO). A request whose caller gave up (:meth:`Link.abandon`: a timeout, a cancellation)
+keeps its place, so that its late reply, if it comes, is consumed (:class:`LateReply`) instead of
+being taken as the answer to the next request; if another reply comes first, the abandoned
+request's reply is taken to be lost and the reply goes to the next request. Which reply may
+answer which request is the peer's dialect (:mod:`.dialects`): the ``answers`` rule given to the
+link. A reply that cannot answer the oldest live request (another type, or a body that does not
+decode) ends that request with :class:`Unanswerable`: the reference client takes whatever
+arrives next as "the reply"; we check. A reply with nothing pending is a :class:`StrayReply`.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from .constants import CommType
+from .dialects import any_dialect_answers
+from .errors import FrameError, LocalProtocolError, MalformedMessage
+from .framing import DEFAULT_MAX_LENGTH, FrameDecoder
+from .messages import Message, decode, encode
+from .wire import DEFAULT_FORMAT, WireFormat
+
+__all__ = [
+    "NEED_DATA",
+    "Answered",
+    "Ended",
+    "Event",
+    "LateReply",
+    "Link",
+    "Malformed",
+    "NeedData",
+    "Received",
+    "ReplyRule",
+    "Request",
+    "StrayReply",
+    "Unanswerable",
+]
+
+#: Whether a reply (a decoded SERVICE_REPLY) can be the answer to a request of a message type.
+ReplyRule = Callable[[int, Message], bool]
+
+
+class NeedData(enum.Enum):
+    """The sentinel type of :data:`NEED_DATA`."""
+
+    NEED_DATA = "need data"
+
+
+#: :meth:`Link.next_event` has nothing more until more bytes (or the end) are fed.
+NEED_DATA = NeedData.NEED_DATA
+
+
+class Request:
+    """A SERVICE_REQUEST sent with :meth:`Link.send_request`, waiting for its reply. The I/O
+    layer keeps whatever it needs (a future) keyed by it."""
+
+    __slots__ = ("abandoned", "msg_type")
+
+    def __init__(self, msg_type: int) -> None:
+        self.msg_type = msg_type
+        #: its caller gave up (:meth:`Link.abandon`); it keeps its place for a late reply
+        self.abandoned = False
+
+    def __repr__(self) -> str:
+        return f"Request(msg_type={self.msg_type}{', abandoned' if self.abandoned else ''})"
+
+
+@dataclass(frozen=True, slots=True)
+class Received:
+    """A message that is not a reply: a request (servers) or a topic."""
+
+    message: Message
+
+
+@dataclass(frozen=True, slots=True)
+class Malformed:
+    """A frame that is not a reply and whose body does not decode (its header did). A server
+    answers a malformed request (FAILURE, or its dialect's reply)."""
+
+    error: MalformedMessage
+
+
+@dataclass(frozen=True, slots=True)
+class Answered:
+    """``reply`` answers ``request``."""
+
+    request: Request
+    reply: Message
+
+
+@dataclass(frozen=True, slots=True)
+class Unanswerable:
+    """What arrived as the reply to ``request`` cannot answer it: ``reply`` of another type, or
+    (``reply`` None) a reply whose body does not decode, ``error``. The request is over."""
+
+    request: Request
+    reply: Message | None
+    error: MalformedMessage | None
+
+    def describe(self) -> str:
+        if self.error is not None:
+            return str(self.error)
+        assert self.reply is not None
+        return f"{self.reply.name} reply"
+
+
+@dataclass(frozen=True, slots=True)
+class LateReply:
+    """The late reply of an abandoned request, consumed."""
+
+    request: Request
+    reply: Message
+
+
+@dataclass(frozen=True, slots=True)
+class StrayReply:
+    """A reply with no request pending (``reply`` None: its body did not decode, ``error``)."""
+
+    reply: Message | None
+    error: MalformedMessage | None
+
+
+@dataclass(frozen=True, slots=True)
+class Ended:
+    """No more input: the peer closed the stream (``error`` None) or sent bytes that cannot be
+    framed (``error``; the link cannot find the next frame). Requests still pending will never
+    be answered: :meth:`Link.close` hands them back."""
+
+    error: FrameError | None
+
+
+Event = Received | Malformed | Answered | Unanswerable | LateReply | StrayReply | Ended
+
+
+class Link:
+    """The protocol state of one link. ``autodetect`` takes the byte order from the peer's first
+    frame (servers; until then, and for what is sent, ``wire`` applies); ``answers`` is the
+    peer's reply rule (:meth:`.dialects.Dialect.answers`; default: what any dialect may send)."""
+
+    def __init__(
+        self,
+        wire: WireFormat = DEFAULT_FORMAT,
+        *,
+        autodetect: bool = False,
+        max_length: int = DEFAULT_MAX_LENGTH,
+        answers: ReplyRule = any_dialect_answers,
+    ) -> None:
+        self.wire = wire
+        self.answers = answers
+        self._decoder = FrameDecoder(None if autodetect else wire.byte_order, max_length=max_length)
+        self._pending: deque[Request] = deque()
+        self._events: deque[Event] = deque()
+        self._ended = False
+        #: Called with each complete frame received, before it is decoded (frame logs, captures).
+        self.on_frame: Callable[[bytes], None] | None = None
+
+    # -- state -----------------------------------------------------------------------------------
+
+    @property
+    def detected(self) -> bool:
+        """The byte order is known: given, or detected from the peer's first frame."""
+        return self._decoder.detected
+
+    @property
+    def ended(self) -> bool:
+        """The input ended (:class:`Ended` was produced)."""
+        return self._ended
+
+    @property
+    def pending_requests(self) -> int:
+        """Requests waiting for a reply, abandoned ones not counted."""
+        return sum(1 for r in self._pending if not r.abandoned)
+
+    def set_wire(self, wire: WireFormat) -> None:
+        """Send in ``wire`` from now on (a server that guesses what a peer that has not spoken yet
+        understands); the peer's first frame still decides, if the link autodetects."""
+        self.wire = wire
+
+    # -- sending ---------------------------------------------------------------------------------
+
+    def send(self, msg: Message) -> bytes:
+        """The frame of ``msg`` in this link's wire format (nothing is expected back)."""
+        return encode(msg, self.wire)
+
+    def send_request(self, msg: Message) -> tuple[Request, bytes]:
+        """A SERVICE_REQUEST whose reply is expected, and its frame."""
+        if msg.comm_type != CommType.SERVICE_REQUEST:
+            raise LocalProtocolError(f"a request is a SERVICE_REQUEST, not comm_type {msg.comm_type}")
+        if self._ended:
+            raise LocalProtocolError("the link has ended")
+        frame = encode(msg, self.wire)
+        request = Request(msg.msg_type)
+        self._pending.append(request)
+        return request, frame
+
+    def abandon(self, request: Request) -> None:
+        """Its caller gave up on ``request``: it keeps its place, and its late reply is consumed."""
+        request.abandoned = True
+
+    def close(self) -> list[Request]:
+        """End the link: the requests that were still waiting (not abandoned), oldest first."""
+        self._ended = True
+        waiting = [r for r in self._pending if not r.abandoned]
+        self._pending.clear()
+        return waiting
+
+    # -- receiving -------------------------------------------------------------------------------
+
+    def receive_data(self, data: bytes) -> None:
+        """Bytes as they arrived, in any chunking; ``b""``: the stream ended."""
+        if self._ended:
+            if data:
+                raise LocalProtocolError("data received after the link ended")
+            return
+        if not data:
+            self._end(None)
+            return
+        decoder = self._decoder
+        decoder.feed(data)
+        order = decoder.byte_order
+        if decoder.detected and order is not None and order is not self.wire.byte_order:
+            self.wire = self.wire.with_byte_order(order)  # detected from the peer's first frame
+        try:
+            for frame in decoder:
+                if self.on_frame is not None:
+                    self.on_frame(frame)
+                self._frame(frame)
+        except FrameError as exc:
+            self._end(exc)
+
+    def next_event(self) -> Event | NeedData:
+        """The next thing that happened, or :data:`NEED_DATA`."""
+        return self._events.popleft() if self._events else NEED_DATA
+
+    def _end(self, error: FrameError | None) -> None:
+        self._ended = True
+        self._events.append(Ended(error))
+
+    def _frame(self, frame: bytes) -> None:
+        try:
+            msg = decode(frame, self.wire)
+        except MalformedMessage as exc:
+            if exc.comm_type == CommType.SERVICE_REPLY:
+                self._reply(None, exc)
+            else:
+                self._events.append(Malformed(exc))
+            return
+        if msg.comm_type == CommType.SERVICE_REPLY:
+            self._reply(msg, None)
+        else:
+            self._events.append(Received(msg))
+
+    def _reply(self, reply: Message | None, error: MalformedMessage | None) -> None:
+        pending = self._pending
+        while pending:
+            head = pending.popleft()
+            if reply is not None and self.answers(head.msg_type, reply):
+                self._events.append(LateReply(head, reply) if head.abandoned else Answered(head, reply))
+                return
+            if head.abandoned:
+                continue  # its reply never came; this one is for a later request
+            self._events.append(Unanswerable(head, reply, error))
+            return
+        self._events.append(StrayReply(reply, error))
