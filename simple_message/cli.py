@@ -1,21 +1,24 @@
 """``simple-message``: decode and encode simple_message frames, like tshark for this protocol.
 
-``simple-message decode [--byte-order little|big|auto] [--float64] [--raw] [FILE]``
+``simple-message decode [--byte-order little|big|auto] [--float64] [--raw] [--import MODULE] [FILE]``
     Reads hex frames, one line per frame or per TCP segment (a line may be ``NAME HEX`` as in the
     conformance vector files, or ``time src dst HEX`` as in the capture segment files: the last
     token is the hex, the rest becomes ``"label"``; ``#`` lines and blank lines are skipped), or
     with ``--raw`` a binary byte stream. Prints one JSON object per message on stdout. A malformed
     frame prints an error object on stderr; the command goes on and exits 1 at the end.
 
-``simple-message encode [--byte-order little|big] [--float64] [--raw] [FILE]``
+``simple-message encode [--byte-order little|big] [--float64] [--raw] [--import MODULE] [FILE]``
     Reads JSON objects, one per line, and prints each frame as a hex line (``--raw``: binary).
 
-FILE defaults to standard input.
+FILE defaults to standard input. Both commands know every message type in the registry of
+:mod:`.messages`; ``--import MODULE`` (repeatable) imports a module first, e.g. one that registers
+a vendor message set, so that its types decode and encode by name too.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import logging
 import sys
@@ -28,7 +31,7 @@ from .jsonio import message_from_json, message_to_json
 from .messages import decode, encode
 from .wire import ByteOrder, WireFormat
 
-__all__ = ["main", "add_wire_arguments", "wire_from_args"]
+__all__ = ["main", "add_wire_arguments", "wire_from_args", "add_import_argument", "import_modules"]
 
 log = logging.getLogger("simple_message.cli")
 
@@ -61,6 +64,29 @@ def add_log_level_argument(parser: argparse.ArgumentParser) -> None:
         choices=["DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"],
         help="logging threshold (default: WARNING)",
     )
+
+
+def add_import_argument(parser: argparse.ArgumentParser) -> None:
+    """The ``--import MODULE`` option: modules to import first (e.g. a vendor message set)."""
+    parser.add_argument(
+        "--import",
+        dest="imports",
+        action="append",
+        default=[],
+        metavar="MODULE",
+        help="import MODULE first, e.g. one that registers a vendor message set (repeatable)",
+    )
+
+
+def import_modules(names: list[str]) -> bool:
+    """Import ``names`` in order; report the first failure on stderr and return ``False``."""
+    for name in names:
+        try:
+            importlib.import_module(name)
+        except Exception as exc:  # anything a module can raise at import, RegistrationError included
+            _emit_error(type(exc).__name__, f"cannot import {name}: {exc}")
+            return False
+    return True
 
 
 def _emit_error(kind: str, message: str, **extra: Any) -> None:
@@ -181,11 +207,13 @@ def build_parser() -> argparse.ArgumentParser:
     dec = sub.add_parser("decode", help="frames (hex lines or --raw bytes) to JSON lines")
     add_wire_arguments(dec)
     dec.add_argument("--raw", action="store_true", help="input is a binary byte stream, not hex lines")
+    add_import_argument(dec)
     dec.add_argument("file", nargs="?", default="-", metavar="FILE", help="input file (default: stdin)")
     dec.set_defaults(func=_decode)
     enc = sub.add_parser("encode", help="JSON lines to frames (hex lines or --raw bytes)")
     add_wire_arguments(enc, allow_auto=False)
     enc.add_argument("--raw", action="store_true", help="write binary frames instead of hex lines")
+    add_import_argument(enc)
     enc.add_argument("file", nargs="?", default="-", metavar="FILE", help="input file (default: stdin)")
     enc.set_defaults(func=_encode)
     return parser
@@ -195,6 +223,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=args.log_level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    if not import_modules(args.imports):
+        return 2
     try:
         return int(args.func(args))
     except BrokenPipeError:

@@ -32,7 +32,7 @@ import logging
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
 
-from .constants import CommType, MsgType, ReplyCode
+from .constants import CommType, ReplyCode
 from .dialects import any_dialect_answers
 from .errors import (
     ConnectionClosed,
@@ -56,7 +56,7 @@ from .link import (
     StrayReply,
     Unanswerable,
 )
-from .messages import Message
+from .messages import Message, type_name
 from .transport import READ_SIZE, StreamPair, set_nodelay
 from .wire import DEFAULT_FORMAT, WireFormat
 
@@ -474,10 +474,7 @@ def _expire(future: asyncio.Future[Message]) -> None:
 
 
 def _type_name(msg_type: int) -> str:
-    try:
-        return MsgType(msg_type).name
-    except ValueError:
-        return f"type {msg_type}"
+    return type_name(msg_type) or f"type {msg_type}"
 
 
 def _hang_up(reason: BaseException) -> bool:

@@ -42,7 +42,13 @@ HEADER_SIZE = 12
 
 
 class MsgType(IntEnum):
-    """Message type IDs (§2.1 standard registry and §8.1 Motoman extensions)."""
+    """Message type IDs (§2.1 standard registry and §8.1 Motoman extensions).
+
+    This enum names the numbers of the standard and MotoROS messages only. Which class decodes a
+    number is the message registry's business (:func:`simple_message.messages.register`): a vendor
+    message set registers its own numbers and names without being added here, and
+    :func:`simple_message.messages.type_name` names any number, registered or listed here.
+    """
 
     INVALID = 0
     PING = 1

@@ -1,11 +1,15 @@
 """Messages as JSON objects, for the ``simple-message`` command and for clients in other languages.
 
 One message is ``{"msg_type": int, "name": str, "comm_type": int, "reply_code": int, "body": {...}}``.
-Body keys are the field names of simple-message.md §2.2 and §8.1 in snake_case (``sequence``,
-``joint_data``, ``velocity``, ``duration``, ``robot_id``, ``valid_fields``, ``time``, ``positions``,
-...). Special bodies:
+Body keys are the field names of the message's class: for the standard and MotoROS messages those of
+simple-message.md §2.2 and §8.1 in snake_case (``sequence``, ``joint_data``, ``velocity``,
+``duration``, ``robot_id``, ``valid_fields``, ``time``, ``positions``, ...). Every type in the
+message registry (:func:`~.messages.register`) has this form, vendor types included: names and
+classes come from the registry, and a class is built from its body by calling it with the body's
+keys (nested parts as objects). Special bodies:
 
-* ``{}`` on a type that normally has a body: a header-only message (ABB acks, FAILURE replies);
+* ``{}`` on a type whose default message has a body (every type but PING): a header-only message
+  (ABB acks, FAILURE replies);
 * ``{"dummy_data": [10 reals]}``: REP-I0006's alternative reply body;
 * ``{"raw": "hex"}``: an unknown type's body, kept byte for byte (also accepted for known types when
   encoding, to write deliberately odd frames).
@@ -23,17 +27,16 @@ import struct
 from dataclasses import fields
 from typing import Any
 
-from .constants import MsgType
+from .constants import HEADER_SIZE, LENGTH_SIZE
 from .errors import LocalProtocolError
 from .messages import (
     DummyReply,
     HeaderOnly,
-    JointTraj,
     Message,
-    Ping,
     RawMessage,
-    TrajPoint,
+    encode,
     message_class,
+    type_for_name,
 )
 
 __all__ = ["message_to_json", "message_from_json"]
@@ -94,21 +97,30 @@ def _int(obj: dict[str, Any], key: str, default: int | None = None) -> int:
     return value
 
 
+def _empty_body_is_own(cls: type[Message]) -> bool:
+    """Whether ``cls``'s default message has an empty body (PING), so that ``{}`` means ``cls``."""
+    try:
+        return len(encode(cls())) == LENGTH_SIZE + HEADER_SIZE
+    except (TypeError, ValueError):
+        return False
+
+
 def message_from_json(obj: Any) -> Message:
     """Build a message from the JSON form of :func:`message_to_json`.
 
-    ``msg_type`` may be given as an int or by ``name``; ``comm_type`` and ``reply_code`` default to
-    the class's defaults. Raises :class:`~.errors.LocalProtocolError` with a clear reason otherwise.
+    ``msg_type`` may be given as an int or by ``name`` (any name or alias of
+    :func:`~.messages.type_for_name`); ``comm_type`` and ``reply_code`` default to the class's
+    defaults. Raises :class:`~.errors.LocalProtocolError` with a clear reason otherwise.
     """
     if not isinstance(obj, dict):
         raise LocalProtocolError(f"a message must be a JSON object, not {type(obj).__name__}")
     if "msg_type" in obj:
         msg_type = _int(obj, "msg_type")
     elif "name" in obj:
-        try:
-            msg_type = MsgType[str(obj["name"]).upper()]
-        except KeyError:
-            raise LocalProtocolError(f"unknown message name {obj['name']!r}") from None
+        named = type_for_name(str(obj["name"]))
+        if named is None:
+            raise LocalProtocolError(f"unknown message name {obj['name']!r}")
+        msg_type = named
     else:
         raise LocalProtocolError("a message needs 'msg_type' or 'name'")
     body = obj.get("body", {})
@@ -130,14 +142,12 @@ def message_from_json(obj: Any) -> Message:
         if cls is None:
             raise LocalProtocolError(f'msg_type {msg_type} is unknown; give its body as {{"raw": hex}}')
         names = [f.name for f in fields(cls) if f.name not in ("comm_type", "reply_code")]
-        if not body and names and cls is not Ping:
+        if not body and names and not _empty_body_is_own(cls):
             return HeaderOnly(msg_type, **header)
         unknown = set(body) - set(names)
         if unknown:
             raise LocalProtocolError(f"{cls.__name__} has no field(s) {sorted(unknown)}; its fields are {names}")
         values = {k: _real(v) for k, v in body.items()}
-        if cls is JointTraj and "points" in values:
-            values["points"] = tuple(TrajPoint(**p) if isinstance(p, dict) else p for p in values["points"])
         return cls(**values, **header)
     except (TypeError, ValueError) as exc:
         if isinstance(exc, LocalProtocolError):

@@ -15,6 +15,13 @@ peers send and that do not fit a type's layout are still decoded (§3):
 
 A known type whose body fits none of its layouts raises :class:`~.errors.MalformedMessage`.
 
+Which classes decode which ``msg_type`` is kept in a public registry (:func:`register`,
+:func:`unregister`, :func:`lookup`, :func:`type_name`, :func:`type_for_name`). The standard and
+MotoROS messages are registered at the end of this module, each with the converters that turn its
+enum fields into enum members; a vendor message set is one module of classes plus :func:`register`
+calls (see ``CONTRIBUTING.md`` and ``tests/test_sm_registry.py``). Encoding, decoding, the JSON
+form (:mod:`.jsonio`) and the ``simple-message`` command all consult the registry.
+
 One bit pattern cannot survive: a float32 *signalling* NaN comes back quieted (bit 22 set), because
 every conversion of a float32 to a Python float (a C double) quiets it. Quiet NaNs with any payload,
 infinities, subnormals and -0.0 re-encode exactly. A NaN is never a valid joint value anyway.
@@ -25,10 +32,15 @@ numpy array) and pad it with zeros.
 
 from __future__ import annotations
 
+import re
 import struct
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field, fields
-from typing import Any, ClassVar, cast
+import weakref
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field, fields, is_dataclass
+from enum import IntEnum, IntFlag
+from types import MappingProxyType
+from typing import Any, ClassVar, TypeAlias, cast
 
 from .constants import (
     HEADER_SIZE,
@@ -43,7 +55,7 @@ from .constants import (
     TriState,
     ValidFields,
 )
-from .errors import LocalProtocolError, MalformedMessage
+from .errors import LocalProtocolError, MalformedMessage, SimpleMessageError
 from .wire import DEFAULT_FORMAT, WireFormat
 
 __all__ = [
@@ -90,6 +102,16 @@ __all__ = [
     "message_class",
     "MESSAGE_CLASSES",
     "ZEROS",
+    "Converter",
+    "MessageSpec",
+    "RegistrationError",
+    "register",
+    "unregister",
+    "lookup",
+    "message_types",
+    "type_name",
+    "type_for_name",
+    "scoped_registry",
 ]
 
 Floats = tuple[float, ...]
@@ -99,13 +121,62 @@ ZEROS: Floats = (0.0,) * MAX_JOINTS
 _HEADER = "iiii"  # length prefix + msg_type + comm_type + reply_code, always int32
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
 
+
+class RegistrationError(SimpleMessageError, ValueError):
+    """A message registration is not well formed, or conflicts with one already made (its
+    ``msg_type`` or one of its names is taken). Nothing was changed."""
+
+
+#: What turns a decoded wire int into a richer value: an ``IntEnum`` or ``IntFlag`` class, or a
+#: mapping from wire int to value. Ints that it does not map stay plain ints.
+Converter: TypeAlias = type[IntEnum] | type[IntFlag] | Mapping[int, Any]
+
+#: An ``IntFlag`` converter is expanded into a table of every combination of its bits; beyond this
+#: many bits, give an explicit mapping instead.
+_MAX_FLAG_BITS = 12
+
+
+def _converter_table(converter: Converter) -> dict[int, Any]:
+    """The lookup table (wire int -> value) of ``converter``; :class:`RegistrationError` if unusable.
+
+    Tables are plain dicts so that decoding converts a value with one ``dict.get`` instead of the
+    cost of ``Enum.__call__``.
+    """
+    if isinstance(converter, type):
+        if issubclass(converter, IntFlag):
+            mask = 0
+            for member in converter:
+                mask |= int(member)
+            if mask < 0 or mask.bit_count() > _MAX_FLAG_BITS:
+                raise RegistrationError(
+                    f"{converter.__name__} has {mask.bit_count()} flag bits; give an explicit mapping instead"
+                )
+            table: dict[int, Any] = {}
+            sub = mask
+            while True:  # every subset of the defined bits, 0 included
+                table[sub] = converter(sub)
+                if sub == 0:
+                    break
+                sub = (sub - 1) & mask
+            return dict(sorted(table.items()))
+        if issubclass(converter, IntEnum):
+            return {int(member): member for member in converter}
+        raise RegistrationError(f"a converter must be an IntEnum or IntFlag class or a mapping, not {converter!r}")
+    if isinstance(converter, Mapping):
+        table = {}
+        for key, value in converter.items():
+            if isinstance(key, bool) or not isinstance(key, int):
+                raise RegistrationError(f"converter keys must be wire ints, not {key!r}")
+            table[int(key)] = value
+        return table
+    raise RegistrationError(f"a converter must be an IntEnum or IntFlag class or a mapping, not {converter!r}")
+
+
 # Small caches that turn wire ints into enum members without the cost of Enum.__call__.
 _COMM = {int(c): c for c in CommType}
 _REPLY = {int(c): c for c in ReplyCode}
-_TRI = {int(c): c for c in TriState}
-_MODE = {int(c): c for c in RobotMode}
-_VALID = {v: ValidFields(v) for v in range(16)}
-_MOTO_RESULT = {int(c): c for c in MotoResult}
+#: valid_fields of the EX groups (ExGroup is no message, so it converts this one field itself).
+_VALID = _converter_table(ValidFields)
 
 
 def _joints(value: Iterable[float], name: str) -> Floats:
@@ -157,11 +228,9 @@ class Message:
 
     @property
     def name(self) -> str:
-        """The message type's name, e.g. ``JOINT_TRAJ_PT`` (``UNKNOWN`` for unknown types)."""
-        try:
-            return MsgType(self.msg_type).name
-        except ValueError:
-            return "UNKNOWN"
+        """The message type's name, e.g. ``JOINT_TRAJ_PT`` (``UNKNOWN`` for unknown types); see
+        :func:`type_name`."""
+        return _NAMES.get(self.msg_type, "UNKNOWN")
 
     def encode(self, wire: WireFormat = DEFAULT_FORMAT) -> bytes:
         """The whole frame: length prefix, header and body."""
@@ -202,7 +271,7 @@ def _replace_header(msg: Message, comm_type: int, reply_code: int) -> Message:
 def _plain(value: Any) -> Any:
     if isinstance(value, tuple):
         return [_plain(v) for v in value]
-    if isinstance(value, Message | TrajPoint | ExGroup | DhLink):
+    if is_dataclass(value) and not isinstance(value, type):  # nested parts: TrajPoint, ExGroup, DhLink, ...
         return {f.name: _plain(getattr(value, f.name)) for f in fields(value) if f.name not in _HEADER_FIELDS}
     if isinstance(value, bool):
         return value
@@ -220,7 +289,7 @@ class _Codec:
     a third of the time.
     """
 
-    __slots__ = ("length", "plan", "struct", "unpack")
+    __slots__ = ("__weakref__", "length", "plan", "struct", "unpack")
 
     def __init__(self, cls: type[Message], wire: WireFormat) -> None:
         plan: list[tuple[str, int, int]] = []
@@ -233,9 +302,11 @@ class _Codec:
         self.length = self.struct.size - LENGTH_SIZE
         self.plan = tuple(plan)
         self.unpack = self._compile_unpack(cls)
+        # (re)registering the class with other converters recompiles ``unpack`` (see _refresh_codecs)
+        _LIVE_CODECS.setdefault(cls, weakref.WeakSet()).add(self)
 
     def _compile_unpack(self, cls: type[Message]) -> Callable[[bytes], Message]:
-        converters = _CONVERTERS.get(cls, {})
+        converters = _CLASS_CONVERTERS.get(cls, {})
         env: dict[str, Any] = {"_unpack": self.struct.unpack, "_new": object.__new__, "_set": object.__setattr__}
         env.update(_cls=cls, _COMM=_COMM, _REPLY=_REPLY)
         lines = [
@@ -392,7 +463,10 @@ class JointTraj(Message):
     MSG_TYPE: ClassVar[int] = MsgType.JOINT_TRAJ
 
     def __post_init__(self) -> None:
-        points = tuple(p if isinstance(p, TrajPoint) else TrajPoint(*p) for p in self.points)
+        points = tuple(
+            p if isinstance(p, TrajPoint) else TrajPoint(**p) if isinstance(p, Mapping) else TrajPoint(*p)
+            for p in self.points
+        )
         if len(points) > JOINT_TRAJ_MAX_POINTS:
             raise LocalProtocolError(f"JOINT_TRAJ holds at most {JOINT_TRAJ_MAX_POINTS} points, not {len(points)}")
         object.__setattr__(self, "points", points)
@@ -935,59 +1009,269 @@ class RawMessage(Message):
 
 
 # ---------------------------------------------------------------------------------------------
-# Registry, encode, decode
+# The message registry
 # ---------------------------------------------------------------------------------------------
 
+
+@dataclass(frozen=True, eq=False)
+class MessageSpec:
+    """One registered message type: its number, its name and the classes that decode it."""
+
+    #: The header ``msg_type``.
+    msg_type: int
+    #: Its name, as in :attr:`Message.name` and the ``"name"`` of the JSON form.
+    name: str
+    #: The class of requests and topics (any ``comm_type`` but SERVICE_REPLY).
+    request: type[Message]
+    #: The class of SERVICE_REPLYs (the request class if the type has no separate reply layout).
+    reply: type[Message]
+    #: Other names :func:`type_for_name` accepts for it.
+    aliases: tuple[str, ...] = ()
+    #: Field name -> table (wire int -> value) applied when decoding that field (read-only).
+    converters: Mapping[str, Mapping[int, Any]] = field(default_factory=dict)
+
+    @property
+    def classes(self) -> tuple[type[Message], ...]:
+        """The request class, then the reply class if it is another one."""
+        return (self.request,) if self.reply is self.request else (self.request, self.reply)
+
+    def message_class(self, comm_type: int) -> type[Message]:
+        """The class that decodes this type with ``comm_type``."""
+        return self.reply if comm_type == CommType.SERVICE_REPLY else self.request
+
+
 #: Message class per type for requests and topics (index 0) and for SERVICE_REPLYs (index 1).
+#: Kept by :func:`register` and :func:`unregister` (the decoder's lookup table); do not change it
+#: directly.
 MESSAGE_CLASSES: dict[int, tuple[type[Message], type[Message]]] = {}
+_REGISTRY: dict[int, MessageSpec] = {}
+#: Name per msg_type: the registered name, else the canonical MsgType name (READ_INPUT, INVALID, ...).
+_NAMES: dict[int, str] = {int(member): member.name for member in MsgType}
+#: Registered names and aliases -> msg_type (MsgType's own names are looked up after these).
+_BY_NAME: dict[str, int] = {}
+#: Converters per fixed-layout class, read when a codec compiles its ``unpack``.
+_CLASS_CONVERTERS: dict[type[Message], dict[str, Mapping[int, Any]]] = {}
+#: Every compiled codec per class, so that a change of converters recompiles them.
+_LIVE_CODECS: dict[type[Message], weakref.WeakSet[_Codec]] = {}
+
+_NAME_RE = re.compile(r"[A-Z][A-Z0-9_]*")
+#: Classes that stand for shapes of any type; they are never registered.
+_SHAPES: tuple[type[Message], ...] = ()  # filled below, once the classes exist
 
 
-def _register(request: type[Message], reply: type[Message] | None = None) -> None:
-    MESSAGE_CLASSES[request.MSG_TYPE] = (request, reply or request)
+def _default_name(cls: type[Message]) -> str:
+    """``MsgType``'s name for the type, else the class name in upper snake case (``AcmeGrip`` ->
+    ``ACME_GRIP``)."""
+    if cls.MSG_TYPE in MsgType._value2member_map_:
+        return MsgType(cls.MSG_TYPE).name
+    return re.sub(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])", "_", cls.__name__).upper()
 
 
-for _cls in (
-    Ping,
-    JointPosition,
-    JointTrajPt,
-    JointTraj,
-    Status,
-    JointTrajPtFull,
-    JointFeedback,
-    MotoMotionCtrl,
-    MotoMotionReply,
-    ReadSingleIo,
-    ReadSingleIoReply,
-    WriteSingleIo,
-    WriteSingleIoReply,
-    ReadGroupIo,
-    ReadGroupIoReply,
-    WriteGroupIo,
-    WriteGroupIoReply,
-    IoCtrlReply,
-    JointTrajPtFullEx,
-    JointFeedbackEx,
-    SelectTool,
-):
-    _register(_cls)
-_register(GetVersion, GetVersionReply)
-_register(ReadMRegister, ReadMRegisterReply)
-_register(WriteMRegister, WriteMRegisterReply)
-_register(GetDhParameters, GetDhParametersReply)
+def _check_class(cls: object, role: str) -> type[Message]:
+    if not (isinstance(cls, type) and issubclass(cls, Message)) or cls is Message:
+        raise RegistrationError(f"the {role} class must be a subclass of Message, not {cls!r}")
+    if cls in _SHAPES:
+        raise RegistrationError(f"{cls.__name__} stands for a shape of any type and cannot be registered")
+    if "__dataclass_fields__" not in vars(cls):  # its own fields, not only inherited ones
+        raise RegistrationError(f"{cls.__name__} must be decorated with @dataclass (like every Message)")
+    msg_type = cls.MSG_TYPE
+    if isinstance(msg_type, bool) or not isinstance(msg_type, int):
+        raise RegistrationError(f"{cls.__name__}.MSG_TYPE must be an int, not {msg_type!r}")
+    if msg_type == MsgType.INVALID or not _INT32_MIN <= msg_type <= _INT32_MAX:
+        raise RegistrationError(f"{cls.__name__}.MSG_TYPE must be a nonzero int32, not {msg_type}")
+    return cls
 
-_CONVERTERS: dict[type[Message], dict[str, dict[int, Any]]] = {
-    Status: {
-        "drives_powered": _TRI,
-        "e_stopped": _TRI,
-        "in_error": _TRI,
-        "in_motion": _TRI,
-        "mode": _MODE,
-        "motion_possible": _TRI,
-    },
-    JointTrajPtFull: {"valid_fields": _VALID},
-    JointFeedback: {"valid_fields": _VALID},
-    MotoMotionReply: {"result": _MOTO_RESULT},
-}
+
+def _check_name(name: object, cls: type[Message]) -> str:
+    if not isinstance(name, str) or not _NAME_RE.fullmatch(name):
+        raise RegistrationError(f"the name of {cls.__name__} must be upper case letters, digits and '_', not {name!r}")
+    return name
+
+
+def _spec(
+    request: type[Message],
+    reply: type[Message] | None,
+    name: str | None,
+    aliases: Iterable[str],
+    converters: Mapping[str, Converter] | None,
+) -> MessageSpec:
+    """A checked :class:`MessageSpec` (nothing registered yet)."""
+    request = _check_class(request, "request")
+    reply = request if reply is None else _check_class(reply, "reply")
+    msg_type = int(request.MSG_TYPE)
+    if msg_type != reply.MSG_TYPE:
+        raise RegistrationError(
+            f"{reply.__name__}.MSG_TYPE is {reply.MSG_TYPE}, but {request.__name__}.MSG_TYPE is {msg_type}"
+        )
+    name = _check_name(_default_name(request) if name is None else name, request)
+    names = (name, *(_check_name(a, request) for a in aliases))
+    if len(set(names)) != len(names):
+        raise RegistrationError(f"the names of {request.__name__} repeat: {list(names)}")
+    layouts = {cls: dict(cls.LAYOUT) for cls in (request, reply)}
+    tables: dict[str, Mapping[int, Any]] = {}
+    for field_name, converter in (converters or {}).items():
+        codes = [layout[field_name] for layout in layouts.values() if field_name in layout]
+        if not codes:
+            raise RegistrationError(
+                f"converter for {field_name!r}: no LAYOUT field of that name in {request.__name__}"
+                + ("" if reply is request else f" or {reply.__name__}")
+                + " (converters apply to fixed-layout int fields)"
+            )
+        if any(code not in ("i", "I") for code in codes):
+            raise RegistrationError(f"converter for {field_name!r}: the field is not an int (i or I) field")
+        tables[field_name] = MappingProxyType(_converter_table(converter))
+    return MessageSpec(msg_type, name, request, reply, names[1:], MappingProxyType(tables))
+
+
+def _same(a: MessageSpec, b: MessageSpec) -> bool:
+    """Whether two registrations are the same (converter tables compared by content)."""
+
+    def key(spec: MessageSpec) -> tuple[Any, ...]:
+        tables = {f: dict(t) for f, t in spec.converters.items()}
+        return (spec.msg_type, spec.name, spec.request, spec.reply, spec.aliases, tables)
+
+    return key(a) == key(b)
+
+
+def _install(spec: MessageSpec) -> None:
+    _REGISTRY[spec.msg_type] = spec
+    MESSAGE_CLASSES[spec.msg_type] = (spec.request, spec.reply)
+    _NAMES[spec.msg_type] = spec.name
+    for name in (spec.name, *spec.aliases):
+        _BY_NAME[name] = spec.msg_type
+    for cls in spec.classes:
+        own = {f for f, _ in cls.LAYOUT}
+        tables = {f: t for f, t in spec.converters.items() if f in own}
+        if tables:
+            _CLASS_CONVERTERS[cls] = tables
+
+
+def _remove(spec: MessageSpec) -> None:
+    del _REGISTRY[spec.msg_type]
+    del MESSAGE_CLASSES[spec.msg_type]
+    if spec.msg_type in MsgType._value2member_map_:
+        _NAMES[spec.msg_type] = MsgType(spec.msg_type).name
+    else:
+        del _NAMES[spec.msg_type]
+    for name in (spec.name, *spec.aliases):
+        del _BY_NAME[name]
+    for cls in spec.classes:
+        _CLASS_CONVERTERS.pop(cls, None)
+
+
+def _refresh_codecs(classes: Iterable[type[Message]]) -> None:
+    """Recompile the decoders of ``classes`` in every wire format, for their current converters."""
+    for cls in set(classes):
+        for codec in list(_LIVE_CODECS.get(cls, ())):
+            codec.unpack = codec._compile_unpack(cls)
+
+
+def register(
+    request: type[Message],
+    reply: type[Message] | None = None,
+    *,
+    name: str | None = None,
+    aliases: Iterable[str] = (),
+    converters: Mapping[str, Converter] | None = None,
+    replace: bool = False,
+) -> MessageSpec:
+    """Make :func:`decode`, the JSON form and the ``simple-message`` command know a message type.
+
+    ``request`` is the class of the type's requests and topics; ``reply``, if the type's
+    SERVICE_REPLY has another layout, the class of its replies (both must have the same
+    ``MSG_TYPE``). ``name`` defaults to the :class:`~.constants.MsgType` name of the number, else
+    to the request class's name in upper snake case (``AcmeGrip`` -> ``ACME_GRIP``); ``aliases``
+    are further names :func:`type_for_name` accepts. ``converters`` maps a fixed-layout (``LAYOUT``)
+    int field of either class to the :data:`Converter` that decoding applies to it, e.g.
+    ``{"mode": RobotMode}``; unmapped values stay plain ints.
+
+    Raises :class:`RegistrationError` if the classes or converters are not well formed, if a name
+    is taken by another type (registered names and :class:`~.constants.MsgType` names), or if
+    ``msg_type`` is already registered differently and ``replace`` is false. Registering exactly
+    what is registered already is a no-op. Returns the :class:`MessageSpec` now in force.
+    """
+    spec = _spec(request, reply, name, aliases, converters)
+    old = _REGISTRY.get(spec.msg_type)
+    if old is not None:
+        if _same(old, spec):
+            return old
+        if not replace:
+            raise RegistrationError(
+                f"msg_type {spec.msg_type} is already registered as {old.name} ({old.request.__name__}); "
+                "pass replace=True to replace it"
+            )
+    for each in (spec.name, *spec.aliases):
+        owner = _BY_NAME.get(each)
+        if owner is None and each in MsgType.__members__:
+            owner = int(MsgType[each])
+        if owner is not None and owner != spec.msg_type:
+            raise RegistrationError(f"the name {each!r} is already msg_type {owner}'s")
+    affected = list(spec.classes)
+    if old is not None:
+        _remove(old)
+        affected += old.classes
+    _install(spec)
+    _refresh_codecs(affected)
+    return spec
+
+
+def unregister(msg_type: int) -> MessageSpec:
+    """Forget ``msg_type`` (it decodes as :class:`RawMessage` again) and return what was registered.
+
+    Raises :class:`RegistrationError` if it is not registered. See also :func:`scoped_registry`.
+    """
+    spec = _REGISTRY.get(msg_type)
+    if spec is None:
+        raise RegistrationError(f"msg_type {msg_type} is not registered")
+    _remove(spec)
+    _refresh_codecs(spec.classes)
+    return spec
+
+
+@contextmanager
+def scoped_registry() -> Iterator[None]:
+    """Undo, on leaving the block, every :func:`register` and :func:`unregister` made inside it
+    (the registry is left exactly as it was entered; for tests)."""
+    saved = dict(_REGISTRY)
+    try:
+        yield
+    finally:
+        affected: list[type[Message]] = []
+        for msg_type, spec in list(_REGISTRY.items()):
+            if saved.get(msg_type) is not spec:
+                _remove(spec)
+                affected += spec.classes
+        for msg_type, spec in saved.items():
+            if _REGISTRY.get(msg_type) is not spec:
+                _install(spec)
+                affected += spec.classes
+        _refresh_codecs(affected)
+
+
+def lookup(msg_type: int) -> MessageSpec | None:
+    """The registration of ``msg_type``, or ``None``."""
+    return _REGISTRY.get(msg_type)
+
+
+def message_types() -> tuple[MessageSpec, ...]:
+    """Every registered message type, in ``msg_type`` order."""
+    return tuple(_REGISTRY[t] for t in sorted(_REGISTRY))
+
+
+def type_name(msg_type: int) -> str | None:
+    """The name of ``msg_type``: its registered name, else its :class:`~.constants.MsgType` name
+    (e.g. ``READ_INPUT``, which has no message class), else ``None``."""
+    return _NAMES.get(msg_type)
+
+
+def type_for_name(name: str) -> int | None:
+    """The msg_type called ``name`` (any case): a registered name or alias, else a
+    :class:`~.constants.MsgType` name or alias (``ROBOT_STATUS``); ``None`` if none is."""
+    key = name.upper()
+    msg_type = _BY_NAME.get(key)
+    if msg_type is None and key in MsgType.__members__:
+        msg_type = int(MsgType[key])
+    return msg_type
 
 
 def message_class(msg_type: int, comm_type: int = CommType.SERVICE_REQUEST) -> type[Message] | None:
@@ -996,6 +1280,11 @@ def message_class(msg_type: int, comm_type: int = CommType.SERVICE_REQUEST) -> t
     if pair is None:
         return None
     return pair[1] if comm_type == CommType.SERVICE_REPLY else pair[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# Encode, decode
+# ---------------------------------------------------------------------------------------------
 
 
 def encode(msg: Message, wire: WireFormat = DEFAULT_FORMAT) -> bytes:
@@ -1082,9 +1371,52 @@ def decode(frame: bytes, wire: WireFormat = DEFAULT_FORMAT) -> Message:
     if comm == CommType.SERVICE_REPLY and body_size == MAX_JOINTS * wire.real_size:
         return DummyReply(msg_type, wire.struct("10r").unpack_from(frame, 16), comm_type=comm_e, reply_code=reply_e)
     raise MalformedMessage(
-        f"{MsgType(msg_type).name} {CommType(comm).name if comm in _COMM else comm} body of {body_size} bytes "
+        f"{type_name(msg_type)} {CommType(comm).name if comm in _COMM else comm} body of {body_size} bytes "
         f"fits no layout of that type in {wire}",
         msg_type=msg_type,
         comm_type=comm,
         frame=bytes(frame),
     )
+
+
+# ---------------------------------------------------------------------------------------------
+# The standard and MotoROS messages, with their enum fields' converters
+# ---------------------------------------------------------------------------------------------
+
+_SHAPES = (HeaderOnly, DummyReply, RawMessage)
+
+register(Ping)
+register(JointPosition)
+register(JointTrajPt)
+register(JointTraj)
+register(
+    Status,
+    converters={
+        "drives_powered": TriState,
+        "e_stopped": TriState,
+        "in_error": TriState,
+        "in_motion": TriState,
+        "mode": RobotMode,
+        "motion_possible": TriState,
+    },
+)
+register(JointTrajPtFull, converters={"valid_fields": ValidFields})
+register(JointFeedback, converters={"valid_fields": ValidFields})
+register(MotoMotionCtrl)
+register(MotoMotionReply, converters={"result": MotoResult})
+register(ReadSingleIo)
+register(ReadSingleIoReply)
+register(WriteSingleIo)
+register(WriteSingleIoReply)
+register(ReadGroupIo)
+register(ReadGroupIoReply)
+register(WriteGroupIo)
+register(WriteGroupIoReply)
+register(IoCtrlReply)
+register(JointTrajPtFullEx)
+register(JointFeedbackEx)
+register(SelectTool)
+register(GetVersion, GetVersionReply)
+register(ReadMRegister, ReadMRegisterReply)
+register(WriteMRegister, WriteMRegisterReply)
+register(GetDhParameters, GetDhParametersReply)

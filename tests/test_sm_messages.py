@@ -44,6 +44,8 @@ from simple_message import (
     WriteMRegisterReply,
     decode,
     encode,
+    message_from_json,
+    message_to_json,
 )
 
 
@@ -139,6 +141,26 @@ def test_joint_traj_cpp_layout_puts_the_count_last() -> None:
     assert decode(frame, LE32) == traj
     with pytest.raises(LocalProtocolError, match="200"):
         JointTraj([TrajPoint()] * 201)
+
+
+def test_joint_traj_points_from_json_objects() -> None:
+    """JointTraj builds its points from dicts, so the JSON form needs no per-class code."""
+    traj = JointTraj([TrajPoint(0, [0.5], 0.5, 1.0), TrajPoint(1, [0.25], 0.5, 1.0)])
+    assert (
+        JointTraj([{"sequence": 0, "joint_data": [0.5], "velocity": 0.5, "duration": 1.0}]).points[0] == traj.points[0]
+    )
+    assert message_from_json(message_to_json(traj)) == traj
+
+
+def test_empty_json_body_is_header_only_except_for_ping() -> None:
+    """``{}`` is PING's own body (its default message is header-sized); any other type's ``{}`` is a
+    header-only message, and a type without fields is itself."""
+    assert message_from_json({"name": "PING", "body": {}}) == Ping()
+    assert type(message_from_json({"name": "PING", "body": {}})) is Ping
+    ack = message_from_json({"name": "JOINT_TRAJ_PT", "comm_type": 3, "reply_code": 1, "body": {}})
+    assert ack == HeaderOnly(MsgType.JOINT_TRAJ_PT, comm_type=3, reply_code=1)
+    assert type(message_from_json({"name": "GET_VERSION"})) is GetVersion
+    assert message_from_json({"name": "robot_status", "body": {"mode": 2}}) == Status(mode=2)  # MsgType alias
 
 
 def test_full_ex_short_and_full_forms_both_reencode() -> None:
