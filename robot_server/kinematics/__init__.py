@@ -6,11 +6,26 @@ from __future__ import annotations
 from numpy.typing import ArrayLike
 
 from ..model import RobotModel
-from .fk import chain_functions, fk, fk_batch, jacobian, link_frames, manipulability, singularity_measure
-from .ik import ClosedFormIK, IKSolution, NotApplicable, Singularity, closed_form
+from ._chain import PoseBlock, PoseJacobian
+from ._ops import Ops
+from .fk import (
+    ChainFunctions,
+    chain_functions,
+    fk,
+    fk_batch,
+    jacobian,
+    link_frames,
+    manipulability,
+    singularity_measure,
+)
+from .ik import BatchSolutions, Branch, ClosedFormIK, IKSolution, NotApplicable, Singularity, closed_form
 from .numeric import NumericIKResult, ik_numeric, rotation_error
 
 __all__ = [
+    "Ops",
+    "PoseBlock",
+    "PoseJacobian",
+    "ChainFunctions",
     "chain_functions",
     "fk",
     "fk_batch",
@@ -20,6 +35,8 @@ __all__ = [
     "singularity_measure",
     "ClosedFormIK",
     "IKSolution",
+    "Branch",
+    "BatchSolutions",
     "NotApplicable",
     "Singularity",
     "closed_form",

@@ -1,18 +1,37 @@
 """Real roots of a trigonometric quadratic: the one step of closed-form IK that is not a fixed
 sequence of arithmetic (the general position case, see :mod:`.ik`).
 
-Written once against an ``ops`` namespace (cos, sin, where) and plain operators, so the same code
-runs on floats (``complex`` for the intermediate roots) and on numpy arrays.
+Written once against an ``ops`` namespace (:class:`._ops.Ops`: cos, sin, atan2, where) and plain
+operators, so the same code runs on floats (``complex`` for the intermediate roots) and on numpy
+arrays. It is not traced: generated code calls it through ``ops.quartic``. Its values are floats,
+complex numbers or arrays of either, which no type short of ``Any`` describes.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any, Generic, NamedTuple, TypeVar
 
 import numpy as np
 
-__all__ = ["trig_quadratic_roots"]
+if TYPE_CHECKING:
+    from ._ops import Ops
+
+__all__ = ["TrigRoot", "trig_quadratic_roots"]
+
+V = TypeVar("V")
+
+
+class TrigRoot(NamedTuple, Generic[V]):
+    """One of the four roots of :func:`trig_quadratic_roots` (floats for one pose, arrays for a
+    batch, placeholders while tracing)."""
+
+    angle: float | V
+    #: nearly real, and F vanishes there to ``QUARTIC_TOL``
+    valid: bool | V
+    #: a double root (F' vanishes there too): two branches meet
+    double: bool | V
+
 
 #: accepted |F| (m^2) at a polished root
 QUARTIC_TOL = 1e-13
@@ -24,7 +43,7 @@ _OMEGA = (1.0 + 0j, complex(-0.5, math.sqrt(3) / 2), complex(-0.5, -math.sqrt(3)
 _TINY = 1e-300
 
 
-def _cubic_largest_root(ops: Any, a: Any, b: Any, c: Any) -> Any:
+def _cubic_largest_root(ops: Ops[Any], a: Any, b: Any, c: Any) -> Any:
     """The root of largest modulus of z^3 + a z^2 + b z + c (complex), by Cardano."""
     p = b - a * a / 3.0
     q = 2.0 * a * a * a / 27.0 - a * b / 3.0 + c
@@ -40,7 +59,7 @@ def _cubic_largest_root(ops: Any, a: Any, b: Any, c: Any) -> Any:
     return best
 
 
-def _quartic_roots(ops: Any, *coefficients: Any) -> list[Any]:
+def _quartic_roots(ops: Ops[Any], *coefficients: Any) -> list[Any]:
     """The four complex roots of e4 t^4 + e3 t^3 + e2 t^2 + e1 t + e0 (e4 != 0), by Ferrari."""
     e4, e3, e2, e1, e0 = coefficients
     lead = ops.where(abs(e4) > _TINY, e4, _TINY)
@@ -61,9 +80,9 @@ def _quartic_roots(ops: Any, *coefficients: Any) -> list[Any]:
     return [(-s + d1) / 2.0 - shift, (-s - d1) / 2.0 - shift, (s + d2) / 2.0 - shift, (s - d2) / 2.0 - shift]
 
 
-def trig_quadratic_roots(ops: Any, *k: Any) -> tuple[Any, ...]:
+def trig_quadratic_roots(ops: Ops[Any], *k: Any) -> tuple[TrigRoot[Any], ...]:
     """Roots q of ``F(q) = k0 + k1 c + k2 s + k3 c^2 + k4 s^2 + k5 c s = 0`` (c, s = cos q, sin q):
-    ``(q_1..q_4, valid_1..valid_4, double_1..double_4)``.
+    four :class:`TrigRoot` (angle, valid, double).
 
     The substitution ``q = beta + 2 atan(t)`` makes F a quartic in t; beta is chosen so that
     t = infinity is not a root (the quartic's leading coefficient is F(beta + pi)). The quartic's
@@ -98,4 +117,4 @@ def trig_quadratic_roots(ops: Any, *k: Any) -> tuple[Any, ...]:
         angles.append(q)
         valid.append((abs(t.imag) <= 1e-6 * (1.0 + abs(t))) & (abs(f(q)) <= QUARTIC_TOL))
         double.append(abs(df(q)) < 1e-7)
-    return (*angles, *valid, *double)
+    return tuple(TrigRoot(a, v, d) for a, v, d in zip(angles, valid, double, strict=True))

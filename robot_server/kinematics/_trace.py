@@ -1,32 +1,67 @@
 """Compile numeric Python into straight-line code with the model's constants folded in.
 
-Kinematics code is written once, for floats, against an ``ops`` namespace (sqrt, atan2, cos, sin,
-acos, where). Run it once with :class:`Var` placeholders for the per-call inputs: every operation
-on a placeholder is recorded as one line of code, every operation on plain numbers happens right
-away, and multiplying by 0 or 1 or adding 0 disappears. The result is a function whose body is only
-the arithmetic this particular robot needs. It runs on floats with ``math`` functions (one pose)
-or on numpy arrays with numpy functions (a batch): the same code, so the two cannot disagree.
+Kinematics code is written once, for floats, against an ``ops`` namespace (:class:`._ops.Ops`:
+sqrt, atan2, cos, sin, acos, where, ...). Run it once with :class:`Var` placeholders for the
+per-call inputs and :data:`TRACE_OPS`: every operation on a placeholder is recorded as one
+operation node, every operation on plain numbers happens right away, and multiplying by 0 or 1 or
+adding 0 disappears. :meth:`Tracer.compile` turns the recorded nodes that the outputs need into a
+function whose body is only the arithmetic this particular robot needs, returning the same named
+structure (NamedTuples, tuples) the traced code returned. It runs on floats with ``math``
+functions (:data:`._ops.SCALAR_OPS`, one pose) or on numpy arrays (:data:`._ops.ARRAY_OPS`, a
+batch): the same code, so the two cannot disagree.
 
 Control flow may depend on the model (plain numbers), never on a placeholder; a per-call choice is
-``ops.where(condition, a, b)``.
+``ops.where(condition, a, b)``. With no placeholder among its arguments, :data:`TRACE_OPS`
+computes right away (as :data:`._ops.SCALAR_OPS`), so traced code also evaluates plain floats.
+
+The generated source is registered with :mod:`linecache` under a unique pseudo-filename
+(``<generated NAME: LABEL #N>``): tracebacks, :func:`inspect.getsource` and debuggers show it.
 """
 
 from __future__ import annotations
 
-import functools
-import math
-import re
-from collections.abc import Callable, Sequence
-from typing import Any
+import itertools
+import linecache
+import weakref
+from collections.abc import Callable, Iterator, Sequence
+from types import FunctionType
+from typing import Any, TypeAlias, TypeVar, overload
 
 import numpy as np
 
-from ._quartic import trig_quadratic_roots
+from ._ops import ARRAY_OPS, OP_NAMES, SCALAR_OPS, Ops, TrigRoot
 
-__all__ = ["Tracer", "Var", "SCALAR_OPS", "ARRAY_OPS", "TRACE_OPS"]
+__all__ = [
+    "Tracer",
+    "Var",
+    "Real",
+    "Truth",
+    "Flags",
+    "Generated",
+    "Ops",
+    "SCALAR_OPS",
+    "ARRAY_OPS",
+    "TRACE_OPS",
+    "snap",
+]
 
 #: constants this close to 0 or +-1 are those numbers (cos(pi/2) is 6e-17, not 0)
 _SNAP = 1e-14
+
+#: a value in traced code: a plain number (computed right away) or a placeholder
+Real: TypeAlias = "float | Var"
+#: a condition in traced code
+Truth: TypeAlias = "bool | Var"
+#: singularity flags (an ``int`` bit set) in traced code
+Flags: TypeAlias = "int | Var"
+#: a constant operand of a recorded operation
+Constant: TypeAlias = float | int | bool | np.floating[Any] | np.integer[Any]
+Operand: TypeAlias = "Var | Constant"
+
+R = TypeVar("R")
+#: a generated function ``f(*inputs, ops)``: its arity depends on the model and its values on the
+#: ops (floats or arrays), so the caller states the result type, e.g. ``Generated[PoseBlock[float]]``
+Generated: TypeAlias = Callable[..., R]
 
 
 def snap(value: float) -> float:
@@ -36,134 +71,226 @@ def snap(value: float) -> float:
     return value
 
 
+class _Node:
+    """One recorded operation, ``target = op(args)``. ``op`` is an operator (``+``, ``<``, ``&``,
+    ...), ``neg``, ``abs``, ``call`` (of the op ``detail``) or ``item`` (``args[0]`` followed by
+    the accessor ``detail``)."""
+
+    __slots__ = ("args", "detail", "op", "target")
+
+    def __init__(self, target: Var, op: str, args: tuple[Operand, ...], detail: str) -> None:
+        self.target = target
+        self.op = op
+        self.args = args
+        self.detail = detail
+
+    def render(self, texts: Sequence[str], scalar: bool) -> str:
+        """The expression, given its operands' texts. On floats (``scalar``) ``where(c, a, b)`` is
+        Python's ``(a if c else b)``: no call, and only the chosen side is computed."""
+        op = self.op
+        if op == "call":
+            if scalar and self.detail == "where":
+                condition, a, b = texts
+                return f"({a} if {condition} else {b})"
+            return f"{self.detail}({', '.join(texts)})"
+        if op == "neg":
+            return f"-{texts[0]}"
+        if op == "abs":
+            return f"abs({texts[0]})"
+        if op == "item":
+            return f"{texts[0]}{self.detail}"
+        if op in ("&", "|"):
+            return f"({texts[0]} {op} {texts[1]})"
+        return f"{texts[0]} {op} {texts[1]}"
+
+    def calls(self, scalar: bool) -> str | None:
+        """The op this expression calls by name in generated code, if any."""
+        if self.op != "call" or (scalar and self.detail == "where"):
+            return None
+        return self.detail
+
+
+class _Line:
+    """One statement of the generated body: ``target = text``, naming the values in ``uses``."""
+
+    __slots__ = ("target", "text", "uses")
+
+    def __init__(self, target: Var, text: str, uses: list[Var]) -> None:
+        self.target = target
+        self.text = text
+        self.uses = uses
+
+
+_serial = itertools.count(1)
+
+
 class Tracer:
-    """Collects the recorded lines and names the intermediate values."""
+    """Records the operations on placeholders and compiles them (see the module doc)."""
 
     def __init__(self) -> None:
-        self.lines: list[str] = []
+        self.nodes: dict[Var, _Node] = {}  # recorded values, in the order of recording
         self.count = 0
-        self.known: dict[str, Var] = {}  # expression -> the value already holding it
-        self.negated: dict[str, Var] = {}  # name of -x -> x
+        self.known: dict[tuple[str, str, tuple[str, ...]], Var] = {}  # an operation -> the value holding it
+        self.negated: dict[Var, Var] = {}  # -x -> x
 
-    def emit(self, expr: str) -> Var:
-        if expr in self.known:
-            return self.known[expr]
-        name = f"v{self.count}"
+    def input(self, name: str) -> Var:
+        """A placeholder for the generated function's argument ``name``."""
+        return Var(self, name)
+
+    def record(self, op: str, args: tuple[Operand, ...], detail: str = "") -> Var:
+        key = (op, detail, tuple(_text(a) for a in args))
+        known = self.known.get(key)
+        if known is not None:
+            return known
+        var = self.known[key] = Var(self, f"v{self.count}")
         self.count += 1
-        self.lines.append(f"    {name} = {expr}")
-        var = self.known[expr] = Var(self, name)
+        self.nodes[var] = _Node(var, op, args, detail)
         return var
 
+    def call(self, fn: str, *args: Operand) -> Var:
+        return self.record("call", args, fn)
+
     def compile(
-        self, name: str, inputs: Sequence[str], outputs: Sequence[Any], label: str, batch: bool = False
+        self, name: str, inputs: Sequence[str], outputs: object, label: str, batch: bool = False
     ) -> Callable[..., Any]:
-        """A function ``name(*inputs, ops)`` returning the tuple of ``outputs``.
+        """A function ``name(*inputs, ops)`` returning ``outputs``: the same structure of
+        NamedTuples and tuples, with each placeholder replaced by its value per call.
 
         With ``batch`` (numpy arrays), each intermediate is deleted after its last use: keeping a
         thousand dead arrays alive costs more than the arithmetic (fresh memory every line).
-        Without it (floats only), ``where(c, a, b)`` becomes Python's ``a if c else b``: no call,
-        and only the chosen side is computed."""
-        returned = ", ".join(_text(o) for o in outputs)
-        lines = _live(self.lines, set(_NAME.findall(returned)))
-        if not batch:
-            lines = [_WHERE.sub(r"(\2 if \1 else \3)", line) for line in lines]
-        lines = _inline(lines, set(_NAME.findall(returned)))
-        if batch:
-            lines = _with_releases(lines, set(_NAME.findall(returned)))
-        text = "\n".join(lines)
+        Without it (floats only), ``where(c, a, b)`` becomes Python's ``a if c else b``."""
+        classes: dict[str, type] = {}
+        returned = _construct(outputs, classes)
+        needed = set(_placeholders(outputs))
+        live = self._live(needed)
+        lines = _inline(live, needed, scalar=not batch)
+        called = {node.calls(scalar=not batch) for node in live}
         body = [f"def {name}({', '.join(inputs)}, ops):"]
-        body += [f"    {f} = ops.{f}" for f in _OPS if f"{f}(" in text]
-        body += lines
-        body.append(f"    return ({returned},)")
-        source = "\n".join(body)
-        namespace: dict[str, Any] = {}
-        exec(compile(source, f"<{label}>", "exec"), namespace)
-        function: Callable[..., Any] = namespace[name]
-        function.__doc__ = source
+        body += [f"    {fn} = ops.{fn}" for fn in OP_NAMES if fn in called]
+        released = _releases(lines, needed) if batch else {}
+        for i, line in enumerate(lines):
+            body.append(f"    {line.target.name} = {line.text}")
+            if i in released:
+                body.append(f"    del {', '.join(sorted(released[i]))}")
+        body.append(f"    return {returned}")
+        source = "\n".join(body) + "\n"
+        filename = f"<generated {name}: {label} #{next(_serial)}>"
+        namespace: dict[str, object] = {"__name__": __name__, "_tuple_new": tuple.__new__, **classes}
+        exec(compile(source, filename, "exec"), namespace)
+        function = namespace[name]
+        assert isinstance(function, FunctionType)
+        # the source lives as long as the function (mtime None: linecache.checkcache keeps it)
+        linecache.cache[filename] = (len(source), None, source.splitlines(keepends=True), filename)
+        weakref.finalize(function, linecache.cache.pop, filename, None).atexit = False
+        function.__doc__ = f"Generated code: {label} (``inspect.getsource`` shows it)."
         return function
 
+    def _live(self, needed: set[Var]) -> list[_Node]:
+        """Only the nodes the outputs (``needed``) depend on: tracing records every intermediate,
+        used or not."""
+        live = set(needed)
+        kept = []
+        for var in reversed(self.nodes):
+            if var in live:
+                node = self.nodes[var]
+                live.update(a for a in node.args if isinstance(a, Var))
+                kept.append(node)
+        kept.reverse()
+        return kept
 
-#: a recorded ``where`` (its arguments are names or numbers)
-_WHERE = re.compile(r"\bwhere\(([^,()]+), ([^,()]+), ([^,()]+)\)")
-_OPS = ("sqrt", "atan2", "cos", "sin", "acos", "where", "maximum", "quartic")
-_NAME = re.compile(r"\bv\d+\b")
+
+def _placeholders(value: object) -> Iterator[Var]:
+    if isinstance(value, Var):
+        yield value
+    elif isinstance(value, tuple | list):
+        for item in value:
+            yield from _placeholders(item)
 
 
-def _live(lines: list[str], needed: set[str]) -> list[str]:
-    """Only the lines the outputs depend on (tracing records every intermediate, used or not)."""
-    kept = []
-    for line in reversed(lines):
-        target, expr = line.split("=", 1)
-        if target.strip() in needed:
-            needed.update(_NAME.findall(expr))
-            kept.append(line)
-    kept.reverse()
-    return kept
+def _construct(value: object, classes: dict[str, type]) -> str:
+    """The expression that builds ``value`` (a NamedTuple, tuple or list of them or of values)
+    in generated code; the NamedTuple classes it names are added to ``classes``."""
+    if isinstance(value, tuple | list):
+        items = [_construct(item, classes) for item in value]
+        packed = f"({', '.join(items)}{',' if len(items) == 1 else ''})"
+        cls = type(value)
+        if not hasattr(cls, "_fields"):
+            return packed
+        cls_name = cls.__name__
+        while classes.get(cls_name, cls) is not cls:
+            cls_name += "_"
+        classes[cls_name] = cls
+        return f"_tuple_new({cls_name}, {packed})"  # a NamedTuple without its Python-level __new__
+    return _text(value)
 
 
 #: an inlined expression nests at most this deep (the parser's limit is 200 parentheses)
 _MAX_DEPTH = 40
 
 
-def _inline(lines: list[str], returned: set[str]) -> list[str]:
+def _inline(nodes: list[_Node], returned: set[Var], scalar: bool) -> list[_Line]:
     """Values used once are written into the expression that uses them instead of a line of their
     own: the same operations in the same order, with far fewer local variables to store and load
     (a function with hundreds of locals also pays an extra instruction for each access past 255)."""
-    uses: dict[str, int] = {}
-    for line in lines:
-        for used in _NAME.findall(line.split("=", 1)[1]):
-            uses[used] = uses.get(used, 0) + 1
-    pending: dict[str, tuple[str, int]] = {}  # name -> (its expression, nesting depth)
+    recorded = {node.target for node in nodes}
+    uses: dict[Var, int] = {}
+    for node in nodes:
+        for arg in node.args:
+            if isinstance(arg, Var) and arg in recorded:
+                uses[arg] = uses.get(arg, 0) + 1
+    pending: dict[Var, tuple[str, int, list[Var]]] = {}  # value -> (its expression, nesting depth, names in it)
     out = []
-    for line in lines:
-        target, expr = (part.strip() for part in line.split("=", 1))
+    for node in nodes:
         depth = 0
-
-        def substitute(match: re.Match[str]) -> str:
-            nonlocal depth
-            name = match.group(0)
-            if name not in pending:
-                return name
-            text, inner = pending.pop(name)
-            depth = max(depth, inner + 1)
-            return f"({text})"
-
-        expr = _NAME.sub(substitute, expr)
+        texts: list[str] = []
+        named: list[Var] = []
+        for arg in node.args:
+            if not isinstance(arg, Var):
+                texts.append(_text(arg))
+            elif arg in pending:
+                text, inner, inner_named = pending.pop(arg)
+                depth = max(depth, inner + 1)
+                texts.append(f"({text})")
+                named += inner_named
+            else:
+                texts.append(arg.name)
+                if arg in recorded:
+                    named.append(arg)
+        expr = node.render(texts, scalar)
+        target = node.target
         if uses.get(target) == 1 and target not in returned and depth < _MAX_DEPTH:
-            pending[target] = (expr, depth)
+            pending[target] = (expr, depth, named)
         else:
-            out.append(f"    {target} = {expr}")
+            out.append(_Line(target, expr, named))
     return out
 
 
-def _with_releases(lines: list[str], keep: set[str]) -> list[str]:
-    last: dict[str, int] = {}
+def _releases(lines: list[_Line], keep: set[Var]) -> dict[int, list[str]]:
+    """Per line, the values last used there (to ``del`` after it)."""
+    last: dict[Var, int] = {}
     for i, line in enumerate(lines):
-        for used in _NAME.findall(line.split("=", 1)[1]):
+        for used in line.uses:
             last[used] = i
     dead: dict[int, list[str]] = {}
     for var, i in last.items():
         if var not in keep:
-            dead.setdefault(i, []).append(var)
-    out = []
-    for i, line in enumerate(lines):
-        out.append(line)
-        if i in dead:
-            out.append(f"    del {', '.join(sorted(dead[i]))}")
-    return out
+            dead.setdefault(i, []).append(var.name)
+    return dead
 
 
-def _text(value: Any) -> str:
+def _text(value: object) -> str:
     if isinstance(value, Var):
         return value.name
     if isinstance(value, bool):
         return repr(value)
-    if isinstance(value, int | float | np.floating | np.integer):
-        return repr(float(value)) if not isinstance(value, int | np.integer) else repr(int(value))
+    if isinstance(value, int | np.integer):
+        return repr(int(value))
+    if isinstance(value, float | np.floating):
+        return repr(float(value))
     raise TypeError(f"cannot trace a value of type {type(value).__name__}")
 
 
-def _is_number(value: Any) -> bool:
+def _is_number(value: object) -> bool:
     return isinstance(value, int | float | np.floating | np.integer) and not isinstance(value, bool)
 
 
@@ -176,7 +303,10 @@ class Var:
         self.tracer = tracer
         self.name = name
 
-    def _op(self, other: Any, op: str, reverse: bool = False) -> Any:
+    def __repr__(self) -> str:
+        return f"Var({self.name})"
+
+    def _op(self, other: Real, op: str, reverse: bool = False) -> Real:
         if isinstance(other, bool):
             other = int(other)
         if _is_number(other):
@@ -192,81 +322,92 @@ class Var:
             if op == "-" and reverse and k == 0.0:
                 return -self
         elif not isinstance(other, Var):
-            return NotImplemented
+            raise TypeError(f"cannot trace {op!r} with an operand of type {type(other).__name__}")
         elif other is self and op == "-":
             return 0.0
-        elif op in "+-" and other.name in self.tracer.negated:  # a + (-b) is a - b
-            base = self.tracer.negated[other.name]
+        elif op in "+-" and other in self.tracer.negated:  # a + (-b) is a - b
+            base = self.tracer.negated[other]
             if reverse:  # (-b) + a, (-b) - a
                 return self - base if op == "+" else -(base + self)
             return self - base if op == "+" else self + base
-        a, b = (_text(other), self.name) if reverse else (self.name, _text(other))
-        return self.tracer.emit(f"{a} {op} {b}")
+        return self.tracer.record(op, (other, self) if reverse else (self, other))
 
-    def __add__(self, o: Any) -> Any:
+    def __add__(self, o: Real) -> Real:
         return self._op(o, "+")
 
-    def __radd__(self, o: Any) -> Any:
+    def __radd__(self, o: float) -> Real:
         return self._op(o, "+", True)
 
-    def __sub__(self, o: Any) -> Any:
+    def __sub__(self, o: Real) -> Real:
         return self._op(o, "-")
 
-    def __rsub__(self, o: Any) -> Any:
+    def __rsub__(self, o: float) -> Real:
         return self._op(o, "-", True)
 
-    def __mul__(self, o: Any) -> Any:
+    def __mul__(self, o: Real) -> Real:
         return self._op(o, "*")
 
-    def __rmul__(self, o: Any) -> Any:
+    def __rmul__(self, o: float) -> Real:
         return self._op(o, "*", True)
 
-    def __truediv__(self, o: Any) -> Any:
+    def __truediv__(self, o: Real) -> Real:
         return self._op(o, "/")
 
-    def __rtruediv__(self, o: Any) -> Any:
+    def __rtruediv__(self, o: float) -> Real:
         return self._op(o, "/", True)
 
     def __neg__(self) -> Var:
-        if self.name in self.tracer.negated:
-            return self.tracer.negated[self.name]
-        result = self.tracer.emit(f"-{self.name}")
-        self.tracer.negated[result.name] = self
+        if self in self.tracer.negated:
+            return self.tracer.negated[self]
+        result = self.tracer.record("neg", (self,))
+        self.tracer.negated[result] = self
         return result
 
-    def __abs__(self) -> Var:
-        return self.tracer.emit(f"abs({self.name})")
+    def __abs__(self) -> Real:  # not Var: so that abs() of a Real is a Real to mypy
+        return self.tracer.record("abs", (self,))
 
-    def _compare(self, o: Any, op: str) -> Var:
-        return self.tracer.emit(f"{self.name} {op} {_text(o)}")
+    def _compare(self, o: Real, op: str) -> Var:
+        return self.tracer.record(op, (self, o))
 
-    def __lt__(self, o: Any) -> Var:
+    def __lt__(self, o: Real) -> Var:
         return self._compare(o, "<")
 
-    def __le__(self, o: Any) -> Var:
+    def __le__(self, o: Real) -> Var:
         return self._compare(o, "<=")
 
-    def __gt__(self, o: Any) -> Var:
+    def __gt__(self, o: Real) -> Var:
         return self._compare(o, ">")
 
-    def __ge__(self, o: Any) -> Var:
+    def __ge__(self, o: Real) -> Var:
         return self._compare(o, ">=")
 
-    def _logic(self, o: Any, op: str) -> Any:
+    def _logic(self, o: int | Var, op: str) -> int | Var:
         if isinstance(o, bool):  # truth values: fold
             if op == "&":
                 return self if o else False
             return True if o else self
         if isinstance(o, int) and o == 0:  # flag sets: x | 0 is x, x & 0 is 0
             return self if op == "|" else 0
-        return self.tracer.emit(f"({self.name} {op} {_text(o)})")
+        return self.tracer.record(op, (self, o))
 
-    def __and__(self, o: Any) -> Any:
+    @overload
+    def __and__(self, o: bool | Var) -> Truth: ...
+
+    @overload
+    def __and__(self, o: int) -> Flags: ...
+
+    def __and__(self, o: int | Var) -> int | Var:
         return self._logic(o, "&")
 
     __rand__ = __and__
 
-    def __or__(self, o: Any) -> Any:
+    @overload
+    def __or__(self, o: bool | Var) -> Truth: ...
+
+    @overload
+    def __or__(self, o: int) -> Flags: ...
+
+    def __or__(self, o: int | Var) -> int | Var:
         return self._logic(o, "|")
 
     __ror__ = __or__
@@ -274,101 +415,66 @@ class Var:
     def __bool__(self) -> bool:
         raise TypeError("a traced value has no truth value at trace time; use ops.where")
 
+    def __float__(self) -> float:
+        raise TypeError("a traced value has no value at trace time")
 
-def _first_var(*args: Any) -> Tracer | None:
+
+def _tracer(*args: object) -> Tracer:
     for a in args:
         if isinstance(a, Var):
             return a.tracer
-    return None
+    raise AssertionError("no placeholder among the arguments")
 
 
-class _TraceOps:
-    """The ``ops`` namespace while tracing: calls on placeholders are recorded."""
+class TraceOps:
+    """:class:`._ops.Ops` while tracing: calls on placeholders are recorded; calls on plain
+    numbers are computed right away (by :data:`._ops.SCALAR_OPS`)."""
 
-    @staticmethod
-    def _call(fn: str, *args: Any) -> Any:
-        tracer = _first_var(*args)
-        if tracer is None:
-            return getattr(SCALAR_OPS, fn)(*args)
-        return tracer.emit(f"{fn}({', '.join(_text(a) for a in args)})")
+    def sqrt(self, x: Real) -> Real:
+        return x.tracer.call("sqrt", x) if isinstance(x, Var) else SCALAR_OPS.sqrt(x)
 
-    def sqrt(self, x: Any) -> Any:
-        return self._call("sqrt", x)
+    def atan2(self, y: Real, x: Real) -> Real:
+        if isinstance(y, Var) or isinstance(x, Var):
+            return _tracer(y, x).call("atan2", y, x)
+        return SCALAR_OPS.atan2(y, x)
 
-    def atan2(self, y: Any, x: Any) -> Any:
-        return self._call("atan2", y, x)
+    def cos(self, x: Real) -> Real:
+        return x.tracer.call("cos", x) if isinstance(x, Var) else SCALAR_OPS.cos(x)
 
-    def cos(self, x: Any) -> Any:
-        return self._call("cos", x)
+    def sin(self, x: Real) -> Real:
+        return x.tracer.call("sin", x) if isinstance(x, Var) else SCALAR_OPS.sin(x)
 
-    def sin(self, x: Any) -> Any:
-        return self._call("sin", x)
+    def acos(self, x: Real) -> Real:
+        return x.tracer.call("acos", x) if isinstance(x, Var) else SCALAR_OPS.acos(x)
 
-    def acos(self, x: Any) -> Any:
-        return self._call("acos", x)
+    def where(self, condition: Truth, a: Real, b: Real) -> Real:
+        if not isinstance(condition, Var):
+            return a if condition else b
+        return condition.tracer.call("where", condition, a, b)
 
-    def where(self, c: Any, a: Any, b: Any) -> Any:
-        if not isinstance(c, Var):
-            return a if c else b
-        return self._call("where", c, a, b)
+    def flag(self, condition: Truth, value: int) -> Flags:
+        if not isinstance(condition, Var):
+            return value if condition else 0
+        return condition.tracer.call("where", condition, value, 0)
 
-    def maximum(self, *x: Any) -> Any:
-        return self._call("maximum", *x)
+    def maximum(self, x: Real, y: Real, *rest: Real) -> Real:
+        values = (x, y, *rest)
+        constants = [v for v in values if not isinstance(v, Var)]
+        if len(constants) == len(values):
+            return SCALAR_OPS.maximum(*constants)
+        return _tracer(*values).call("maximum", *values)
 
-    def quartic(self, *k: Any) -> tuple[Any, ...]:
-        tracer = _first_var(*k)
-        if tracer is None:
-            return SCALAR_OPS.quartic(*k)
-        packed = tracer.emit(f"quartic({', '.join(_text(a) for a in k)})")
-        return tuple(tracer.emit(f"{packed.name}[{i}]") for i in range(12))
-
-
-class _ScalarOps:
-    @staticmethod
-    def sqrt(x: float) -> float:
-        return math.sqrt(x) if x > 0.0 else 0.0
-
-    atan2 = staticmethod(math.atan2)
-    cos = staticmethod(math.cos)
-    sin = staticmethod(math.sin)
-
-    @staticmethod
-    def acos(x: float) -> float:
-        return math.acos(1.0 if x > 1.0 else (-1.0 if x < -1.0 else x))
-
-    @staticmethod
-    def where(c: Any, a: Any, b: Any) -> Any:
-        return a if c else b
-
-    maximum = staticmethod(max)
-
-    def quartic(self, *k: float) -> tuple[Any, ...]:
-        return trig_quadratic_roots(self, *k)
+    def quartic(self, *k: Real) -> tuple[TrigRoot[Var], ...]:
+        constants = [v for v in k if not isinstance(v, Var)]
+        if len(constants) == len(k):
+            roots = SCALAR_OPS.quartic(*constants)
+            return tuple(TrigRoot(float(r.angle), bool(r.valid), bool(r.double)) for r in roots)
+        tracer = _tracer(*k)
+        packed = tracer.call("quartic", *k)
+        angles = [tracer.record("item", (packed,), f"[{i}].angle") for i in range(4)]
+        valid = [tracer.record("item", (packed,), f"[{i}].valid") for i in range(4)]
+        double = [tracer.record("item", (packed,), f"[{i}].double") for i in range(4)]
+        return tuple(TrigRoot(a, v, d) for a, v, d in zip(angles, valid, double, strict=True))
 
 
-class _ArrayOps:
-    @staticmethod
-    def sqrt(x: Any) -> Any:
-        return np.sqrt(np.maximum(x, 0.0))
-
-    atan2 = staticmethod(np.arctan2)
-    cos = staticmethod(np.cos)
-    sin = staticmethod(np.sin)
-
-    @staticmethod
-    def acos(x: Any) -> Any:
-        return np.arccos(np.clip(x, -1.0, 1.0))
-
-    where = staticmethod(np.where)
-
-    @staticmethod
-    def maximum(*x: Any) -> Any:
-        return functools.reduce(np.maximum, x)
-
-    def quartic(self, *k: Any) -> tuple[Any, ...]:
-        return trig_quadratic_roots(self, *k)
-
-
-SCALAR_OPS = _ScalarOps()
-ARRAY_OPS = _ArrayOps()
-TRACE_OPS = _TraceOps()
+TRACE_OPS: Ops[Var] = TraceOps()

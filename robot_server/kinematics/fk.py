@@ -11,61 +11,71 @@ from __future__ import annotations
 import math
 import weakref
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..model import JointType, RobotModel
-from ._chain import chain, pose_and_jacobian
-from ._trace import ARRAY_OPS, SCALAR_OPS, TRACE_OPS, Tracer, Var
+from ._chain import PoseBlock, PoseJacobian, chain, pose_and_jacobian
+from ._ops import ARRAY_OPS, SCALAR_OPS, Ops
+from ._trace import TRACE_OPS, Generated, Tracer, Var
 
-Compiled = Callable[..., tuple[Any, ...]]
-
-__all__ = ["fk", "fk_batch", "link_frames", "jacobian", "manipulability", "singularity_measure", "chain_functions"]
+__all__ = [
+    "fk",
+    "fk_batch",
+    "link_frames",
+    "jacobian",
+    "manipulability",
+    "singularity_measure",
+    "chain_functions",
+    "ChainFunctions",
+]
 
 Matrix = NDArray[np.float64]
 
 
-class _Chain:
-    __slots__ = ("jacobian", "pose", "pose_batch")
+class ChainFunctions(NamedTuple):
+    """A model's generated chain functions, ``f(q0, ..., q(dof-1), ops)`` (compiled once per
+    model): the flange pose, the pose with the geometric Jacobian, and the pose on numpy columns
+    (``ops`` = :data:`._ops.ARRAY_OPS`)."""
 
-    def __init__(self, model: RobotModel) -> None:
-        self.pose = _compile(model, lambda ops, q: chain(ops, model, q, with_axes=False))
-        self.pose_batch = _compile(model, lambda ops, q: chain(ops, model, q, with_axes=False), batch=True)
-        self.jacobian = _compile(model, lambda ops, q: pose_and_jacobian(ops, model, q))
+    pose: Generated[PoseBlock[float]]
+    pose_and_jacobian: Generated[PoseJacobian[float]]
+    pose_batch: Generated[PoseBlock[NDArray[np.float64]]]
 
 
 def _compile(
     model: RobotModel,
-    body: Callable[[Any, list[Any]], list[Any]],
+    body: Callable[[Ops[Var], list[Var]], object],
     batch: bool = False,
     extra: Sequence[str] = (),
-) -> Compiled:
+) -> Callable[..., Any]:
     """Trace ``body(ops, inputs)`` into ``f(q0, ..., q(dof-1), *extra, ops)``: the inputs are the
-    joint values, then the ``extra`` names."""
+    joint values, then the ``extra`` names; it returns what ``body`` returns (a NamedTuple)."""
     tracer = Tracer()
     names = [f"q{i}" for i in range(model.dof)] + list(extra)
-    outputs = body(TRACE_OPS, [Var(tracer, n) for n in names])
+    outputs = body(TRACE_OPS, [tracer.input(n) for n in names])
     return tracer.compile("chain", names, outputs, f"kinematics of {model.name}", batch=batch)
 
 
-_CHAINS: weakref.WeakKeyDictionary[RobotModel, _Chain] = weakref.WeakKeyDictionary()
+def _build(model: RobotModel) -> ChainFunctions:
+    return ChainFunctions(
+        _compile(model, lambda ops, q: chain(ops, model, q, with_axes=False).flange),
+        _compile(model, lambda ops, q: pose_and_jacobian(ops, model, q)),
+        _compile(model, lambda ops, q: chain(ops, model, q, with_axes=False).flange, batch=True),
+    )
 
 
-def _chain(model: RobotModel) -> _Chain:
+_CHAINS: weakref.WeakKeyDictionary[RobotModel, ChainFunctions] = weakref.WeakKeyDictionary()
+
+
+def chain_functions(model: RobotModel) -> ChainFunctions:
+    """The model's generated functions (see :class:`ChainFunctions`; compiled once per model)."""
     compiled = _CHAINS.get(model)
     if compiled is None:
-        compiled = _CHAINS[model] = _Chain(model)
+        compiled = _CHAINS[model] = _build(model)
     return compiled
-
-
-def chain_functions(model: RobotModel) -> tuple[Compiled, Compiled]:
-    """The model's generated ``(pose, pose_and_jacobian)`` functions, ``f(q0, ..., ops)``
-    (compiled once per model): the flange's 3x4 block row-major, then for the second the
-    Jacobian row-major (:func:`._chain.pose_and_jacobian`)."""
-    compiled = _chain(model)
-    return compiled.pose, compiled.jacobian
 
 
 def _values(model: RobotModel, q: ArrayLike) -> list[float]:
@@ -78,14 +88,9 @@ def _values(model: RobotModel, q: ArrayLike) -> list[float]:
     return values
 
 
-def _matrix(v: tuple[Any, ...]) -> Matrix:
-    return np.array([v[0:4], v[4:8], v[8:12], (0.0, 0.0, 0.0, 1.0)])
-
-
 def fk(model: RobotModel, q: ArrayLike) -> Matrix:
     """The flange (tool) pose for one configuration, as a 4x4 homogeneous matrix."""
-    pose, _ = chain_functions(model)
-    return _matrix(pose(*_values(model, q), SCALAR_OPS))
+    return chain_functions(model).pose(*_values(model, q), SCALAR_OPS).matrix()
 
 
 def fk_batch(model: RobotModel, q: ArrayLike) -> NDArray[np.float64]:
@@ -93,7 +98,7 @@ def fk_batch(model: RobotModel, q: ArrayLike) -> NDArray[np.float64]:
     values = np.asarray(q, dtype=float)
     if values.ndim != 2 or values.shape[1] != model.dof:
         raise ValueError(f"fk_batch takes an (N, {model.dof}) array for {model.name}, not shape {values.shape}")
-    pose = _chain(model).pose_batch
+    pose = chain_functions(model).pose_batch
     n = values.shape[0]
     out = np.zeros((n, 4, 4))
     out[:, 3, 3] = 1.0
@@ -102,8 +107,9 @@ def fk_batch(model: RobotModel, q: ArrayLike) -> NDArray[np.float64]:
     # whole-batch columns for N = 100,000 on the CI machine class.
     for start in range(0, n, _CHUNK):
         stop = min(n, start + _CHUNK)
-        for k, value in enumerate(pose(*np.ascontiguousarray(values[start:stop].T), ARRAY_OPS)):
-            flat[start:stop, k] = value
+        block = pose(*np.ascontiguousarray(values[start:stop].T), ARRAY_OPS)
+        for column, value in enumerate(block):  # a PoseBlock's fields: the matrix's first 12 entries
+            flat[start:stop, column] = value
     return out
 
 
@@ -113,8 +119,8 @@ _CHUNK = 8192
 def jacobian(model: RobotModel, q: ArrayLike) -> Matrix:
     """The geometric Jacobian (6 x dof) in the base frame at the flange (tool) point: rows are the
     linear velocity (m/s) then the angular velocity (rad/s) per unit joint velocity."""
-    values = _chain(model).jacobian(*_values(model, q), SCALAR_OPS)
-    return np.array(values[12:], dtype=float).reshape(6, model.dof)
+    result = chain_functions(model).pose_and_jacobian(*_values(model, q), SCALAR_OPS)
+    return np.array(result.jacobian, dtype=float)
 
 
 def manipulability(model: RobotModel, q: ArrayLike) -> float:

@@ -43,22 +43,27 @@ from __future__ import annotations
 
 import math
 import weakref
-from collections.abc import Callable, Sequence
+from collections.abc import Iterable, Sequence
 from enum import IntFlag
-from typing import Any, NamedTuple
+from typing import Generic, NamedTuple, TypeVar, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..model import JointType, ModelError, RobotModel
 from ._chain import chain
-from ._trace import ARRAY_OPS, SCALAR_OPS, TRACE_OPS, Tracer, Var
+from ._ops import ARRAY_OPS, SCALAR_OPS, Array, Ops, TrigRoot
+from ._trace import TRACE_OPS, Flags, Generated, Real, Tracer, Truth, Var
 from .fk import fk
 
-__all__ = ["Singularity", "IKSolution", "ClosedFormIK", "NotApplicable", "closed_form"]
+__all__ = ["Singularity", "IKSolution", "Branch", "BatchSolutions", "ClosedFormIK", "NotApplicable", "closed_form"]
 
 Matrix = NDArray[np.float64]
-Vec = tuple[Any, Any, Any]
+V = TypeVar("V")
+#: a vector in traced code
+Vec = tuple[Real, Real, Real]
+#: a vector of the model's constants
+FVec = tuple[float, float, float]
 _TWO_PI = 2.0 * math.pi
 _CHUNK = 4096
 
@@ -91,30 +96,78 @@ class IKSolution(NamedTuple):
     singular: Singularity = Singularity.NONE
 
 
-def _dot(a: Vec, b: Vec) -> Any:
+class Branch(NamedTuple, Generic[V]):
+    """One of the 8 branches of the generated solver (floats for one pose, arrays for a batch):
+    the joint values before any 2 pi shift, whether the branch reaches the pose, and its
+    :class:`Singularity` flags."""
+
+    q: tuple[float | V, ...]
+    valid: bool | V
+    flags: int | V
+
+
+class BatchSolutions(NamedTuple):
+    """:meth:`ClosedFormIK.solve_batch`: for N poses, ``q (N, 8, 6)`` (NaN in invalid slots),
+    ``valid (N, 8)`` and the :class:`Singularity` flags ``(N, 8)``."""
+
+    q: NDArray[np.float64]
+    valid: NDArray[np.bool_]
+    flags: NDArray[np.int64]
+
+
+def _vec(values: Sequence[float] | NDArray[np.float64]) -> FVec:
+    return (float(values[0]), float(values[1]), float(values[2]))
+
+
+@overload
+def _dot(a: FVec, b: FVec) -> float: ...
+@overload
+def _dot(a: Vec, b: Vec) -> Real: ...
+def _dot(a: Vec, b: Vec) -> Real:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
+@overload
+def _cross(a: FVec, b: FVec) -> FVec: ...
+@overload
+def _cross(a: Vec, b: Vec) -> Vec: ...
 def _cross(a: Vec, b: Vec) -> Vec:
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
+@overload
+def _sub(a: FVec, b: FVec) -> FVec: ...
+@overload
+def _sub(a: Vec, b: Vec) -> Vec: ...
 def _sub(a: Vec, b: Vec) -> Vec:
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
-def _rotate(h: Vec, c: Any, s: Any, v: Vec) -> Vec:
+@overload
+def _scaled(v: FVec, k: float) -> FVec: ...
+@overload
+def _scaled(v: Vec, k: Real) -> Vec: ...
+def _scaled(v: Vec, k: Real) -> Vec:
+    return (v[0] * k, v[1] * k, v[2] * k)
+
+
+def _rotate(h: Vec, c: Real, s: Real, v: Vec) -> Vec:
     """v turned about the unit direction h by the angle with cosine c and sine s (Rodrigues)."""
     k = _dot(h, v) * (1.0 - c)
     x = _cross(h, v)
     return (v[0] * c + x[0] * s + h[0] * k, v[1] * c + x[1] * s + h[1] * k, v[2] * c + x[2] * s + h[2] * k)
 
 
-def _lin(v0: Vec, vc: Vec, vs: Vec, c: Any, s: Any) -> Vec:
+def _vec3(values: Iterable[Real]) -> Vec:
+    x, y, z = values
+    return (x, y, z)
+
+
+def _lin(v0: Vec, vc: Vec, vs: Vec, c: Real, s: Real) -> Vec:
     return (v0[0] + vc[0] * c + vs[0] * s, v0[1] + vc[1] * c + vs[1] * s, v0[2] + vc[2] * c + vs[2] * s)
 
 
-def _trig_roots(ops: Any, p0: Any, pc: Any, ps: Any) -> tuple[Any, Any, Any, Any]:
+def _trig_roots(ops: Ops[Var], p0: Real, pc: Real, ps: Real) -> tuple[Real, Real, Truth, Truth]:
     """Both roots of ``p0 + pc cos q + ps sin q = 0``: (q_a, q_b, reachable, merged)."""
     r = ops.sqrt(pc * pc + ps * ps)
     safe = ops.where(r > 1e-300, r, 1.0)
@@ -126,11 +179,11 @@ def _trig_roots(ops: Any, p0: Any, pc: Any, ps: Any) -> tuple[Any, Any, Any, Any
     return base + delta, base - delta, reachable, merged
 
 
-def _turn_angle(ops: Any, h: Vec, p: Vec, t: Vec, fallback: Any) -> tuple[Any, Any]:
+def _turn_angle(ops: Ops[Var], h: Vec, p: Vec, t: Vec, fallback: Real) -> tuple[Real, Truth]:
     """The angle about h that turns p onto t (their components across h); ``fallback`` when p has
     no such component (the angle is free): (angle, degenerate)."""
-    pp = _sub(p, tuple(hk * _dot(h, p) for hk in h))
-    tt = _sub(t, tuple(hk * _dot(h, t) for hk in h))
+    pp = _sub(p, _scaled(h, _dot(h, p)))
+    tt = _sub(t, _scaled(h, _dot(h, t)))
     sin_part = _dot(h, _cross(pp, tt))
     cos_part = _dot(pp, tt)
     degenerate = _dot(pp, pp) < _DEGENERATE * _DEGENERATE
@@ -145,14 +198,13 @@ class ClosedFormIK:
             raise NotApplicable(f"{model.name}: closed-form IK needs 6 revolute joints")
         self.model = model
         axes, points = _axis_lines(model)
-        h = [tuple(float(x) for x in a) for a in axes]
-        o = [tuple(float(x) for x in p) for p in points]
+        self.h = [_vec(a) for a in axes]
+        o = [_vec(p) for p in points]
         centre = _wrist_centre(model.name, axes[3:], points[3:])
         zero = fk(model, [0.0] * 6)
-        self.h: list[Vec] = h  # type: ignore[assignment]
         # the flange orientation at q = 0, and the wrist centre's offset from the flange (base axes)
         self.r0 = zero[:3, :3].copy()
-        self.c_flange = tuple(float(x) for x in self.r0 @ np.linalg.solve(zero, np.append(centre, 1.0))[:3])
+        self.c_flange = _vec(self.r0 @ np.linalg.solve(zero, np.append(centre, 1.0))[:3])
         # o1, o2: feet of the common normal of axes 1 and 2
         o1, o2 = _common_normal_feet(np.array(o[0]), axes[0], np.array(o[1]), axes[1])
         w = o2 - o1
@@ -163,16 +215,16 @@ class ClosedFormIK:
             raise NotApplicable(f"{model.name}: axes 1 and 2 coincide")
         h1, h2, h3 = axes[0], axes[1], axes[2]
         u = centre - points[2]
-        self.o1: Vec = tuple(float(x) for x in o1)  # type: ignore[assignment]
-        self.o2: Vec = tuple(float(x) for x in o2)  # type: ignore[assignment]
-        self.w: Vec = tuple(float(x) for x in w)  # type: ignore[assignment]
-        self.g: Vec = tuple(float(x) for x in np.cross(w, h2))  # type: ignore[assignment]
-        self.k: Vec = tuple(float(x) for x in k)  # type: ignore[assignment]
-        self.h1p: Vec = tuple(float(x) for x in h1 - np.dot(h1, h2) * h2)  # type: ignore[assignment]
+        self.o1 = _vec(o1)
+        self.o2 = _vec(o2)
+        self.w = _vec(w)
+        self.g = _vec(np.cross(w, h2))
+        self.k = _vec(k)
+        self.h1p = _vec(h1 - np.dot(h1, h2) * h2)
         self.h12 = float(np.dot(h1, h2))
-        self.v0: Vec = tuple(float(x) for x in points[2] - o2 + np.dot(h3, u) * h3)  # type: ignore[assignment]
-        self.vc: Vec = tuple(float(x) for x in u - np.dot(h3, u) * h3)  # type: ignore[assignment]
-        self.vs: Vec = tuple(float(x) for x in np.cross(h3, u))  # type: ignore[assignment]
+        self.v0 = _vec(points[2] - o2 + np.dot(h3, u) * h3)
+        self.vc = _vec(u - np.dot(h3, u) * h3)
+        self.vs = _vec(np.cross(h3, u))
         if np.linalg.norm(self.vc) < _GEOMETRY_TOL:
             raise NotApplicable(f"{model.name}: the wrist centre lies on axis 3")
         self.ww = float(np.dot(w, w))
@@ -181,7 +233,7 @@ class ClosedFormIK:
         n6 = np.cross(axes[5], [1.0, 0.0, 0.0])
         if np.linalg.norm(n6) < 0.1:
             n6 = np.cross(axes[5], [0.0, 1.0, 0.0])
-        self.n6: Vec = tuple(float(x) for x in n6 / np.linalg.norm(n6))  # type: ignore[assignment]
+        self.n6 = _vec(n6 / np.linalg.norm(n6))
         # |v|^2 = n0 + X and h2.v = m0 + (m1 c3 + m2 s3), where X = n1 c3 + n2 s3
         v0, vc, vs = self.v0, self.vc, self.vs
         self.n0 = _dot(v0, v0) + _dot(vc, vc)
@@ -206,46 +258,44 @@ class ClosedFormIK:
         self.wrist_alpha = _dot(h4, h6) - h56 * _dot(h4, h5)
         self.wrist_beta = _dot(h4, _cross(h5, h6))
         self.wrist_const = h56 * _dot(h4, h5)
-        self.p6 = (
-            tuple(h5[i] * h56 for i in range(3)),
-            tuple(h6[i] - h5[i] * h56 for i in range(3)),
-            _cross(h5, h6),
-        )
+        self.p6 = (_scaled(h5, h56), _sub(h6, _scaled(h5, h56)), _cross(h5, h6))
         self.h23_parallel = bool(np.allclose(axes[1], axes[2], rtol=0.0, atol=1e-12))
         self.limits = tuple(zip(model.lower.tolist(), model.upper.tolist(), strict=True))
         self._solver, self._batch_solver = self._trace()
 
-    def _trace(self) -> tuple[Callable[..., tuple[Any, ...]], Callable[..., tuple[Any, ...]]]:
+    def _trace(self) -> tuple[Generated[tuple[Branch[float], ...]], Generated[tuple[Branch[Array], ...]]]:
+        """The generated solver ``f(r00, ..., r22, px, py, pz, s0, ..., s5, ops)`` (rotation,
+        position, seed) for floats and for numpy columns: the 8 :class:`Branch`."""
         tracer = Tracer()
         names = [f"r{i}{j}" for i in range(3) for j in range(3)] + ["px", "py", "pz"] + [f"s{i}" for i in range(6)]
-        var = {name: Var(tracer, name) for name in names}
+        var = {name: tracer.input(name) for name in names}
         # rt = R . M0^T, with the model's M0 folded in
         r0 = self.r0.tolist()
         rt = [[sum(var[f"r{i}{k}"] * r0[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
         p = (var["px"], var["py"], var["pz"])
         seed = [var[f"s{i}"] for i in range(6)]
-        outputs = [value for branch in self._branches(TRACE_OPS, rt, p, seed) for value in branch]
+        outputs = tuple(self._branches(TRACE_OPS, rt, p, seed))
         label = f"closed-form IK of {self.model.name}"
         return (
             tracer.compile("closed_form_ik", names, outputs, label),
             tracer.compile("closed_form_ik_batch", names, outputs, label, batch=True),
         )
 
-    # -- the solver, on floats or arrays ---------------------------------------------------------
+    # -- the solver, traced ----------------------------------------------------------------------
 
-    def _branches(self, ops: Any, rt: Matrix | Any, p: Vec, seed: Sequence[Any]) -> list[tuple[Any, ...]]:
-        """All 8 branches: tuples (q1..q6, valid, flags) of floats or arrays."""
+    def _branches(self, ops: Ops[Var], rt: Sequence[Sequence[Real]], p: Vec, seed: Sequence[Real]) -> list[Branch[Var]]:
+        """All 8 branches."""
         h1, h2, h3, h4, h5, h6 = self.h
         cf = self.c_flange
         # rt = R . M0^T. The wrist centre p + R c_flange = p + rt (M0 c_flange), and W h6, W n6
         # before q1..q3 are undone
-        pw = tuple(p[i] + rt[i][0] * cf[0] + rt[i][1] * cf[1] + rt[i][2] * cf[2] for i in range(3))
+        pw = _vec3(p[i] + rt[i][0] * cf[0] + rt[i][1] * cf[1] + rt[i][2] * cf[2] for i in range(3))
         rel = _sub(pw, self.o1)
         dd = _dot(rel, rel)
         hh = _dot(h1, rel)
-        t_h6 = tuple(rt[i][0] * h6[0] + rt[i][1] * h6[1] + rt[i][2] * h6[2] for i in range(3))
+        t_h6 = _vec3(rt[i][0] * h6[0] + rt[i][1] * h6[1] + rt[i][2] * h6[2] for i in range(3))
         n6 = self.n6
-        t_n6 = tuple(rt[i][0] * n6[0] + rt[i][1] * n6[1] + rt[i][2] * n6[2] for i in range(3))
+        t_n6 = _vec3(rt[i][0] * n6[0] + rt[i][1] * n6[1] + rt[i][2] * n6[2] for i in range(3))
         positions = self._positions(ops, dd, hh, rel, seed)
         out = []
         for q1, q2, q3, valid, flags in positions:
@@ -253,7 +303,9 @@ class ClosedFormIK:
             a_h6, a_n6 = t_h6, t_n6
             # rotations compose by direction only: with h3 = h2 (parallel axes, as on most arms)
             # the last two are one turn by q2 + q3
-            turns = ((h1, q1), (h2, q2 + q3)) if self.h23_parallel else ((h1, q1), (h2, q2), (h3, q3))
+            turns: tuple[tuple[Vec, Real], ...] = (
+                ((h1, q1), (h2, q2 + q3)) if self.h23_parallel else ((h1, q1), (h2, q2), (h3, q3))
+            )
             for h, q in turns:
                 c, s = ops.cos(q), -ops.sin(q)
                 a_h6 = _rotate(h, c, s, a_h6)
@@ -269,11 +321,13 @@ class ClosedFormIK:
                 # Rot(h6, q6) = (Rot4 Rot5)^T W: read it on n6
                 m = _rotate(h5, c5, -s5, _rotate(h4, c4, -s4, a_n6))
                 q6 = ops.atan2(_dot(h6, _cross(self.n6, m)), _dot(self.n6, m))
-                at_wrist = ops.where(wrist | merged5, int(Singularity.WRIST), 0)
-                out.append((q1, q2, q3, q4, q5, q6, valid & ok5, flags | at_wrist))
+                at_wrist = ops.flag(wrist | merged5, int(Singularity.WRIST))
+                out.append(Branch((q1, q2, q3, q4, q5, q6), valid & ok5, flags | at_wrist))
         return out
 
-    def _positions(self, ops: Any, dd: Any, hh: Any, rel: Vec, seed: Sequence[Any]) -> list[tuple[Any, ...]]:
+    def _positions(
+        self, ops: Ops[Var], dd: Real, hh: Real, rel: Vec, seed: Sequence[Real]
+    ) -> list[tuple[Real, Real, Real, Truth, Flags]]:
         """(q1, q2, q3, valid, flags) for each position branch."""
         h1, h2 = self.h[0], self.h[1]
         v0, vc, vs, w = self.v0, self.vc, self.vs, self.w
@@ -281,13 +335,13 @@ class ClosedFormIK:
         # E1 rhs = C1 = e0 - n1 c3 - n2 s3;  E2 rhs = C2 = f0 - h12 (m1 c3 + m2 s3)
         e0 = dd - self.ww - n0
         f0 = hh - self.h1w - self.h12 * m0
-        triples: list[tuple[Any, Any, Any, Any]] = []  # (q3, q2, valid, flags)
+        triples: list[tuple[Real, Real, Truth, Flags]] = []  # (q3, q2, valid, flags)
         if self.case in ("intersecting", "parallel"):
             if self.case == "intersecting":
                 q3a, q3b, ok3, merged = _trig_roots(ops, e0, -n1, -n2)
             else:
                 q3a, q3b, ok3, merged = _trig_roots(ops, f0, -self.h12 * m1, -self.h12 * m2)
-            elbow = ops.where(merged, int(Singularity.ELBOW), 0)
+            elbow = ops.flag(merged, int(Singularity.ELBOW))
             for q3 in (q3a, q3b):
                 c3, s3 = ops.cos(q3), ops.sin(q3)
                 v = _lin(v0, vc, vs, c3, s3)
@@ -299,11 +353,11 @@ class ClosedFormIK:
                 free = a2 * a2 + b2 * b2 < _DEGENERATE * _DEGENERATE
                 for q2 in (q2a, q2b):
                     q2 = ops.where(free, seed[1], q2)
-                    flags = elbow | ops.where(free, int(Singularity.SHOULDER), 0)
+                    flags = elbow | ops.flag(free, int(Singularity.SHOULDER))
                     triples.append((q3, q2, ok3 & (ok2 | free), flags))
         else:
             roots = self._offset_roots(ops, e0, f0) if self.case == "offset" else self._quartic_roots(ops, e0, f0)
-            for q3, ok3, double in zip(roots[0:4], roots[4:8], roots[8:12], strict=True):
+            for q3, ok3, double in roots:
                 c3, s3 = ops.cos(q3), ops.sin(q3)
                 v = _lin(v0, vc, vs, c3, s3)
                 a1_, b1 = 2.0 * _dot(v, w), 2.0 * _dot(v, self.g)
@@ -314,7 +368,7 @@ class ClosedFormIK:
                 free = abs(det) < _DEGENERATE * _DEGENERATE
                 safe = ops.where(free, 1.0, det)
                 q2 = ops.where(free, seed[1], ops.atan2((a1_ * r2 - a2_ * r1) / safe, (r1 * b2 - r2 * b1) / safe))
-                flags = ops.where(double, int(Singularity.ELBOW), 0) | ops.where(free, int(Singularity.SHOULDER), 0)
+                flags = ops.flag(double, int(Singularity.ELBOW)) | ops.flag(free, int(Singularity.SHOULDER))
                 triples.append((q3, q2, ok3, flags))
         out = []
         for q3, q2, valid, flags in triples:
@@ -322,14 +376,14 @@ class ClosedFormIK:
             v = _lin(v0, vc, vs, c3, s3)
             x = _sub(_rotate(h2, ops.cos(q2), ops.sin(q2), v), (-w[0], -w[1], -w[2]))  # x - o1 = w + R2 v
             q1, shoulder = _turn_angle(ops, h1, x, rel, seed[0])
-            out.append((q1, q2, q3, valid, flags | ops.where(shoulder, int(Singularity.SHOULDER), 0)))
+            out.append((q1, q2, q3, valid, flags | ops.flag(shoulder, int(Singularity.SHOULDER))))
         return out
 
-    def _offset_roots(self, ops: Any, e0: Any, f0: Any) -> tuple[Any, ...]:
+    def _offset_roots(self, ops: Ops[Var], e0: Real, f0: Real) -> tuple[TrigRoot[Var], ...]:
         """q3 where axes 1 and 2 are skew and h2.v = m0 + ratio X: with L1 = (e0 - X) / 2|w| and
         L2 = (f0 - h12 ratio X) / sin a12, the elimination gives ``A X^2 + B X + C = 0``; each real
         X gives two q3 from ``n1 c3 + n2 s3 = X``. Returned like :func:`._quartic.trig_quadratic_roots`
-        (q3 x 4, valid x 4, elbow x 4).
+        (four q3, each valid or not, at the elbow singularity or not).
 
         The elbow is singular where the two q3 of one X meet (|X| = |n|: the arm stretched or folded),
         flagged as in the other cases by :func:`_trig_roots` (|X| / |n| within 1e-12 of 1, i.e. q3
@@ -347,22 +401,21 @@ class ClosedFormIK:
         # a double X is still real if it misses by rounding (X within _REACH_TOL |n| of real)
         real = disc >= -4.0 * quad * quad * (_REACH_TOL * self.n_size) ** 2
         root = ops.sqrt(disc)
-        angles, valid, elbow = [], [], []
+        roots: list[TrigRoot[Var]] = []
         for x in ((-lin + root) / (2.0 * quad), (-lin - root) / (2.0 * quad)):
             q3a, q3b, ok3, merged = _trig_roots(ops, -x, self.n1, self.n2)
             for q3 in (q3a, q3b):
-                angles.append(q3)
-                valid.append(real & ok3)
-                elbow.append(real & ok3 & merged)
-        return (*angles, *valid, *elbow)
+                valid = real & ok3
+                roots.append(TrigRoot(q3, valid, valid & merged))
+        return tuple(roots)
 
-    def _quartic_roots(self, ops: Any, e0: Any, f0: Any) -> tuple[Any, ...]:
+    def _quartic_roots(self, ops: Ops[Var], e0: Real, f0: Real) -> tuple[TrigRoot[Var], ...]:
         """q3 in the general case: the roots of the quartic (see the module doc)."""
         n0, n1, n2, m0, m1, m2 = self.n0, self.n1, self.n2, self.m0, self.m1, self.m2
         l1 = [x / (2.0 * self.a) for x in (e0, -n1, -n2)]
         l2 = [x / self.sigma for x in (f0, -self.h12 * m1, -self.h12 * m2)]
         # F = L1^2 + L2^2 - |v|^2 + (h2.v)^2, as k0 + k1 c + k2 s + k3 c^2 + k4 s^2 + k5 cs
-        kk: list[Any] = [-n0, -n1, -n2, 0.0, 0.0, 0.0]
+        kk: list[Real] = [-n0, -n1, -n2, 0.0, 0.0, 0.0]
         for a0, a1, a2 in (l1, l2, (m0, m1, m2)):
             kk[0] = kk[0] + a0 * a0
             kk[1] = kk[1] + 2.0 * a0 * a1
@@ -370,7 +423,7 @@ class ClosedFormIK:
             kk[3] = kk[3] + a1 * a1
             kk[4] = kk[4] + a2 * a2
             kk[5] = kk[5] + 2.0 * a1 * a2
-        return tuple(ops.quartic(*kk))
+        return ops.quartic(*kk)
 
     # -- public API ------------------------------------------------------------------------------
 
@@ -382,19 +435,19 @@ class ClosedFormIK:
             raise ValueError(f"a pose is a 4x4 homogeneous matrix, not shape {t.shape}")
         ref = (0.0,) * 6 if seed is None else tuple(np.asarray(seed, dtype=float).reshape(6).tolist())
         (r00, r01, r02, px), (r10, r11, r12, py), (r20, r21, r22, pz), _ = t.tolist()
-        out = self._solver(r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz, *ref, SCALAR_OPS)
+        branches = self._solver(r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz, *ref, SCALAR_OPS)
         found: list[IKSolution] = []
         # branches coincide only at singularities, which are flagged: compare only then
-        singular = any(out[b + 7] for b in range(0, 64, 8))
-        for b in range(0, 64, 8):
-            if not out[b + 6]:
+        singular = any(branch.flags for branch in branches)
+        for branch in branches:
+            if not branch.valid:
                 continue
-            q = _shift_into_limits(out[b : b + 6], ref, self.limits)
+            q = _shift_into_limits(branch.q, ref, self.limits)
             if q is None:
                 continue
             if singular and any(max(abs(x - y) for x, y in zip(q, s.q, strict=True)) < 1e-9 for s in found):
                 continue
-            found.append(IKSolution(q, _FLAGS[int(out[b + 7])]))
+            found.append(IKSolution(q, _FLAGS[int(branch.flags)]))
         return found
 
     def solve(self, pose: ArrayLike, seed: ArrayLike) -> IKSolution | None:
@@ -405,12 +458,10 @@ class ClosedFormIK:
             return None
         return min(solutions, key=lambda sol: sum((a - b) ** 2 for a, b in zip(sol.q, s, strict=True)))
 
-    def solve_batch(
-        self, poses: ArrayLike, seeds: ArrayLike | None = None
-    ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.int64]]:
-        """N poses ``(N, 4, 4)`` -> solutions ``(N, 8, 6)``, ``valid (N, 8)``, singularity flags
-        ``(N, 8)``; no Python loop over N. Invalid slots (unreachable, outside the limits, or
-        repeats of an earlier slot) hold NaN."""
+    def solve_batch(self, poses: ArrayLike, seeds: ArrayLike | None = None) -> BatchSolutions:
+        """N poses ``(N, 4, 4)`` -> solutions ``q (N, 8, 6)``, ``valid (N, 8)``, singularity
+        ``flags (N, 8)``; no Python loop over N. Invalid slots (unreachable, outside the limits,
+        or repeats of an earlier slot) hold NaN."""
         t = np.asarray(poses, dtype=float)
         if t.ndim != 3 or t.shape[1:] != (4, 4):
             raise ValueError(f"solve_batch takes (N, 4, 4) poses, not shape {t.shape}")
@@ -428,15 +479,15 @@ class ClosedFormIK:
         for a in range(0, n, _CHUNK):
             z = slice(a, min(n, a + _CHUNK))
             m = z.stop - a
-            out = self._batch_solver(*(x[z] for x in rt), *(x[z] for x in p), *(x[z] for x in r), ARRAY_OPS)
+            branches = self._batch_solver(*(x[z] for x in rt), *(x[z] for x in p), *(x[z] for x in r), ARRAY_OPS)
             qc = np.empty((8, 6, m))
             ok = np.empty((8, m), dtype=bool)
             fl = np.empty((8, m), dtype=np.int64)
-            for b in range(8):
-                for j in range(6):
-                    qc[b, j] = out[8 * b + j]
-                ok[b] = out[8 * b + 6]
-                fl[b] = out[8 * b + 7]
+            for b, branch in enumerate(branches):
+                for j, value in enumerate(branch.q):
+                    qc[b, j] = value
+                ok[b] = branch.valid
+                fl[b] = branch.flags
             qc, inside = _shift_batch(qc, r[None, :, z], lower, upper)
             ok &= inside
             # branches coincide only at singularities, which are flagged: compare only there
@@ -451,7 +502,7 @@ class ClosedFormIK:
             valid[z] = ok.T
             flags[z] = fl.T
         q[~valid] = np.nan
-        return q, valid, flags
+        return BatchSolutions(q, valid, flags)
 
 
 def _shift_into_limits(
@@ -490,9 +541,9 @@ def _shift_batch(
 
 def _axis_lines(model: RobotModel) -> tuple[list[Matrix], list[Matrix]]:
     """Each joint's axis direction and a point on it, in the base frame at q = 0."""
-    values = chain(SCALAR_OPS, model, [0.0] * model.dof, with_axes=True)[12:]
-    axes = [np.array(values[6 * i : 6 * i + 3], dtype=float) for i in range(model.dof)]
-    points = [np.array(values[6 * i + 3 : 6 * i + 6], dtype=float) for i in range(model.dof)]
+    lines = chain(TRACE_OPS, model, [0.0] * model.dof, with_axes=True).axes  # plain floats: computed
+    axes = [np.array([float(x) for x in line.direction]) for line in lines]
+    points = [np.array([float(x) for x in line.point]) for line in lines]
     return axes, points
 
 

@@ -34,17 +34,20 @@ import math
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Generic, NamedTuple, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..model import JointType, RobotModel
-from ._chain import chain, pose_and_jacobian
-from ._trace import SCALAR_OPS
+from ._chain import PoseBlock, chain, pose_and_jacobian
+from ._ops import SCALAR_OPS, Ops
+from ._trace import TRACE_OPS, Generated, Real, Var
 from .fk import _compile, link_frames
 
 __all__ = ["NumericIKResult", "ik_numeric", "rotation_error"]
+
+V = TypeVar("V")
 
 # Damping lambda = _DAMPING * |e|^2 + _BIAS (Sugihara's rule, scaled down), and the largest joint
 # change per step (rad or m): tuned on the shipped models from random seeds (fewest iterations).
@@ -71,10 +74,13 @@ class NumericIKResult:
     attempts: int
 
 
-def _rotation_vector(ops: Any, a: Sequence[Sequence[Any]], b: Sequence[Sequence[Any]]) -> tuple[Any, Any, Any]:
+def _rotation_vector(
+    ops: Ops[Var], a: Sequence[Sequence[Real]], b: Sequence[Sequence[Real]]
+) -> tuple[Real, Real, Real]:
     """The rotation vector (axis times angle, rad) of ``A B^T`` for 3x3 rotations given as rows;
     exact up to pi. Written against ``ops`` (no branches on values) so it is traced into the
-    iteration of :func:`ik_numeric` and serves :func:`rotation_error` on floats."""
+    iteration of :func:`ik_numeric` and serves :func:`rotation_error` on floats (through
+    :data:`._trace.TRACE_OPS`, which computes plain numbers right away)."""
     # E = A B^T: e_ij = sum_k a_ik b_jk
     e = [[a[i][0] * b[j][0] + a[i][1] * b[j][1] + a[i][2] * b[j][2] for j in range(3)] for i in range(3)]
     v = (e[2][1] - e[1][2], e[0][2] - e[2][0], e[1][0] - e[0][1])
@@ -108,7 +114,8 @@ def rotation_error(r: list[list[float]], values: tuple[float, ...] | list[float]
     """The rotation vector (axis times angle, rad) of ``R_target R^T``, where ``r`` is R_target and
     R the 3x3 block of the 3x4 row-major ``values``; exact up to pi."""
     current = (values[0:3], values[4:7], values[8:11])
-    return _rotation_vector(SCALAR_OPS, r, current)
+    x, y, z = _rotation_vector(TRACE_OPS, r, current)
+    return float(x), float(y), float(z)
 
 
 def ik_numeric(
@@ -131,14 +138,16 @@ def ik_numeric(
     context = _context(model)
     iteration, check, lo, hi, revolute = context
     n = len(lo)
+    q: Sequence[float]
     if seed is None:
         q = [(a + b) / 2.0 for a, b in zip(lo, hi, strict=True)]
     else:
         given = np.asarray(seed, dtype=float).reshape(n).tolist()
         q = [min(b, max(a, x)) for x, a, b in zip(given, lo, hi, strict=True)]
-    target = [x for row in rows4[:3] for x in row]
+    target = [x for row in rows4[:3] for x in row]  # the inputs _TARGET
     position_limit, orientation_limit = position_tolerance**2, orientation_tolerance**2
-    best_cost, best_q, best_errors = math.inf, q, (math.inf, math.inf)
+    best_q: Sequence[float] = q
+    best_cost, best_pos2, best_ori2 = math.inf, math.inf, math.inf
     total = 0
     for attempt in range(1, attempts + 1):
         history = [math.inf] * _PATIENCE
@@ -147,11 +156,12 @@ def ik_numeric(
             total += 1
             done = False
             if cost < _NEARLY:  # the last step was a Gauss-Newton step this close: errors first
-                pos2, ori2 = check(*q, *target, SCALAR_OPS)
+                errors = check(*q, *target, SCALAR_OPS)
+                pos2, ori2 = errors.squared_position, errors.squared_orientation
                 done = pos2 <= position_limit and ori2 <= orientation_limit
             if not done:
-                out = iteration(*q, *target, SCALAR_OPS)
-                pos2, ori2 = out[0], out[1]
+                step = iteration(*q, *target, SCALAR_OPS)
+                pos2, ori2 = step.squared_position, step.squared_orientation
                 done = pos2 <= position_limit and ori2 <= orientation_limit
             if done:
                 inside = _into_limits(q, lo, hi, revolute)
@@ -160,23 +170,37 @@ def ik_numeric(
                 break  # a solution, but outside the limits: look for another
             cost = pos2 + ori2
             if cost < best_cost:
-                best_cost, best_q, best_errors = cost, q, (pos2, ori2)
+                best_cost, best_q, best_pos2, best_ori2 = cost, q, pos2, ori2
             elif not cost < math.inf:
                 break  # a degenerate system (non-finite values): restart
             if cost > 0.98 * history[-_PATIENCE] and cost > 1e-10:
                 break  # not converging from here: restart
             history.append(cost)
-            q = out[2:]
+            q = step.q
         if rng is None:
             rng = np.random.default_rng()
         q = [a + u * (b - a) for u, a, b in zip(rng.random(n).tolist(), lo, hi, strict=True)]
-    pos, ori = (math.sqrt(x) for x in best_errors)
-    return NumericIKResult(tuple(best_q), False, pos, ori, total, attempts)
+    return NumericIKResult(tuple(best_q), False, math.sqrt(best_pos2), math.sqrt(best_ori2), total, attempts)
+
+
+class Errors(NamedTuple, Generic[V]):
+    """The squared errors of a configuration: position (m^2) and orientation (rad^2)."""
+
+    squared_position: float | V
+    squared_orientation: float | V
+
+
+class Step(NamedTuple, Generic[V]):
+    """One iteration: the squared errors at the configuration, and the next configuration."""
+
+    squared_position: float | V
+    squared_orientation: float | V
+    q: tuple[float | V, ...]
 
 
 class _Context(NamedTuple):
-    iteration: Any  # f(q..., target..., ops) -> (position error^2, orientation error^2, next q...)
-    check: Any  # f(q..., target..., ops) -> (position error^2, orientation error^2)
+    iteration: Generated[Step[float]]  # f(q..., target..., ops)
+    check: Generated[Errors[float]]  # f(q..., target..., ops)
     lower: list[float]
     upper: list[float]
     revolute: list[bool]
@@ -194,8 +218,8 @@ def _context(model: RobotModel) -> _Context:
         n = model.dof
         weight = _position_weight(model)
         context = _CONTEXTS[model] = _Context(
-            _compile(model, lambda ops, inputs: _iteration(ops, model, inputs[:n], inputs[n:], weight), extra=_TARGET),
-            _compile(model, lambda ops, inputs: _check(ops, model, inputs[:n], inputs[n:]), extra=_TARGET),
+            _compile(model, lambda ops, x: _iteration(ops, model, x[:n], PoseBlock(*x[n:]), weight), extra=_TARGET),
+            _compile(model, lambda ops, x: _check(ops, model, x[:n], PoseBlock(*x[n:])), extra=_TARGET),
             model.lower.tolist(),
             model.upper.tolist(),
             [j.type is JointType.REVOLUTE for j in model.joints],
@@ -203,10 +227,10 @@ def _context(model: RobotModel) -> _Context:
     return context
 
 
-def _check(ops: Any, model: RobotModel, q: Sequence[Any], target: Sequence[Any]) -> list[Any]:
+def _check(ops: Ops[Var], model: RobotModel, q: Sequence[Real], target: PoseBlock[Var]) -> Errors[Var]:
     """The squared errors at q only (no Jacobian, no step): to confirm a convergence."""
-    _, pos2, ori2 = _errors(ops, chain(ops, model, q, with_axes=False), target)
-    return [pos2, ori2]
+    _, _, pos2, ori2 = _errors(ops, chain(ops, model, q, with_axes=False).flange, target)
+    return Errors(pos2, ori2)
 
 
 def _position_weight(model: RobotModel) -> float:
@@ -218,32 +242,35 @@ def _position_weight(model: RobotModel) -> float:
     return 3.0 / max(length, 1e-3)
 
 
-def _errors(ops: Any, values: Sequence[Any], target: Sequence[Any]) -> tuple[list[Any], Any, Any]:
-    """The error 6-vector (position, m, then rotation vector, rad) of the pose ``values`` (3x4
-    row-major) from ``target`` (the same layout), and its two squared norms."""
-    current = (values[0:3], values[4:7], values[8:11])
-    wanted = (target[0:3], target[4:7], target[8:11])
-    e = [target[3] - values[3], target[7] - values[7], target[11] - values[11]]
-    e += _rotation_vector(ops, wanted, current)
-    return e, e[0] * e[0] + e[1] * e[1] + e[2] * e[2], e[3] * e[3] + e[4] * e[4] + e[5] * e[5]
+def _norm2(v: Sequence[Real]) -> Real:
+    return v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
 
 
-def _iteration(ops: Any, model: RobotModel, q: Sequence[Any], target: Sequence[Any], weight: float) -> list[Any]:
+def _errors(
+    ops: Ops[Var], pose: PoseBlock[Var], target: PoseBlock[Var]
+) -> tuple[tuple[Real, Real, Real], tuple[Real, Real, Real], Real, Real]:
+    """The position error (m) and the rotation vector (rad) of ``pose`` from ``target``, and
+    their squared norms."""
+    position = (target.px - pose.px, target.py - pose.py, target.pz - pose.pz)
+    rotation = _rotation_vector(ops, target.rotation, pose.rotation)
+    return position, rotation, _norm2(position), _norm2(rotation)
+
+
+def _iteration(ops: Ops[Var], model: RobotModel, q: Sequence[Real], target: PoseBlock[Var], weight: float) -> Step[Var]:
     """One Levenberg-Marquardt iteration at q, traced per model into one function: the squared
     position (m^2) and orientation (rad^2) errors at q, then the next q (the step capped at
     ``_MAX_STEP`` per joint, direction kept). Position rows count ``weight`` times (per metre)."""
-    values = pose_and_jacobian(ops, model, q)
-    e, pos2, ori2 = _errors(ops, values, target)
-    n = model.dof
-    jac = [values[12 + n * r : 12 + n * (r + 1)] for r in range(6)]
-    jac = [[weight * x for x in row] for row in jac[:3]] + jac[3:]
-    e = [weight * x for x in e[:3]] + e[3:]
+    pose, jacobian = pose_and_jacobian(ops, model, q)
+    position, rotation, pos2, ori2 = _errors(ops, pose, target)
+    linear, angular = jacobian[:3], jacobian[3:]  # the rows of the linear and angular velocity
+    jac = [[weight * x for x in row] for row in linear] + [list(row) for row in angular]
+    e = [weight * x for x in position] + list(rotation)
     step = damped_step(ops, jac, e, _DAMPING * (weight * weight * pos2 + ori2) + _BIAS)
     scale = _MAX_STEP / ops.maximum(_MAX_STEP, *(abs(d) for d in step))
-    return [pos2, ori2, *(qi + scale * d for qi, d in zip(q, step, strict=True))]
+    return Step(pos2, ori2, tuple(qi + scale * d for qi, d in zip(q, step, strict=True)))
 
 
-def damped_step(ops: Any, jac: Sequence[Sequence[Any]], e: Sequence[Any], damping: Any) -> list[Any]:
+def damped_step(ops: Ops[Var], jac: Sequence[Sequence[Real]], e: Sequence[Real], damping: Real) -> list[Real]:
     """The dq minimising ``|J dq - e|^2 + damping |dq|^2``, through the smaller of the two
     symmetric positive definite systems: ``(J J^T + damping I) y = e, dq = J^T y`` when J has at
     least as many columns as rows, else ``(J^T J + damping I) dq = J^T e``."""
@@ -256,30 +283,30 @@ def damped_step(ops: Any, jac: Sequence[Sequence[Any]], e: Sequence[Any], dampin
     return _solve_spd(ops, gram, [sum(jac[k][i] * e[k] for k in range(rows)) for i in range(cols)], damping)
 
 
-def _solve_spd(ops: Any, a: list[list[Any]], b: Sequence[Any], damping: Any) -> list[Any]:
+def _solve_spd(ops: Ops[Var], a: list[list[Real]], b: Sequence[Real], damping: Real) -> list[Real]:
     """x with ``(a + damping I) x = b`` by an LDL^T factorisation (no square roots); a pivot
     that rounding made non-positive is replaced by a tiny one, so the result stays finite or
     becomes infinite, never an exception."""
     m = len(a)
-    low: list[list[Any]] = [[0.0] * m for _ in range(m)]  # L, unit diagonal
-    ld: list[list[Any]] = [[0.0] * m for _ in range(m)]  # L D
-    inverse: list[Any] = [0.0] * m  # 1 / D
+    low: list[list[Real]] = [[0.0] * m for _ in range(m)]  # L, unit diagonal
+    ld: list[list[Real]] = [[0.0] * m for _ in range(m)]  # L D
+    inverse: list[Real] = [0.0] * m  # 1 / D
     for j in range(m):
         d = a[j][j] + damping - sum(low[j][k] * ld[j][k] for k in range(j))
         inverse[j] = 1.0 / ops.where(d > 1e-300, d, 1e-300)
         for i in range(j + 1, m):
             ld[i][j] = a[i][j] - sum(ld[i][k] * low[j][k] for k in range(j))
             low[i][j] = ld[i][j] * inverse[j]
-    z: list[Any] = []
+    z: list[Real] = []
     for i in range(m):
         z.append(b[i] - sum(low[i][k] * z[k] for k in range(i)))
-    x: list[Any] = [0.0] * m
+    x: list[Real] = [0.0] * m
     for i in reversed(range(m)):
         x[i] = z[i] * inverse[i] - sum(low[k][i] * x[k] for k in range(i + 1, m))
     return x
 
 
-def _into_limits(q: list[float], lo: list[float], hi: list[float], revolute: list[bool]) -> list[float] | None:
+def _into_limits(q: Sequence[float], lo: list[float], hi: list[float], revolute: list[bool]) -> list[float] | None:
     """q with revolute joints moved by multiples of 2 pi into the limits, or None."""
     out = []
     for value, low, high, turn in zip(q, lo, hi, revolute, strict=True):
