@@ -32,11 +32,10 @@ import logging
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
 
-from .constants import CommType, ReplyCode
+from .constants import ReplyCode
 from .dialects import any_dialect_answers
 from .errors import (
     ConnectionClosed,
-    LocalProtocolError,
     MalformedMessage,
     RequestFailed,
     RequestTimeout,
@@ -196,7 +195,7 @@ class Connection:
 
     @wire.setter
     def wire(self, wire: WireFormat) -> None:
-        self.link.set_wire(wire)
+        self.link.wire = wire
 
     # -- lifecycle -----------------------------------------------------------------------------
 
@@ -423,11 +422,10 @@ class Connection:
         """Send a SERVICE_REQUEST and return its SUCCESS reply.
 
         Raises :class:`~.errors.RequestFailed` on FAILURE, :class:`~.errors.RequestTimeout`,
-        :class:`~.errors.UnexpectedReply` and :class:`~.errors.ConnectionClosed`. MotoROS replies
+        :class:`~.errors.UnexpectedReply`, :class:`~.errors.ConnectionClosed`, and
+        :class:`~.errors.LocalProtocolError` for a message that is not a request. MotoROS replies
         (MOTO_MOTION_REPLY) are returned as they are: their outcome is in the body's ``result``.
         """
-        if msg.comm_type != CommType.SERVICE_REQUEST:
-            raise LocalProtocolError(f"request() sends SERVICE_REQUESTs, not comm_type {msg.comm_type}")
         if self.state is ConnectionState.CLOSED or self.link.ended:
             raise ConnectionClosed(f"{self.name}: connection closed")
         loop = asyncio.get_running_loop()

@@ -156,6 +156,8 @@ class Link:
         max_length: int = DEFAULT_MAX_LENGTH,
         answers: ReplyRule = any_dialect_answers,
     ) -> None:
+        #: the wire format spoken (assignable: a server may guess what a peer that has not spoken yet
+        #: understands; the peer's first frame still decides, if the link autodetects)
         self.wire = wire
         self.answers = answers
         self._decoder = FrameDecoder(None if autodetect else wire.byte_order, max_length=max_length)
@@ -169,7 +171,7 @@ class Link:
 
     @property
     def detected(self) -> bool:
-        """The byte order is known: given, or detected from the peer's first frame."""
+        """The byte order was detected from the peer's first frame (a link that autodetects)."""
         return self._decoder.detected
 
     @property
@@ -181,11 +183,6 @@ class Link:
     def pending_requests(self) -> int:
         """Requests waiting for a reply, abandoned ones not counted."""
         return sum(1 for r in self._pending if not r.abandoned)
-
-    def set_wire(self, wire: WireFormat) -> None:
-        """Send in ``wire`` from now on (a server that guesses what a peer that has not spoken yet
-        understands); the peer's first frame still decides, if the link autodetects."""
-        self.wire = wire
 
     # -- sending ---------------------------------------------------------------------------------
 
