@@ -15,6 +15,7 @@ Quick use::
 
 from __future__ import annotations
 
+from .connection import Connection, ConnectionState, Subscription
 from .constants import (
     HEADER_SIZE,
     LENGTH_SIZE,
@@ -35,17 +36,25 @@ from .constants import (
     ValidFields,
     VendorRange,
 )
+from .dialects import ABB, DIALECTS, FANUC, GENERIC, MOTOROS, Dialect, ReplyStyle, dialect
+from .endpoints import Client, CloseConnection, ReconnectPolicy, Server, Session
 from .errors import (
+    ConnectionClosed,
     FrameError,
     HeaderError,
     LocalProtocolError,
     MalformedMessage,
+    NotConnected,
     RemoteProtocolError,
+    RequestFailed,
+    RequestTimeout,
     SimpleMessageError,
+    UnexpectedReply,
 )
 from .framing import DEFAULT_MAX_LENGTH, FrameDecoder, detect_byte_order
 from .header import header_error, validate_header
 from .jsonio import message_from_json, message_to_json
+from .link import Link
 from .messages import (
     ZEROS,
     DhLink,
@@ -102,6 +111,31 @@ from .messages import (
 from .wire import BE32, BE64, DEFAULT_FORMAT, LE32, LE64, ByteOrder, WireFormat
 
 __all__ = [
+    # endpoints, connections and their errors
+    "Client",
+    "CloseConnection",
+    "Connection",
+    "ConnectionClosed",
+    "ConnectionState",
+    "Link",
+    "NotConnected",
+    "ReconnectPolicy",
+    "RequestFailed",
+    "RequestTimeout",
+    "Server",
+    "Session",
+    "Subscription",
+    "UnexpectedReply",
+    # dialects
+    "ABB",
+    "DIALECTS",
+    "FANUC",
+    "GENERIC",
+    "MOTOROS",
+    "Dialect",
+    "ReplyStyle",
+    "dialect",
+    # message registry
     "MessageSpec",
     "RegistrationError",
     "lookup",
@@ -111,6 +145,7 @@ __all__ = [
     "type_for_name",
     "type_name",
     "unregister",
+    # the sans-I/O core
     "BE32",
     "BE64",
     "DEFAULT_FORMAT",

@@ -34,6 +34,7 @@ __all__ = [
     "any_dialect_answers",
     "dialect",
     "register",
+    "reply_style_of",
 ]
 
 
@@ -48,6 +49,18 @@ class ReplyStyle(enum.Enum):
     JOINT_POSITION_ACK = "joint-position-ack"
     #: a MOTO_MOTION_REPLY whose body says the outcome (MotoROS; PING is echoed)
     MOTO_MOTION_REPLY = "moto-motion-reply"
+
+
+def reply_style_of(value: ReplyStyle | str) -> ReplyStyle:
+    """``value`` as a :class:`ReplyStyle` (also its value, and ``"header"`` for header-only);
+    :class:`ValueError` names the known ones."""
+    if isinstance(value, ReplyStyle):
+        return value
+    try:
+        return ReplyStyle("header-only" if value == "header" else value)
+    except ValueError:
+        known = ", ".join(style.value for style in ReplyStyle)
+        raise ValueError(f"unknown reply style {value!r} (known: {known})") from None
 
 
 @dataclass(frozen=True)

@@ -6,8 +6,10 @@ arrival order and answers every SERVICE_REQUEST exactly once, in order (simple-m
 
 * handlers are registered per message type: ``server.handle(MsgType.JOINT_TRAJ_PT, fn)``. A handler
   gets ``(message, session)`` and may be sync or async; for a request it returns the reply message,
-  a :class:`~.constants.ReplyCode` (replied in the server's ``reply_style``: ``echo`` like the C++
-  library, ``header`` like ABB, §3), or ``None`` for SUCCESS;
+  a :class:`~.constants.ReplyCode` (replied in the server's ``reply_style``, a
+  :class:`~.dialects.ReplyStyle`: ``ECHO`` like the C++ library, header-only like ABB, §3; the
+  dialects whose replies are messages of their own, Fanuc's and MotoROS's, have their handlers
+  return those and get header-only otherwise), or ``None`` for SUCCESS;
 * ``on_arrival`` hooks run synchronously the moment a request is read, before queued requests are
   handled: a STOP must act at once even while an earlier point waits for queue space (§10 pitfall 5);
 * PING is answered SUCCESS with an empty body unless a handler is registered;
@@ -47,6 +49,7 @@ from typing import Any, Literal
 
 from .connection import Connection, ConnectionState, Subscription
 from .constants import CommType, MsgType, ReplyCode
+from .dialects import Dialect, ReplyStyle, any_dialect_answers, reply_style_of
 from .errors import ConnectionClosed, MalformedMessage, NotConnected
 from .framing import DEFAULT_MAX_LENGTH
 from .header import header_error
@@ -54,11 +57,10 @@ from .messages import HeaderOnly, Message, Ping
 from .transport import StreamPair, open_fd, open_serial, open_tcp
 from .wire import DEFAULT_FORMAT, WireFormat
 
-__all__ = ["Server", "Session", "Handler", "Client", "CloseConnection", "ReconnectPolicy", "ReplyStyle"]
+__all__ = ["Server", "Session", "Handler", "Client", "CloseConnection", "ReconnectPolicy"]
 
 log = logging.getLogger(__name__)
 
-ReplyStyle = Literal["echo", "header"]
 HandlerResult = Message | ReplyCode | int | None
 #: ``handler(message, session)``: returns the reply (see the module docstring); may be async.
 Handler = Callable[[Message, "Session"], HandlerResult | Awaitable[HandlerResult]]
@@ -103,6 +105,17 @@ class Session:
     def send_nowait(self, msg: Message) -> bool:
         return self.connection.send_nowait(msg)
 
+    def assume_wire(self, wire: WireFormat) -> None:
+        """Speak ``wire`` to a peer whose byte order is not known yet (an autodetecting session
+        that has not heard a frame); once the peer has spoken, its own order stays."""
+        if self.server.autodetect and not self.connection.link.detected:
+            self.connection.wire = wire
+
+    @property
+    def spoke(self) -> bool:
+        """The peer's byte order was detected from a frame it sent (autodetecting servers)."""
+        return self.connection.link.detected
+
 
 class Server:
     """A simple_message server: handlers per message type over any number of links."""
@@ -113,7 +126,7 @@ class Server:
         *,
         name: str = "server",
         autodetect: bool = False,
-        reply_style: ReplyStyle = "echo",
+        reply_style: ReplyStyle | str = ReplyStyle.ECHO,
         max_connections: int = 16,
         max_length: int = DEFAULT_MAX_LENGTH,
         request_queue: int = 64,
@@ -129,7 +142,7 @@ class Server:
         self.socket_send_buffer = socket_send_buffer
         self.name = name
         self.autodetect = autodetect
-        self.reply_style: ReplyStyle = reply_style
+        self.reply_style = reply_style_of(reply_style)
         self.max_connections = max_connections
         self.max_length = max_length
         self.request_queue = request_queue
@@ -387,7 +400,7 @@ class Server:
         if msg.comm_type != CommType.SERVICE_REQUEST:
             return None
         code = ReplyCode.SUCCESS if result is None else ReplyCode(result)
-        if self.reply_style == "echo":
+        if self.reply_style is ReplyStyle.ECHO:
             return msg.to_reply(code)
         return HeaderOnly(msg.msg_type, reply_code=code)
 
@@ -463,8 +476,11 @@ class Client:
         reconnect: ReconnectPolicy | None = ReconnectPolicy(),
         max_length: int = DEFAULT_MAX_LENGTH,
         drain_timeout: float = 5.0,
+        dialect: Dialect | None = None,
     ) -> None:
         self._connector = connector
+        #: the server's dialect (which replies answer which requests); None: any dialect's
+        self.dialect = dialect
         self.wire = wire
         self.name = name
         self.reconnect = reconnect
@@ -574,6 +590,7 @@ class Client:
                         name=self.name,
                         subscriptions=self.subscriptions,
                         drain_timeout=self.drain_timeout,
+                        answers=self.dialect.answers if self.dialect is not None else any_dialect_answers,
                     )
                     self.connection = conn.start()
                     self._set_state(ConnectionState.CONNECTED)

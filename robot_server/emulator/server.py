@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Literal
 
 from simple_message.constants import Port
-from simple_message.endpoints import ReplyStyle, Server, Session
+from simple_message.endpoints import Server, Session
 from simple_message.wire import ByteOrder, WireFormat
 
 from ..control import (
@@ -74,7 +74,7 @@ class EmulatorConfig:
     io_port: int | None = None
     byte_order: ByteOrderChoice = "little"
     float64: bool = False
-    reply_style: ReplyStyle = "echo"
+    reply_style: str = "echo"
     state_rate: float = 40.0
     #: generic profile: JOINT_FEEDBACK to every state client (else only to those that ask)
     feedback: bool = False
