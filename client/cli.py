@@ -26,13 +26,14 @@ from robot_server.control import POLICIES
 from robot_server.kinematics import fk
 from robot_server.loader import load_model, shipped_models
 from robot_server.model import ModelError, RobotModel, rpy_matrix
-from simple_message.constants import RobotMode, TriState
+from simple_message.constants import MsgType, RobotMode, TriState
+from simple_message.dialects import DIALECTS, GENERIC, dialect
 from simple_message.errors import SimpleMessageError
 from simple_message.messages import Status
 from simple_message.wire import ByteOrder, WireFormat
 
 from .demo import PAPER_POLICIES, DemoConfig, format_table, run_demo
-from .driver import DriverError, JointState, Mode, Profile, RobotDriver
+from .driver import DriverError, JointState, Mode, RobotDriver
 from .planner import Planner, PlanningError, pose
 from .trajectory import Trajectory, TrajectoryError, save_joint_states
 
@@ -62,11 +63,19 @@ def _port(text: str) -> int:
 def parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--host", default="127.0.0.1", help="controller address (default 127.0.0.1)")
-    common.add_argument("--motion-port", type=_port, help="default 11000 (generic) or 50240 (motoros)")
-    common.add_argument("--state-port", type=_port, help="default 11002 (generic) or 50241 (motoros)")
-    common.add_argument("--profile", choices=[p.value for p in Profile], default=Profile.GENERIC.value)
-    common.add_argument("--byte-order", choices=("little", "big"), default="little")
-    common.add_argument("--float64", action="store_true", help="8-byte reals (the FLOAT64 build)")
+    common.add_argument("--motion-port", type=_port, help="default: the profile's (11000; motoros 50240)")
+    common.add_argument("--state-port", type=_port, help="default: the profile's (11002; motoros 50241)")
+    common.add_argument(
+        "--profile",
+        choices=sorted(DIALECTS),
+        default=GENERIC.name,
+        help="the controller family (default %(default)s): "
+        + "; ".join(f"{name}: {entry.description}" for name, entry in sorted(DIALECTS.items())),
+    )
+    common.add_argument("--byte-order", choices=("little", "big"), help="default: the profile's (fanuc: big)")
+    common.add_argument(
+        "--float64", action="store_const", const=True, help="8-byte reals (the FLOAT64 build; default: the profile's)"
+    )
     common.add_argument("--serial", metavar="URL", help="one serial link for motion and state (pyserial URL)")
     common.add_argument(
         "--model", default="jibot_zxs", metavar="NAME|PATH", help=f"robot model ({', '.join(shipped_models())})"
@@ -126,7 +135,13 @@ def parser() -> argparse.ArgumentParser:
 
 
 def _wire(args: argparse.Namespace) -> WireFormat:
-    return WireFormat(ByteOrder.BIG if args.byte_order == "big" else ByteOrder.LITTLE, 8 if args.float64 else 4)
+    """The wire format asked for, the profile's where an option is not given."""
+    wire = dialect(args.profile).wire
+    if args.byte_order is not None:
+        wire = wire.with_byte_order(ByteOrder.BIG if args.byte_order == "big" else ByteOrder.LITTLE)
+    if args.float64 is not None:
+        wire = WireFormat(wire.byte_order, 8)
+    return wire
 
 
 def _driver(args: argparse.Namespace, model: RobotModel) -> RobotDriver:
@@ -289,8 +304,9 @@ async def _move(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> N
         values = args.pose
         rotation = fk(model, here)[:3, :3] if len(values) == 3 else rpy_matrix(*values[3:])
         motion = planner.linear_moves(here, [pose(values[:3], rotation)])
-    # the generic profile sends JOINT_TRAJ_PT, which controllers join at rest
-    await _execute(driver, motion.sparse(rest_to_rest=driver.profile is Profile.GENERIC), args.mode, out)
+    # JOINT_TRAJ_PT points are joined at rest by the controllers that take them
+    rest_to_rest = driver.dialect.point_type == MsgType.JOINT_TRAJ_PT
+    await _execute(driver, motion.sparse(rest_to_rest=rest_to_rest), args.mode, out)
 
 
 async def _run(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
@@ -336,7 +352,7 @@ async def _demo(args: argparse.Namespace, out: TextIO) -> None:
         host=None if args.embedded else args.host,
         motion_port=args.motion_port,
         state_port=args.state_port,
-        profile=Profile(args.profile),
+        profile=args.profile,
         wire=_wire(args),
         policies=tuple(args.policies),
         plot=not args.no_plot,

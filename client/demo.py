@@ -39,14 +39,13 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from robot_server.control import Recorder
-from robot_server.emulator import Emulator, EmulatorConfig
+from robot_server import Emulator, EmulatorConfig, Recorder
 from robot_server.kinematics import closed_form, fk, fk_batch
 from robot_server.loader import load_model
 from robot_server.model import RobotModel
 from simple_message.wire import DEFAULT_FORMAT, WireFormat
 
-from .driver import DriverError, Mode, Profile, RobotDriver
+from .driver import DriverError, Mode, RobotDriver
 from .planner import Motion, Planner, PlanningError, pose
 from .trajectory import Trajectory, save_joint_states
 
@@ -86,7 +85,8 @@ class DemoConfig:
     host: str | None = "127.0.0.1"
     motion_port: int | None = None
     state_port: int | None = None
-    profile: Profile = Profile.GENERIC
+    #: the controller family (a :mod:`simple_message.dialects` name)
+    profile: str = "generic"
     wire: WireFormat = DEFAULT_FORMAT
     plot: bool = True
 
@@ -303,17 +303,15 @@ async def _embedded_run(config: DemoConfig, plan: _Plan, policy: str) -> tuple[D
         )
         async with driver:
             await _approach(driver, _planner(model, config), plan.start, mode)
-            controller = emu.cell.groups[0]
-            ticks = round((waypoints.duration + 30.0) / controller.config.servo_period)
-            record = Recorder(model.dof, capacity=ticks)
-            emu.control.recorder = record
+            [record] = emu.record(waypoints.duration + 30.0)
             try:
                 await driver.execute(waypoints, mode)
                 # let the record reach the settled robot (the goal is seen a state period late at most)
-                await emu.wait_until(lambda: not controller.in_motion, 10.0)
+                await emu.settle(10.0)
             finally:
-                emu.control.recorder = None
-    rows = _interpolation_rows(record, controller.config.servo_period, controller.servo_ticks_per_interpolation)
+                emu.stop_recording()
+    servo = emulator_config.servo_period
+    rows = _interpolation_rows(record, servo, round(emulator_config.interpolation_period / servo))
     row = analyse(
         policy,
         plan.model,

@@ -9,15 +9,18 @@ and never skips or repeats a point silently.
 expects and returns only when the robot is within ``goal_tolerance`` of the last point *and* STATUS
 says in_motion FALSE (like ROS's FollowJointTrajectory action, §5):
 
+The controller family is a :class:`~simple_message.dialects.Dialect` (``profile``: one, or its
+name): its ports, byte order and reply rule, and whether motion takes MOTO_MOTION_CTRL commands.
+
 * generic profile, ``mode="stream"``: JOINT_TRAJ_PT SERVICE_REQUESTs, sequence 0..n-1, one in
   flight; each reply must be SUCCESS; durations are the waypoint time differences (0 for the first
   point, which must be where the robot is) and the velocity ratio the critical joint's peak speed
   as a share of its limit (when the model is known; see :meth:`RobotDriver._ratio`);
 * generic profile, ``mode="download"``: TOPICs with sequence -1, 1..n-2, -3 (a single point is sent
   twice, as the reference downloader does);
-* MotoROS profile: CHECK_MOTION_READY (and START_TRAJ_MODE if needed), then JOINT_TRAJ_PT_FULL with
-  time, positions and velocities (central differences when the trajectory has none); BUSY is
-  retried with a growing back-off; anything else aborts.
+* MotoROS profile (a dialect with ``motion_control``): CHECK_MOTION_READY (and START_TRAJ_MODE if
+  needed), then JOINT_TRAJ_PT_FULL with time, positions and velocities (central differences when
+  the trajectory has none); BUSY is retried with a growing back-off; anything else aborts.
 
 **Reconnection.** The connections reconnect by themselves. If the motion link is down when a
 point is about to be sent, the driver with ``resume=True`` waits for the reconnection and goes on
@@ -55,11 +58,11 @@ from simple_message.constants import (
     MotoCommand,
     MotoResult,
     MsgType,
-    Port,
     SpecialSeq,
     TriState,
     ValidFields,
 )
+from simple_message.dialects import GENERIC, Dialect, dialect
 from simple_message.endpoints import Client, ReconnectPolicy
 from simple_message.errors import (
     ConnectionClosed,
@@ -79,11 +82,11 @@ from simple_message.messages import (
     Ping,
     Status,
 )
-from simple_message.wire import DEFAULT_FORMAT, WireFormat
+from simple_message.wire import WireFormat
 
 from .trajectory import Trajectory
 
-__all__ = ["RobotDriver", "DriverError", "ExecutionAborted", "JointState", "Profile", "Mode"]
+__all__ = ["RobotDriver", "DriverError", "ExecutionAborted", "JointState", "Mode"]
 
 log = logging.getLogger(__name__)
 
@@ -91,11 +94,6 @@ log = logging.getLogger(__name__)
 _QUINTIC_PEAK = 1.875
 
 Array = NDArray[np.float64]
-
-
-class Profile(StrEnum):
-    GENERIC = "generic"
-    MOTOROS = "motoros"
 
 
 class Mode(StrEnum):
@@ -144,8 +142,8 @@ class RobotDriver:
         motion_port: int | None = None,
         state_port: int | None = None,
         *,
-        profile: Profile | str = Profile.GENERIC,
-        wire: WireFormat = DEFAULT_FORMAT,
+        profile: Dialect | str = GENERIC,
+        wire: WireFormat | None = None,
         model: RobotModel | None = None,
         reply_timeout: float = 5.0,
         watchdog: float = 1.0,
@@ -156,12 +154,12 @@ class RobotDriver:
         serial: str | None = None,
         resume: bool = False,
     ) -> None:
-        self.profile = Profile(profile)
-        motoros = self.profile is Profile.MOTOROS
+        #: the controller family (its ports, byte order, reply rule, how motion is commanded)
+        self.dialect = dialect(profile) if isinstance(profile, str) else profile
         self.host = host
-        self.motion_port = motion_port if motion_port is not None else (Port.MOTOROS_MOTION if motoros else Port.MOTION)
-        self.state_port = state_port if state_port is not None else (Port.MOTOROS_STATE if motoros else Port.STATE)
-        self.wire = wire
+        self.motion_port = motion_port if motion_port is not None else self.dialect.motion_port
+        self.state_port = state_port if state_port is not None else self.dialect.state_port
+        self.wire = wire = wire if wire is not None else self.dialect.wire
         self.model = model
         self.reply_timeout = reply_timeout
         self.watchdog = watchdog
@@ -173,11 +171,16 @@ class RobotDriver:
         policy = ReconnectPolicy(initial_delay=0.1, max_delay=2.0)
         self.serial = serial
         if serial is not None:  # one link carries motion and state (robot-server --serial)
-            self.motion = Client.serial(serial, wire, reconnect=policy, name=f"link {serial}")
+            self.motion = Client.serial(serial, wire, reconnect=policy, name=f"link {serial}", dialect=self.dialect)
             self.state = self.motion
         else:
             self.motion = Client.tcp(
-                host, self.motion_port, wire, reconnect=policy, name=f"motion {host}:{self.motion_port}"
+                host,
+                self.motion_port,
+                wire,
+                reconnect=policy,
+                name=f"motion {host}:{self.motion_port}",
+                dialect=self.dialect,
             )
             self.state = Client.tcp(
                 host, self.state_port, wire, reconnect=policy, name=f"state {host}:{self.state_port}"
@@ -302,7 +305,7 @@ class RobotDriver:
 
     async def stop(self) -> None:
         """Stop the robot now (also with a point pending, also when idle)."""
-        if self.profile is Profile.MOTOROS:
+        if self.dialect.motion_control:
             reply = await self._moto(MotoCommand.STOP_MOTION)
             if reply.result != MotoResult.SUCCESS:
                 raise DriverError(f"STOP_MOTION refused: result {reply.result}, subcode {reply.subcode}")
@@ -337,7 +340,7 @@ class RobotDriver:
             )
         confirmed = -1
         try:
-            if self.profile is Profile.MOTOROS:
+            if self.dialect.motion_control:
                 confirmed = await self._send_motoros(trajectory)
             elif mode is Mode.DOWNLOAD:
                 confirmed = await self._send_download(trajectory)

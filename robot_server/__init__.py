@@ -1,6 +1,24 @@
 """The controller layer of the paper: the robot controller emulator.
 
-Robot models and kinematics, interpolation, motor models, the control loop and the emulator process
-land here issue by issue (see README.md). It may import :mod:`simple_message`, numpy and ruckig,
-never :mod:`client`.
+Robot models and kinematics (:mod:`.model`, :mod:`.loader`, :mod:`.kinematics`), interpolation,
+motor models and the control loop (:mod:`.control`), and the emulator process (:mod:`.emulator`).
+It may import :mod:`simple_message`, numpy and ruckig, never :mod:`client`.
+
+To embed an emulator in a program (what ``robot-client demo`` does)::
+
+    from robot_server import Emulator, EmulatorConfig
+
+    async with Emulator(EmulatorConfig(motion_port=0, state_port=0, simulated=True)) as emu:
+        [record] = emu.record(seconds=60.0)     # every servo tick of group 0 from now on
+        ...                                     # drive it at emu.ports["motion"], ["state"]
+        await emu.settle(timeout=10.0)          # until the robot is at rest
+        emu.stop_recording()
+    record.to_csv("run.csv", emu.cell.groups[0].model.joint_names)
 """
+
+from .control import Recorder
+from .emulator import Emulator, EmulatorConfig
+from .loader import load_model, shipped_models
+from .model import ModelError, RobotModel
+
+__all__ = ["Emulator", "EmulatorConfig", "ModelError", "Recorder", "RobotModel", "load_model", "shipped_models"]

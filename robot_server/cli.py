@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import importlib
 import logging
 import os
 import signal
@@ -24,7 +25,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from .control import DEFAULT_POLICY, POLICIES, Recorder
-from .emulator import FAULT_COMMANDS, Emulator, EmulatorConfig, FaultError, apply_fault_command
+from .emulator import FAULT_COMMANDS, PROFILES, Emulator, EmulatorConfig, FaultError, apply_fault_command
 from .emulator.server import MAX_STATE_RATE
 from .loader import load_model, shipped_models
 from .model import ModelError
@@ -78,23 +79,37 @@ def parser() -> argparse.ArgumentParser:
         help=f"robot model; repeat for more motion groups (shipped: {', '.join(shipped_models())}; default jibot_zxs)",
     )
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
-    p.add_argument("--motion-port", type=_port, help="default 11000 (generic) or 50240 (motoros); 0: a free port")
-    p.add_argument("--state-port", type=_port, help="default 11002 (generic) or 50241 (motoros)")
-    p.add_argument("--io-port", type=_port, help="motoros only, default 50242")
-    p.add_argument("--profile", choices=("generic", "motoros"), default="generic")
-    p.add_argument("--byte-order", choices=("little", "big", "auto"), default="little")
-    p.add_argument("--float64", action="store_true", help="8-byte reals (the FLOAT64 build)")
+    p.add_argument("--motion-port", type=_port, help="default: the profile's (11000 generic, 50240 motoros); 0: free")
+    p.add_argument("--state-port", type=_port, help="default: the profile's (11002 generic, 50241 motoros)")
+    p.add_argument("--io-port", type=_port, help="profiles with an IO port (motoros: default 50242)")
+    p.add_argument(
+        "--import",
+        dest="imports",
+        action="append",
+        default=[],
+        metavar="MODULE",
+        help="import MODULE first, e.g. one that registers a profile or an interpolation policy (repeatable)",
+    )
+    p.add_argument(
+        "--profile",
+        default="generic",
+        help="the controller family played (default %(default)s; built in: "
+        + "; ".join(f"{name}: {entry.description}" for name, entry in PROFILES.items())
+        + ")",
+    )
+    p.add_argument("--byte-order", choices=("little", "big", "auto"), help="default: the profile's (little)")
+    p.add_argument(
+        "--float64", action="store_const", const=True, help="8-byte reals (the FLOAT64 build; default: the profile's)"
+    )
     p.add_argument(
         "--reply-style",
         choices=("echo", "header"),
-        default="echo",
-        help="generic replies echo the body (C++ library) or are header-only (ABB)",
+        help="generic replies echo the body (C++ library, the default) or are header-only (ABB)",
     )
     p.add_argument("--state-rate", type=_positive, default=40.0, metavar="HZ", help="state topics per second")
     p.add_argument("--feedback", action="store_true", help="generic: JOINT_FEEDBACK to every state client")
     p.add_argument(
         "--interpolation",
-        choices=list(POLICIES),
         default=DEFAULT_POLICY,
         help="how points are joined (default %(default)s): "
         + "; ".join(f"{name}: {entry.summary}" for name, entry in POLICIES.items()),
@@ -129,7 +144,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(
         level=args.log_level, stream=sys.stderr, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
+    for name in args.imports:
+        try:
+            importlib.import_module(name)
+        except Exception as exc:  # anything a module can raise at import
+            print(f"robot-server: cannot import {name}: {type(exc).__name__}: {exc}", file=sys.stderr)
+            return 2
     try:
+        if args.profile not in PROFILES:
+            raise ValueError(f"unknown profile {args.profile!r} (known: {', '.join(sorted(PROFILES))})")
         if args.state_rate > MAX_STATE_RATE:
             raise ValueError(f"--state-rate is at most {MAX_STATE_RATE:g} Hz")
         if args.record_seconds > MAX_RECORD_SECONDS:

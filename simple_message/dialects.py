@@ -10,7 +10,7 @@ matches replies by that dialect's rule (:meth:`Dialect.answers`); one that does 
 any registered dialect would send (:func:`any_dialect_answers`).
 
 Adding a dialect is one :class:`Dialect` value passed to :func:`register` (in its own module or
-here, with its tests).
+here, with its tests); ``robot_server.emulator.profiles`` says how the emulator plays it.
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ __all__ = [
     "dialect",
     "register",
     "reply_style_of",
+    "unregister",
 ]
 
 
@@ -82,6 +83,11 @@ class Dialect:
     replies: Mapping[int, frozenset[int]] = field(default_factory=dict)
     #: topics its state port publishes, in the order of one round
     state_topics: tuple[int, ...] = (MsgType.JOINT_POSITION, MsgType.STATUS)
+    #: the trajectory point message its motion port takes
+    point_type: int = MsgType.JOINT_TRAJ_PT
+    #: motion is checked, started and stopped with MOTO_MOTION_CTRL commands (MotoROS's
+    #: trajectory mode) rather than by the points themselves and a STOP point
+    motion_control: bool = False
 
     def answers(self, request_type: int, reply: Message) -> bool:
         """Whether ``reply`` can be this dialect's answer to a request of ``request_type``."""
@@ -138,6 +144,8 @@ MOTOROS = Dialect(
     replies_to_any=frozenset({MsgType.MOTO_MOTION_REPLY}),
     replies={MsgType.PING: frozenset()},
     state_topics=(MsgType.JOINT_FEEDBACK, MsgType.STATUS),
+    point_type=MsgType.JOINT_TRAJ_PT_FULL,
+    motion_control=True,
 )
 
 #: Every registered dialect by name.
@@ -150,6 +158,11 @@ def register(value: Dialect, *, replace: bool = False) -> Dialect:
         raise ValueError(f"a dialect named {value.name!r} is already registered")
     DIALECTS[value.name] = value
     return value
+
+
+def unregister(name: str) -> None:
+    """Forget the dialect called ``name`` (tests that register their own)."""
+    DIALECTS.pop(name, None)
 
 
 def dialect(name: str) -> Dialect:

@@ -15,8 +15,8 @@
   earlier point waits for room; then acknowledged in order (§10 pitfall 5).
 * PING: SUCCESS with an empty body. Other requests: FAILURE, header-only (the C++ library's reply).
 
-Replies echo the request body (``reply_style="echo"``, the C++ library) or are header-only
-(``"header"``, ABB's RAPID server), §3.
+Replies echo the request body (the C++ library's style, the ``generic`` dialect) or are header-only
+(ABB's RAPID server, ``--reply-style header``), §3: the server's reply style, not the handlers'.
 
 **State port**: JOINT_POSITION and STATUS at the state rate to every client. JOINT_FEEDBACK (time,
 positions, velocities, accelerations of each group, all four valid bits set) goes to every client
@@ -27,17 +27,19 @@ message (any body; as a SERVICE_REQUEST it is answered SUCCESS) on the state por
 from __future__ import annotations
 
 import logging
-from collections.abc import Awaitable, Iterable
+from collections.abc import Awaitable, Iterable, Mapping
 
 from simple_message.constants import CommType, MsgType, ReplyCode, SpecialSeq, ValidFields
+from simple_message.dialects import GENERIC
 from simple_message.endpoints import Server, Session
 from simple_message.messages import JointFeedback, JointPosition, JointTrajPtFull, Message
 
 from ..control import Point, PointRejected, Reason
 from .cell import RobotCell
 from .points import point_from_message
+from .profiles import EmulatorProfile, ProfileContext, register_profile
 
-__all__ = ["GenericMotion", "GenericState", "FEEDBACK_FIELDS"]
+__all__ = ["GenericMotion", "GenericState", "GenericBehaviour", "GENERIC_PROFILE", "FEEDBACK_FIELDS"]
 
 log = logging.getLogger(__name__)
 
@@ -149,3 +151,27 @@ class GenericState:
                     ),
                     wanting,
                 )
+
+
+class GenericBehaviour:
+    """The generic profile's :class:`~.profiles.Behaviour`: its motion and state ports."""
+
+    def __init__(self, context: ProfileContext) -> None:
+        self.motion = GenericMotion(context.cell)
+        self.state = GenericState(context.cell, feedback=context.feedback)
+
+    def install(self, servers: Mapping[str, Server]) -> None:
+        self.motion.install(servers["motion"])
+        self.state.install(servers["state"])
+
+    def publish(self, server: Server, sessions: Iterable[Session]) -> None:
+        self.state.publish(server, sessions)
+
+
+GENERIC_PROFILE = register_profile(
+    EmulatorProfile(
+        GENERIC,
+        GenericBehaviour,
+        description="the generic nodes' controller: JOINT_TRAJ_PT streamed or downloaded, JOINT_POSITION + STATUS",
+    )
+)

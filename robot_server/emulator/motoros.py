@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 
@@ -65,6 +65,7 @@ from simple_message.constants import (
     RobotMode,
     ValidFields,
 )
+from simple_message.dialects import MOTOROS
 from simple_message.endpoints import CloseConnection, Server, Session
 from simple_message.messages import (
     DH_AXES,
@@ -99,11 +100,14 @@ from ..control import Point, PointRejected, Reason
 from .cell import FaultError, RobotCell
 from .io_table import IoTable
 from .points import point_from_message
+from .profiles import EmulatorProfile, PortRules, ProfileContext, register_profile
 
 __all__ = [
     "MotorosMotion",
     "MotorosState",
     "MotorosIo",
+    "MotorosBehaviour",
+    "MOTOROS_PROFILE",
     "MOTOROS_START_TOLERANCE",
     "MOTOROS_QUEUE_INCREMENTS",
     "MOTOROS_MAX_TIME",
@@ -185,8 +189,6 @@ class MotorosMotion:
             server.handle(msg_type, _close)
         self.io.install(server)
         server.unknown_request = self.on_unknown
-        server.answer_topics = True
-        server.max_connections = 2  # one client, plus the newcomer that replaces it
         server.on_connect = self._connected
         server.on_disconnect = self._disconnected
 
@@ -462,8 +464,6 @@ class MotorosIo:
         """The IO port itself: these handlers plus MotoROS's error reply for anything else."""
         self.install(server)
         server.unknown_request = self.on_unknown
-        server.answer_topics = True
-        server.max_connections = 1
 
     def on_io(self, msg: Message, session: Session) -> Message:
         table = self.table
@@ -512,9 +512,6 @@ class MotorosState:
         self.cell = cell
         self.motion = motion
 
-    def install(self, server: Server) -> None:
-        server.max_connections = 4
-
     def publish(self, server: Server, sessions: Iterable[Session]) -> None:
         cell = self.cell
         recipients = list(sessions)
@@ -528,3 +525,36 @@ class MotorosState:
         if len(groups) >= 2:
             server.broadcast(JointFeedbackEx(len(groups), tuple(groups)), recipients)
         server.broadcast(cell.status(motion_possible=cell.motion_possible and self.motion.traj_mode), recipients)
+
+
+class MotorosBehaviour:
+    """The MotoROS profile's :class:`~.profiles.Behaviour`: its motion, state and IO ports."""
+
+    def __init__(self, context: ProfileContext) -> None:
+        self.motion = MotorosMotion(context.cell, context.io_table)
+        self.state = MotorosState(context.cell, self.motion)
+        self.io = self.motion.io
+
+    def install(self, servers: Mapping[str, Server]) -> None:
+        self.motion.install(servers["motion"])
+        if "io" in servers:
+            self.io.install_port(servers["io"])
+
+    def publish(self, server: Server, sessions: Iterable[Session]) -> None:
+        self.state.publish(server, sessions)
+
+
+MOTOROS_PROFILE = register_profile(
+    EmulatorProfile(
+        MOTOROS,
+        MotorosBehaviour,
+        ports={
+            # one motion client, plus the newcomer that replaces it
+            "motion": PortRules(max_connections=2, answer_topics=True),
+            "state": PortRules(max_connections=4),
+            "io": PortRules(max_connections=1, answer_topics=True),
+        },
+        start_tolerance=MOTOROS_START_TOLERANCE,
+        description="Yaskawa MotoROS: trajectory mode, JOINT_TRAJ_PT_FULL(_EX), MOTO_MOTION_REPLY, IO port",
+    )
+)

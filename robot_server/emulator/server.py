@@ -20,12 +20,12 @@ import asyncio
 import contextlib
 import dataclasses
 import logging
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from simple_message.constants import Port
+from simple_message.dialects import ReplyStyle, reply_style_of
 from simple_message.endpoints import Server, Session
 from simple_message.wire import ByteOrder, WireFormat
 
@@ -42,39 +42,39 @@ from ..control import (
 from ..loader import load_model
 from ..model import RobotModel
 from .cell import RobotCell
-from .generic import GenericMotion, GenericState
+from .generic import GENERIC_PROFILE
 from .io_table import IoTable
-from .motoros import MOTOROS_START_TOLERANCE, MotorosIo, MotorosMotion, MotorosState
+from .motoros import MOTOROS_PROFILE
+from .profiles import ROLES, Behaviour, EmulatorProfile, ProfileContext, profile_named
 
-__all__ = ["Emulator", "EmulatorConfig", "PeriodStats", "Profile"]
+__all__ = ["Emulator", "EmulatorConfig", "PeriodStats"]
 
 log = logging.getLogger(__name__)
 
-Profile = Literal["generic", "motoros"]
 ByteOrderChoice = Literal["little", "big", "auto"]
 _STATE_LINK = "carries_state"
-_PORTS: dict[str, dict[str, int]] = {
-    "generic": {"motion": Port.MOTION, "state": Port.STATE},
-    "motoros": {"motion": Port.MOTOROS_MOTION, "state": Port.MOTOROS_STATE, "io": Port.MOTOROS_IO},
-}
 MAX_STATE_RATE = 1000.0
+#: the profiles every emulator knows (others are registered by their modules)
+BUILTIN_PROFILES = (GENERIC_PROFILE.name, MOTOROS_PROFILE.name)
 
 
 @dataclass(frozen=True)
 class EmulatorConfig:
     """Everything the ``robot-server`` command sets (SI units; ports ``None`` = the profile's
-    well-known port, 0 = a free one)."""
+    well-known port, 0 = a free one; byte order, float size and reply style ``None`` = the
+    profile's dialect's)."""
 
     #: one model (shipped name or file) per motion group
     models: tuple[str | Path, ...] = ("jibot_zxs",)
-    profile: Profile = "generic"
+    #: the controller family played (a name in :data:`~.profiles.PROFILES`)
+    profile: str = GENERIC_PROFILE.name
     host: str = "127.0.0.1"
     motion_port: int | None = None
     state_port: int | None = None
     io_port: int | None = None
-    byte_order: ByteOrderChoice = "little"
-    float64: bool = False
-    reply_style: str = "echo"
+    byte_order: ByteOrderChoice | None = None
+    float64: bool | None = None
+    reply_style: ReplyStyle | str | None = None
     state_rate: float = 40.0
     #: generic profile: JOINT_FEEDBACK to every state client (else only to those that ask)
     feedback: bool = False
@@ -96,12 +96,17 @@ class EmulatorConfig:
     max_connections: int = 64
 
     def __post_init__(self) -> None:
-        if self.profile not in _PORTS:
-            raise ValueError(f"unknown profile {self.profile!r} (generic or motoros)")
+        dialect = profile_named(self.profile).dialect
+        if self.byte_order is None:
+            object.__setattr__(self, "byte_order", dialect.wire.byte_order.value)
         if self.byte_order not in ("little", "big", "auto"):
             raise ValueError(f"unknown byte order {self.byte_order!r} (little, big or auto)")
-        if self.reply_style not in ("echo", "header"):
-            raise ValueError(f"unknown reply style {self.reply_style!r} (echo or header)")
+        if self.float64 is None:
+            object.__setattr__(self, "float64", dialect.wire.real_size == 8)
+        style = dialect.reply_style if self.reply_style is None else reply_style_of(self.reply_style)
+        if style not in (ReplyStyle.ECHO, ReplyStyle.HEADER_ONLY) and style is not dialect.reply_style:
+            raise ValueError(f"the {self.profile} profile cannot reply {style.value} (echo or header-only)")
+        object.__setattr__(self, "reply_style", style)
         if not 0.0 < self.state_rate <= MAX_STATE_RATE:
             raise ValueError(f"the state rate must be in (0, {MAX_STATE_RATE:g}] Hz, not {self.state_rate}")
         if not self.speedup > 0.0:
@@ -115,9 +120,14 @@ class EmulatorConfig:
         order = ByteOrder.BIG if self.byte_order == "big" else ByteOrder.LITTLE
         return WireFormat(order, 8 if self.float64 else 4)
 
+    @property
+    def emulated(self) -> EmulatorProfile:
+        """The profile played."""
+        return profile_named(self.profile)
+
     def port(self, name: str) -> int | None:
         """The port to bind for ``name`` (motion, state, io), or None if the profile has none."""
-        default = _PORTS[self.profile].get(name)
+        default = self.emulated.default_port(name)
         if default is None:
             return None
         chosen = {"motion": self.motion_port, "state": self.state_port, "io": self.io_port}[name]
@@ -151,40 +161,38 @@ class Emulator:
         self.config = config = config if config is not None else EmulatorConfig()
         if models is None:
             models = [load_model(m) for m in config.models]
-        motoros = config.profile == "motoros"
+        profile = config.emulated
         controller_config = ControllerConfig(
             policy=config.interpolation,
             interpolation_period=config.interpolation_period,
             servo_period=config.servo_period,
             queue_capacity=config.queue_capacity,
         )
-        if motoros:
-            controller_config = dataclasses.replace(controller_config, start_tolerance=MOTOROS_START_TOLERANCE)
+        if profile.start_tolerance is not None:
+            controller_config = dataclasses.replace(controller_config, start_tolerance=profile.start_tolerance)
         self.cell = RobotCell(models, controller_config)
         self.io_table = IoTable()
-        wire = config.wire
-        auto = config.byte_order == "auto"
-        limit = config.max_connections
-        self.motion_server = Server(
-            wire, name="motion", autodetect=auto, reply_style=config.reply_style, max_connections=limit
-        )
-        self.state_server = Server(wire, name="state", autodetect=auto, max_connections=limit)
-        self.io_server: Server | None = None
-        self._publish: Callable[[Server, Iterable[Session]], None]
-        if motoros:
-            self.motion: GenericMotion | MotorosMotion = MotorosMotion(self.cell, self.io_table)
-            self.motion.install(self.motion_server)
-            state = MotorosState(self.cell, self.motion)
-            state.install(self.state_server)
-            self._publish = state.publish
-            self.io_server = Server(wire, name="io", autodetect=auto)
-            MotorosIo(self.io_table).install_port(self.io_server)
-        else:
-            self.motion = GenericMotion(self.cell)
-            self.motion.install(self.motion_server)
-            generic_state = GenericState(self.cell, feedback=config.feedback)
-            generic_state.install(self.state_server)
-            self._publish = generic_state.publish
+        #: one server per port the profile serves, by role, made with the profile's rules
+        self.servers: dict[str, Server] = {}
+        for role in ROLES:
+            rules = profile.ports.get(role)
+            if rules is None:
+                continue
+            self.servers[role] = Server(
+                config.wire,
+                name=role,
+                autodetect=config.byte_order == "auto",
+                reply_style=reply_style_of(config.reply_style or profile.dialect.reply_style),
+                max_connections=config.max_connections if rules.max_connections is None else rules.max_connections,
+                answer_topics=rules.answer_topics,
+            )
+        self.motion_server = self.servers["motion"]
+        # a profile without a state port still has one server for the serial link's state topics
+        self.state_server = self.servers.get("state") or Server(config.wire, name="state", max_connections=0)
+        self.io_server: Server | None = self.servers.get("io")
+        #: the profile's handlers and state topics
+        self.behaviour: Behaviour = profile.build(ProfileContext(self.cell, self.io_table, config.feedback))
+        self.behaviour.install(self.servers)
         if clock is None:
             clock = SimulatedClock() if config.simulated else RealTimeClock(config.speedup)
         #: the controller's clock (a test may pass a ``SteppedClock`` and advance it itself)
@@ -206,10 +214,9 @@ class Emulator:
             return self
         self._started = True
         cfg = self.config
-        servers = {"motion": self.motion_server, "state": self.state_server, "io": self.io_server}
-        for name, server in servers.items():
+        for name, server in self.servers.items():
             port = cfg.port(name)
-            if server is not None and port is not None:
+            if port is not None:
                 self.ports[name] = await server.serve_tcp(cfg.host, port)
         loop = asyncio.get_running_loop()
         self._tasks.append(loop.create_task(self._run_control(), name="emulator control loop"))
@@ -264,12 +271,11 @@ class Emulator:
         if not sessions:
             return
         if self.config.byte_order == "auto":
-            spoken = [s.connection.wire for s in self.motion_server.sessions if s.connection.link.detected]
+            spoken = [s.wire for s in self.motion_server.sessions if s.spoke]
             if spoken:  # clients that never speak get the order the motion port was spoken in
                 for s in sessions:
-                    if not s.connection.link.detected:
-                        s.connection.wire = spoken[-1]
-        self._publish(self.state_server, sessions)
+                    s.assume_wire(spoken[-1])
+        self.behaviour.publish(self.state_server, sessions)
 
     async def close(self, settle_timeout: float = 10.0) -> None:
         """Stop the robot (controlled), wait until it has settled (at most ``settle_timeout`` s of
@@ -286,9 +292,8 @@ class Emulator:
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
-        for server in (self.motion_server, self.state_server, self.io_server):
-            if server is not None:
-                await server.close()
+        for server in {*self.servers.values(), self.state_server}:
+            await server.close()
         log.info("emulator closed")
 
     async def __aenter__(self) -> Emulator:
@@ -301,7 +306,8 @@ class Emulator:
 
     def record(self, seconds: float) -> list[Recorder]:
         """Record every servo tick of every motion group from now on, keeping the last ``seconds``
-        of controller time (a bounded ring buffer); returns one recorder per group."""
+        of controller time (a bounded ring buffer), until :meth:`stop_recording`; returns one
+        recorder per group (a recording already running ends)."""
         if not seconds > 0.0:
             raise ValueError(f"the record length must be > 0 s, not {seconds}")
         period = self.cell.config.servo_period
@@ -309,6 +315,20 @@ class Emulator:
         self.control.recorder = recorders[0]
         self.control.other_recorders = list(recorders[1:])
         return recorders
+
+    def stop_recording(self) -> None:
+        """End the recording :meth:`record` started (the recorders keep what they hold)."""
+        self.control.recorder = None
+        self.control.other_recorders = []
+
+    @property
+    def in_motion(self) -> bool:
+        """Some motion group is moving (or has points to run)."""
+        return self.cell.in_motion
+
+    async def settle(self, timeout: float) -> None:
+        """Wait until every motion group is at rest (:class:`TimeoutError` after ``timeout`` s)."""
+        await self.wait_until(lambda: not self.cell.in_motion, timeout)
 
     async def wait_until(self, predicate: Callable[[], bool], timeout: float) -> None:
         """Wait until ``predicate()`` holds, checked after every control-loop wake-up."""
@@ -329,5 +349,6 @@ class Emulator:
         models = " + ".join(g.model.name for g in self.cell.groups)
         return (
             f"robot-server ready: {cfg.profile} profile, {models}, {ports}, {order} float{64 if cfg.float64 else 32}, "
+            f"{reply_style_of(cfg.reply_style or ReplyStyle.ECHO).value} replies, "
             f"{cfg.interpolation} interpolation, {timing}"
         )

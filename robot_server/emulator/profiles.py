@@ -1,0 +1,128 @@
+"""Which controller the emulator plays: one :class:`EmulatorProfile` per controller family.
+
+A profile is data plus one builder. The data: the family's :class:`~simple_message.dialects.Dialect`
+(default ports, byte order, float size, reply style: the protocol's side, shared with the client and
+the endpoints), the ports the controller serves and its rules on each (how many connections it takes,
+whether it answers TOPICs), and the controller's own settings (its start tolerance). The builder
+makes the profile's :class:`Behaviour`: the message handlers it puts on the emulator's servers and
+the state topics it publishes. :class:`~.server.Emulator` creates each port's server from the
+profile's rules; a behaviour only registers handlers and hooks, it never changes a server's
+settings.
+
+Adding a controller family is one module that defines its behaviour (or reuses one) and calls
+:func:`register_profile`; ``robot-server --profile NAME`` then serves it (CONTRIBUTING.md, "Adding a
+dialect").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from simple_message.dialects import Dialect
+from simple_message.endpoints import Server, Session
+
+from .cell import RobotCell
+from .io_table import IoTable
+
+__all__ = [
+    "PROFILES",
+    "Behaviour",
+    "EmulatorProfile",
+    "PortRules",
+    "ProfileContext",
+    "profile_named",
+    "register_profile",
+    "unregister_profile",
+]
+
+#: the roles a profile may serve, in the order they are bound
+ROLES = ("motion", "state", "io")
+
+
+@dataclass(frozen=True)
+class PortRules:
+    """What the emulated controller allows on one of its ports."""
+
+    #: connections it takes at once (``None``: the emulator's ``max_connections`` setting)
+    max_connections: int | None = None
+    #: TOPICs of a type it does not handle go to the unknown-request handler too (MotoROS answers
+    #: every message that is not a reply)
+    answer_topics: bool = False
+
+
+@dataclass(frozen=True)
+class ProfileContext:
+    """What a profile's builder gets from the emulator."""
+
+    cell: RobotCell
+    io_table: IoTable
+    #: JOINT_FEEDBACK to every state client (the generic profile's ``--feedback``)
+    feedback: bool = False
+
+
+class Behaviour(Protocol):
+    """A profile's handlers and state topics, on the servers the emulator made for it."""
+
+    def install(self, servers: Mapping[str, Server]) -> None:
+        """Register handlers and hooks on the servers by role (only the profile's roles)."""
+
+    def publish(self, server: Server, sessions: Iterable[Session]) -> None:
+        """Send one round of state topics to ``sessions`` (through the state ``server``)."""
+
+
+@dataclass(frozen=True)
+class EmulatorProfile:
+    """One controller family the emulator can play (see the module doc)."""
+
+    dialect: Dialect
+    build: Callable[[ProfileContext], Behaviour]
+    #: the ports served, by role (``motion``, ``state``, ``io``), with the controller's rules
+    ports: Mapping[str, PortRules] = field(default_factory=lambda: {"motion": PortRules(), "state": PortRules()})
+    #: how far (rad) a trajectory's first point may be from where the robot is (``None``: the
+    #: controller's default)
+    start_tolerance: float | None = None
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        unknown = set(self.ports) - set(ROLES)
+        if unknown:
+            raise ValueError(f"unknown port roles {sorted(unknown)} (known: {', '.join(ROLES)})")
+        if "motion" not in self.ports:
+            raise ValueError("a profile serves at least the motion port")
+
+    @property
+    def name(self) -> str:
+        return self.dialect.name
+
+    def default_port(self, role: str) -> int | None:
+        """The dialect's well-known port for ``role``, or None if this profile does not serve it."""
+        if role not in self.ports:
+            return None
+        return self.dialect.ports.get(role)
+
+
+#: Every profile the emulator can play, by name (the dialect's).
+PROFILES: dict[str, EmulatorProfile] = {}
+
+
+def register_profile(profile: EmulatorProfile, *, replace: bool = False) -> EmulatorProfile:
+    """Make ``profile`` selectable by its name (``replace``: over one of the same name)."""
+    if profile.name in PROFILES and not replace:
+        raise ValueError(f"an emulator profile named {profile.name!r} is already registered")
+    PROFILES[profile.name] = profile
+    return profile
+
+
+def unregister_profile(name: str) -> None:
+    """Forget the profile called ``name`` (tests that register their own)."""
+    PROFILES.pop(name, None)
+
+
+def profile_named(name: str) -> EmulatorProfile:
+    """The registered profile called ``name``; :class:`ValueError` names the known ones."""
+    try:
+        return PROFILES[name]
+    except KeyError:
+        raise ValueError(f"unknown profile {name!r} (known: {', '.join(sorted(PROFILES))})") from None
