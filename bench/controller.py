@@ -1,13 +1,22 @@
 """Controller benchmark: real-time factor of the 6-joint controller (paper's robot) at a 1 ms servo
-period and a 4 ms interpolation period, per interpolation policy, and the cost of one servo tick.
+period and a 4 ms interpolation period, per interpolation policy, and the cost of one servo tick;
+then the real-time loop's lateness (drift) on the wall clock.
 
-    python bench/controller.py [--quick]
+    python bench/controller.py [--quick] [--drift-seconds S]
 
 Each run streams random waypoints inside the limits (velocity ratio 0.8) so the robot moves all
 the time, and runs the control loop on the simulated clock (as fast as possible, the asyncio event
 loop included). Planning a point (validation and the segment) is timed separately: it happens
 when a point arrives, not per tick. Target on the CI machine class: at least 20x real time on one
 core.
+
+**Drift.** The control loop on the real-time clock for S seconds (default 10; 2 with ``--quick``),
+at rest and moving: how late each wake-up is after its deadline (p50, p99, max), how many were more
+than one interpolation period late (overruns, caught up at once), and how late the last one is.
+Deadlines are absolute, so the last wake-up's lateness is the drift over the whole run: a run
+that drifted would show it growing with S. Target: every tick runs and the final lateness stays
+below one interpolation period (4 ms). Figures of a shared machine vary with its load; the
+tests check the loop's arithmetic on a clock they move themselves (tests/test_rs_controller.py).
 """
 
 from __future__ import annotations
@@ -23,8 +32,30 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from codec import machine
 
-from robot_server.control import POLICIES, Controller, ControllerConfig, ControlLoop, Point, SimulatedClock
+from robot_server.control import (
+    POLICIES,
+    Controller,
+    ControllerConfig,
+    ControlLoop,
+    Point,
+    RealTimeClock,
+    SimulatedClock,
+)
 from robot_server.loader import load_model
+from robot_server.model import RobotModel
+
+
+class MeasuredClock(RealTimeClock):
+    """The real-time clock, noting how late each wake-up is after its deadline (what the loop
+    measures for :class:`~robot_server.control.LoopStats`, every value kept)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.lateness: list[float] = []
+
+    async def sleep_until(self, deadline: float) -> None:
+        await super().sleep_until(deadline)
+        self.lateness.append(self.now() - deadline)
 
 
 def waypoints(model_lower: np.ndarray, model_upper: np.ndarray, count: int) -> list[np.ndarray]:
@@ -33,11 +64,41 @@ def waypoints(model_lower: np.ndarray, model_upper: np.ndarray, count: int) -> l
     return [np.zeros(model_lower.size)] + [rng.uniform(inner_lo, inner_hi) for _ in range(count)]
 
 
+def drift(model: RobotModel, seconds: float) -> None:
+    """The real-time loop's lateness, at rest and moving (see the module doc)."""
+    print()
+    print(f"real-time loop, {seconds:g} s of wall-clock time per row (servo 1 ms, interpolation 4 ms):")
+    print()
+    print("| robot | wake-ups | ticks run | overruns | lateness p50 (ms) | p99 (ms) | max (ms) | final (ms) |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    for moving in (False, True):
+        ctl = Controller(model, ControllerConfig(queue_capacity=100_000))
+        if moving:
+            points = waypoints(model.lower, model.upper, 400)
+            ctl.start(Point(points[0], velocity_ratio=0.8, duration=0.0))
+            for q in points[1:]:
+                ctl.add(Point(q, velocity_ratio=0.8, duration=0.0))
+        clock = MeasuredClock()
+        stats = asyncio.run(ControlLoop(ctl, clock).run(seconds))
+        expected = round(seconds / ctl.config.servo_period)
+        assert not moving or (ctl.moving and not ctl.in_error), "the robot must move all the time"
+        late = np.array(clock.lateness) * 1e3
+        p50, p99 = np.percentile(late, [50, 99])
+        print(
+            f"| {'moving (blend)' if moving else 'at rest'} | {stats.wakes} | {stats.ticks}/{expected} | "
+            f"{stats.overruns} | {p50:.3f} | {p99:.3f} | {late.max():.3f} | {stats.final_lateness * 1e3:.3f} |"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a shorter run (a smoke test)")
+    parser.add_argument(
+        "--drift-seconds", type=float, default=None, help="wall-clock seconds of each drift row (default 10, quick 2)"
+    )
     args = parser.parse_args()
     seconds = 10.0 if args.quick else 60.0
+    drift_seconds = args.drift_seconds if args.drift_seconds is not None else (2.0 if args.quick else 10.0)
     model = load_model("jibot_zxs")
     print(
         f"# controller benchmark: {machine()}; model {model.name}, {model.dof} joints, "
@@ -61,6 +122,7 @@ def main() -> None:
             f"| {policy} | {stats.realtime_factor:.1f}x | {stats.wall / stats.ticks * 1e6:.1f} | "
             f"{planning * 1e6:.0f} | {queued - ctl.queue_fill} |"
         )
+    drift(model, drift_seconds)
 
 
 if __name__ == "__main__":

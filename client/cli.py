@@ -22,10 +22,11 @@ from typing import TextIO
 
 import numpy as np
 
-from robot_server.control import POLICIES
+from robot_server.control import POLICIES, policy
 from robot_server.kinematics import fk
 from robot_server.loader import load_model, shipped_models
 from robot_server.model import ModelError, RobotModel, rpy_matrix
+from simple_message.cli import add_import_argument, preimport
 from simple_message.constants import MsgType, RobotMode, TriState
 from simple_message.dialects import DIALECTS, GENERIC, dialect
 from simple_message.errors import SimpleMessageError
@@ -82,6 +83,7 @@ def parser() -> argparse.ArgumentParser:
     )
     common.add_argument("--timeout", type=_positive, default=5.0, metavar="SECONDS", help="connect and reply timeout")
     common.add_argument("--log-level", default="WARNING", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    add_import_argument(common)  # e.g. a module that registers a dialect or an interpolation policy
 
     p = argparse.ArgumentParser(
         prog="robot-client",
@@ -122,7 +124,6 @@ def parser() -> argparse.ArgumentParser:
     demo.add_argument(
         "--policies",
         nargs="+",
-        choices=list(POLICIES),
         default=list(PAPER_POLICIES),
         metavar="POLICY",
         help=f"controller policies to compare (default: {' '.join(PAPER_POLICIES)}; known: {', '.join(POLICIES)})",
@@ -371,6 +372,9 @@ async def _demo(args: argparse.Namespace, out: TextIO) -> None:
 
 def _check_arguments(args: argparse.Namespace, model: RobotModel) -> None:
     """Usage errors found before connecting (exit status 2)."""
+    if args.command == "demo":
+        for name in args.policies:
+            policy(name)  # ValueError naming the known ones
     if args.command != "move":
         return
     if not 0.0 < args.speed <= 1.0:
@@ -384,6 +388,10 @@ def _check_arguments(args: argparse.Namespace, model: RobotModel) -> None:
 
 
 def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
+    failure = preimport(argv)  # modules that register dialects or policies, before the parser lists them
+    if failure is not None:
+        print(f"robot-client: {failure}", file=sys.stderr)
+        return 2
     args = parser().parse_args(argv)
     stream = out if out is not None else sys.stdout
     logging.basicConfig(

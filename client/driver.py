@@ -51,7 +51,8 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
-from robot_server.model import RobotModel
+from robot_server import RobotModel
+from robot_server.control import QUINTIC_PEAK_VELOCITY
 from simple_message.connection import ConnectionState, Subscription
 from simple_message.constants import (
     CommType,
@@ -89,9 +90,6 @@ from .trajectory import Trajectory
 __all__ = ["RobotDriver", "DriverError", "ExecutionAborted", "JointState", "Mode"]
 
 log = logging.getLogger(__name__)
-
-#: a rest-to-rest quintic's peak speed over its mean speed
-_QUINTIC_PEAK = 1.875
 
 Array = NDArray[np.float64]
 
@@ -377,7 +375,7 @@ class RobotDriver:
             return 0.0
         dt = trajectory.times[k] - trajectory.times[k - 1]
         mean = np.abs(trajectory.positions[k] - trajectory.positions[k - 1]) / dt
-        return float(np.clip(np.max(_QUINTIC_PEAK * mean / self.model.max_velocity), 0.0, 1.0))
+        return float(np.clip(np.max(QUINTIC_PEAK_VELOCITY * mean / self.model.max_velocity), 0.0, 1.0))
 
     def _point(self, trajectory: Trajectory, k: int, sequence: int, comm_type: int) -> JointTrajPt:
         duration = 0.0 if k == 0 else float(trajectory.times[k] - trajectory.times[k - 1])

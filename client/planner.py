@@ -34,10 +34,16 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from robot_server.control.segments import PlanningError as SegmentPlanningError
-from robot_server.control.segments import RuckigSegment
+from robot_server import RobotModel
+from robot_server.control import (
+    CUBIC_PEAK_ACCELERATION,
+    CUBIC_PEAK_VELOCITY,
+    QUINTIC_PEAK_ACCELERATION,
+    QUINTIC_PEAK_VELOCITY,
+    RuckigSegment,
+)
+from robot_server.control import PlanningError as SegmentPlanningError
 from robot_server.kinematics import ClosedFormIK, Singularity, closed_form, fk_batch
-from robot_server.model import RobotModel
 
 from .trajectory import Trajectory
 
@@ -48,9 +54,9 @@ Array = NDArray[np.float64]
 #: how often a piece's limits are checked after planning (s)
 _CHECK_DT = 0.002
 #: a rest-to-rest segment's peak speed and acceleration over D/T and D/T^2 (the worse of the cubic's
-#: and the quintic's: 1.875 and 6)
-_REST_SPEED = 1.875
-_REST_ACCELERATION = 6.0
+#: and the quintic's: the quintic's 1.875 and the cubic's 6)
+_REST_SPEED = max(CUBIC_PEAK_VELOCITY, QUINTIC_PEAK_VELOCITY)
+_REST_ACCELERATION = max(CUBIC_PEAK_ACCELERATION, QUINTIC_PEAK_ACCELERATION)
 #: how many times a piece is slowed down before giving up
 _RETRIES = 12
 

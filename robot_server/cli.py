@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import importlib
 import logging
 import os
 import signal
@@ -23,6 +22,8 @@ import sys
 import threading
 from collections.abc import Sequence
 from pathlib import Path
+
+from simple_message.cli import add_import_argument, preimport
 
 from .control import DEFAULT_POLICY, POLICIES, Recorder
 from .emulator import FAULT_COMMANDS, PROFILES, Emulator, EmulatorConfig, FaultError, apply_fault_command
@@ -82,18 +83,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--motion-port", type=_port, help="default: the profile's (11000 generic, 50240 motoros); 0: free")
     p.add_argument("--state-port", type=_port, help="default: the profile's (11002 generic, 50241 motoros)")
     p.add_argument("--io-port", type=_port, help="profiles with an IO port (motoros: default 50242)")
-    p.add_argument(
-        "--import",
-        dest="imports",
-        action="append",
-        default=[],
-        metavar="MODULE",
-        help="import MODULE first, e.g. one that registers a profile or an interpolation policy (repeatable)",
-    )
+    add_import_argument(p)  # e.g. a module that registers a profile or an interpolation policy
     p.add_argument(
         "--profile",
         default="generic",
-        help="the controller family played (default %(default)s; built in: "
+        help="the controller family played (default %(default)s; known: "
         + "; ".join(f"{name}: {entry.description}" for name, entry in PROFILES.items())
         + ")",
     )
@@ -140,16 +134,14 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    failure = preimport(argv)  # modules that register profiles or policies, before the parser lists them
+    if failure is not None:
+        print(f"robot-server: {failure}", file=sys.stderr)
+        return 2
     args = parser().parse_args(argv)
     logging.basicConfig(
         level=args.log_level, stream=sys.stderr, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
-    for name in args.imports:
-        try:
-            importlib.import_module(name)
-        except Exception as exc:  # anything a module can raise at import
-            print(f"robot-server: cannot import {name}: {type(exc).__name__}: {exc}", file=sys.stderr)
-            return 2
     try:
         if args.profile not in PROFILES:
             raise ValueError(f"unknown profile {args.profile!r} (known: {', '.join(sorted(PROFILES))})")

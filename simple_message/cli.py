@@ -22,7 +22,7 @@ import importlib
 import json
 import logging
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from typing import IO, Any
 
 from .errors import FrameError, SimpleMessageError
@@ -31,7 +31,7 @@ from .jsonio import message_from_json, message_to_json
 from .messages import decode, encode
 from .wire import ByteOrder, WireFormat
 
-__all__ = ["main", "add_wire_arguments", "wire_from_args", "add_import_argument", "import_modules"]
+__all__ = ["main", "add_wire_arguments", "wire_from_args", "add_import_argument", "import_modules", "preimport"]
 
 log = logging.getLogger("simple_message.cli")
 
@@ -74,19 +74,40 @@ def add_import_argument(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="MODULE",
-        help="import MODULE first, e.g. one that registers a vendor message set (repeatable)",
+        help="import MODULE first, e.g. one that registers a vendor message set, a dialect or a profile (repeatable)",
     )
 
 
 def import_modules(names: list[str]) -> bool:
     """Import ``names`` in order; report the first failure on stderr and return ``False``."""
+    failure = _import_all(names)
+    if failure is not None:
+        _emit_error(type(failure[1]).__name__, f"cannot import {failure[0]}: {failure[1]}")
+        return False
+    return True
+
+
+def preimport(argv: Sequence[str] | None) -> str | None:
+    """Import the modules ``argv`` names with ``--import`` now, before a command builds its parser
+    from registries they add to (profiles, dialects, policies: so ``--help`` and the choices list
+    them). Returns what went wrong, or None."""
+    early = argparse.ArgumentParser(add_help=False)
+    add_import_argument(early)
+    known, _ = early.parse_known_args(argv)
+    failure = _import_all(known.imports)
+    if failure is None:
+        return None
+    name, exc = failure
+    return f"cannot import {name}: {type(exc).__name__}: {exc}"
+
+
+def _import_all(names: Sequence[str]) -> tuple[str, Exception] | None:
     for name in names:
         try:
             importlib.import_module(name)
         except Exception as exc:  # anything a module can raise at import, RegistrationError included
-            _emit_error(type(exc).__name__, f"cannot import {name}: {exc}")
-            return False
-    return True
+            return name, exc
+    return None
 
 
 def _emit_error(kind: str, message: str, **extra: Any) -> None:

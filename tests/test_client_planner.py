@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import ast
+import importlib
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -191,3 +195,26 @@ def test_rest_to_rest_retiming_keeps_every_segment_within_the_limits() -> None:
     # fast enough for the continuous profile, too fast for stopping at every point: retimed longer
     assert np.all(np.diff(retimed.times) >= np.diff(plain.times) - 1e-12)
     assert retimed.duration > plain.duration
+
+
+#: the packages whose ``__all__`` is the server side's public API for the client
+PUBLIC_PACKAGES = ("robot_server", "robot_server.control", "robot_server.kinematics", "simple_message")
+SERVER_SIDE = ("robot_server", "simple_message")
+
+
+@pytest.mark.parametrize("module", ["planner", "trajectory"])
+def test_the_client_uses_public_names_only(module: str) -> None:
+    """The planner and the trajectories import from the server side and the protocol only names
+    those packages export (``__all__``), never a module inside them."""
+    source = Path(__file__).resolve().parent.parent / "client" / f"{module}.py"
+    for node in ast.walk(ast.parse(source.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names if alias.name.split(".")[0] in SERVER_SIDE]
+            assert all(name in PUBLIC_PACKAGES for name in names), f"line {node.lineno}: import {names}"
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module is not None:
+            if node.module.split(".")[0] not in SERVER_SIDE:
+                continue
+            assert node.module in PUBLIC_PACKAGES, f"line {node.lineno}: from {node.module} (not a public package)"
+            exported = importlib.import_module(node.module).__all__
+            for alias in node.names:
+                assert alias.name in exported, f"line {node.lineno}: {alias.name} is not in {node.module}.__all__"

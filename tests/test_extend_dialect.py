@@ -8,6 +8,7 @@ The built-in profiles are checked against their dialects the same way.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import sys
 from collections.abc import Iterator
@@ -19,7 +20,7 @@ import pytest
 
 from client.driver import RobotDriver
 from client.trajectory import Trajectory
-from robot_server import Emulator, EmulatorConfig, load_model
+from robot_server import Emulator, EmulatorConfig, ModelError, load_model
 from robot_server.emulator import PROFILES, profile_named, unregister_profile
 from simple_message import (
     BE32,
@@ -152,3 +153,32 @@ async def test_robot_server_imports_a_family_by_module(tmp_path: Path) -> None:
         assert isinstance(reply, HeaderOnly)
         assert (reply.msg_type, reply.reply_code) == (MsgType.JOINT_TRAJ_PT, ReplyCode.SUCCESS)
         assert await server.terminate() == 0
+
+
+def test_the_commands_import_before_they_list_and_say_what_is_unknown(capsys: pytest.CaptureFixture[str]) -> None:
+    from client.cli import main as robot_client
+    from robot_server.cli import main as robot_server_main
+
+    assert robot_server_main(["--import", "no_such_module_here"]) == 2
+    assert "cannot import no_such_module_here: ModuleNotFoundError" in capsys.readouterr().err
+    assert robot_server_main(["--profile", "nosuch", "--no-stdin"]) == 2
+    assert "unknown profile 'nosuch' (known: generic, motoros)" in capsys.readouterr().err
+    assert robot_client(["demo", "--embedded", "--policies", "nosuch"]) == 2
+    assert "unknown interpolation policy 'nosuch'" in capsys.readouterr().err
+    try:  # an imported family is listed by --help and accepted by --profile
+        with pytest.raises(SystemExit):
+            robot_server_main(["--import", MODULE, "--help"])
+        assert "acme: ACME RC-1" in capsys.readouterr().out
+        with pytest.raises(SystemExit):
+            robot_client(["status", "--import", MODULE, "--help"])
+        assert "acme" in capsys.readouterr().out
+    finally:
+        unregister_profile("acme")
+        dialects_module.unregister("acme")
+        sys.modules.pop(MODULE, None)
+
+
+def test_a_model_the_wire_cannot_carry_is_refused() -> None:
+    twelve = dataclasses.replace(MODEL, name="twelve", joints=MODEL.joints * 2, motors=())
+    with pytest.raises(ModelError, match="twelve has 12 joints; simple_message carries at most 10"):
+        Emulator(EmulatorConfig(), [twelve])

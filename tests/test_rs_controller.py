@@ -10,13 +10,18 @@ import asyncio
 import dataclasses
 import io
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from robot_server.control import (
+    CUBIC_PEAK_ACCELERATION,
+    CUBIC_PEAK_VELOCITY,
     FOLLOWING_ERROR_ALARM,
     POLICIES,
+    QUINTIC_PEAK_ACCELERATION,
+    QUINTIC_PEAK_VELOCITY,
     Controller,
     ControllerConfig,
     ControlLoop,
@@ -27,8 +32,12 @@ from robot_server.control import (
     Recorder,
     SimulatedClock,
     Tick,
+    cubic,
+    quintic,
     run_simulated,
+    submit_together,
 )
+from robot_server.control import clock as clock_module
 from robot_server.loader import load_model
 from robot_server.model import ModelError, MotorParameters
 
@@ -81,6 +90,45 @@ def test_duration_is_the_segment_time_and_the_ratio_sets_it_otherwise() -> None:
         c.add(pt([1.0, 0, 0, 0, 0, 0], ratio=1.0))
         accel = 0.0 if policy == "linear" else math.sqrt(6.0 / AMAX[0])
         assert math.isclose(c.queue.segments()[-1].duration, max(factor / math.pi, accel))
+
+
+def test_the_peak_ratios_are_those_of_the_shapes_and_of_the_policies() -> None:
+    """The shared constants (what planners time points with) are the segments' own peaks, and
+    what the rest-to-rest policies time points with."""
+    delta, tf = np.array([0.7, -1.3]), 0.9
+    for shape, speed, accel in (
+        (cubic, CUBIC_PEAK_VELOCITY, CUBIC_PEAK_ACCELERATION),
+        (quintic, QUINTIC_PEAK_VELOCITY, QUINTIC_PEAK_ACCELERATION),
+    ):
+        segment = shape(np.zeros(2), delta, tf)
+        assert np.allclose(segment.peak(1), speed * np.abs(delta) / tf, rtol=1e-12)
+        assert np.allclose(segment.peak(2), accel * np.abs(delta) / tf**2, rtol=1e-12)
+    assert (QUINTIC_PEAK_VELOCITY, CUBIC_PEAK_ACCELERATION) == (1.875, 6.0)
+    for name, speed, accel in (
+        ("cubic", CUBIC_PEAK_VELOCITY, CUBIC_PEAK_ACCELERATION),
+        ("quintic", QUINTIC_PEAK_VELOCITY, QUINTIC_PEAK_ACCELERATION),
+    ):
+        shape_policy = POLICIES[name]
+        assert (shape_policy.speed_factor, shape_policy.accel_factor) == (speed, accel)
+
+
+def test_submit_together_is_all_or_nothing() -> None:
+    """Motion groups accept points together or not at all (their shared time scale, read from
+    each plan with :meth:`Controller.plan_scale`, is test_rs_blend.py's)."""
+    a, b = controller("blend"), controller("blend")
+    z = np.zeros(N)
+    submit_together([(a, full(0.0, z)), (b, full(0.0, z))], first=True)
+    for i in range(1, 21):  # group a: 10 rad/s^2 over the limit
+        t = 0.02 * i
+        submit_together([(a, full(t, z + 0.8 * (t / 0.4) ** 2)), (b, full(t, z + 0.05 * t / 0.4))])
+    before = [(c.queue_fill, c.queue.scale, c.points_accepted) for c in (a, b)]
+    with pytest.raises(PointRejected) as err:
+        submit_together([(a, full(0.42, z + 0.84)), (b, full(0.42, np.full(N, 9.0)))])
+    assert err.value.reason is Reason.POSITION_LIMIT
+    assert [(c.queue_fill, c.queue.scale, c.points_accepted) for c in (a, b)] == before
+    plan = a.prepare(full(0.42, z + 0.84), first=False)
+    a.commit(plan)
+    assert a.queue.scale == Controller.plan_scale(plan) > 1.0
 
 
 def test_the_first_point_is_the_start_itself_whatever_its_duration() -> None:
@@ -419,31 +467,75 @@ def test_simulated_runs_are_deterministic() -> None:
         assert np.array_equal(a.get(quantity), b.get(quantity))
 
 
-async def test_simulated_clock_runs_faster_than_real_time() -> None:
+class FakeTime:
+    """The monotonic clock and the sleep of :mod:`robot_server.control.clock`, moved by the test:
+    a sleep of ``d`` seconds moves the time ``d`` plus the next scripted lateness on, at once (it
+    still yields to the event loop). No wall-clock time is measured or waited for."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch, lateness: tuple[float, ...] = ()) -> None:
+        self.now = 100.0
+        self.sleeps: list[float] = []
+        self.lateness = list(lateness)
+        monkeypatch.setattr(clock_module, "time", SimpleNamespace(monotonic=lambda: self.now))
+        monkeypatch.setattr(clock_module, "asyncio", SimpleNamespace(sleep=self.sleep))
+
+    async def sleep(self, delay: float) -> None:
+        self.sleeps.append(delay)
+        self.now += delay + (self.lateness.pop(0) if self.lateness else 0.0)
+        await asyncio.sleep(0)
+
+
+async def test_simulated_clock_never_waits(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The simulated clock jumps to each deadline: the loop only yields to the event loop, so it
+    runs as fast as the computer can (how fast is bench/controller.py's figure, not a test's)."""
+    fake = FakeTime(monkeypatch)
     ctl = controller()
     stats = await run_simulated(ctl, 2.0)
-    assert stats.ticks == 2000 and stats.simulated == pytest.approx(2.0) and stats.overruns == 0
+    assert stats.ticks == 2000 and stats.wakes == 500 and stats.simulated == pytest.approx(2.0)
+    assert stats.overruns == 0 and stats.max_lateness == 0.0  # lateness means nothing off the wall clock
     assert ctl.time == pytest.approx(2.0)
-    assert stats.realtime_factor > 1.0
+    assert fake.sleeps == [0] * 500 and fake.now == 100.0
 
 
-@pytest.mark.slow
-async def test_real_time_loop_has_no_drift() -> None:
-    """10 s of a 1 ms servo loop: every tick ran, and the last wake-up was less than one period late."""
+async def test_real_time_clock_follows_the_monotonic_clock_sped_up(monkeypatch: pytest.MonkeyPatch) -> None:
+    fake = FakeTime(monkeypatch)
+    clock = RealTimeClock(speedup=50.0)
+    assert clock.realtime and clock.now() == 0.0
+    fake.now += 0.01
+    assert clock.now() == pytest.approx(0.5)
+    await clock.sleep_until(1.5)  # 1 s of controller time ahead: 20 ms of monotonic time
+    assert fake.sleeps == [pytest.approx(0.02)] and clock.now() == pytest.approx(1.5)
+    await clock.sleep_until(1.0)  # passed: no wait, but other tasks still run
+    assert fake.sleeps[-1] == 0.0 and clock.now() == pytest.approx(1.5)
+    with pytest.raises(ValueError, match="speed-up"):
+        RealTimeClock(speedup=0.0)
+
+
+async def test_real_time_loop_keeps_absolute_deadlines(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Wake-ups late by scripted amounts (one of 2.5 periods): every servo tick still runs, a late
+    wake-up catches the missed ticks up, the next deadlines do not move (no drift), and the
+    lateness and overruns are counted. (The lateness a real machine gives is bench/controller.py's
+    figure.)"""
+    period = 0.004
+    fake = FakeTime(monkeypatch, lateness=(0.0, 0.001, 0.0, 0.0102, 0.0, 0.0, 0.0, 0.0005, 0.0, 0.0))
     ctl = controller()
     clock = RealTimeClock()
-    stats = await ControlLoop(ctl, clock).run(10.0)
-    period = ctl.config.interpolation_period
-    assert stats.ticks == 10_000 and ctl.time == pytest.approx(10.0)
-    assert 0.0 <= stats.final_lateness < period
-    assert abs(clock.now() - 10.0) < period + ctl.config.servo_period
-    print(f"overruns {stats.overruns}, max lateness {stats.max_lateness * 1e3:.2f} ms")
+    wakes: list[tuple[float, float]] = []
+    loop = ControlLoop(ctl, clock, on_wake=lambda: wakes.append((clock.now(), ctl.time)))
+    stats = await loop.run(10 * period)
+    assert stats.ticks == 40 and stats.wakes == 10 and ctl.time == pytest.approx(10 * period)
+    # wake-up k happens at its deadline k x period plus its own lateness only, and has run the
+    # ticks up to the next deadline, however late the wake-ups before it were
+    lateness = [0.0, 0.001, 0.0, 0.0102, 0.0062, 0.0022, 0.0, 0.0005, 0.0, 0.0]
+    assert [w for w, _ in wakes] == pytest.approx([k * period + late for k, late in enumerate(lateness)], abs=1e-12)
+    assert [t for _, t in wakes] == pytest.approx([(k + 1) * period for k in range(10)], abs=1e-12)
+    assert fake.sleeps == pytest.approx([0.0, 0.004, 0.003, 0.004, 0.0, 0.0, 0.0018, 0.004, 0.0035, 0.004], abs=1e-12)
+    assert stats.overruns == 2  # 10.2 and 6.2 ms late: more than one period
+    assert stats.max_lateness == pytest.approx(0.0102) and stats.final_lateness == pytest.approx(0.0, abs=1e-12)
 
 
-async def test_speedup_clock_and_loop_stop() -> None:
+async def test_loop_stop() -> None:
     ctl = controller()
-    stats = await asyncio.wait_for(ControlLoop(ctl, RealTimeClock(speedup=50.0)).run(0.5), 5)
-    assert stats.ticks == 500 and ctl.time == pytest.approx(0.5)
 
     class StopAfter(Recorder):
         def add(self, tick: Tick) -> None:
@@ -451,9 +543,10 @@ async def test_speedup_clock_and_loop_stop() -> None:
             if len(self) == 40:
                 endless.stop()
 
-    endless = ControlLoop(ctl, RealTimeClock(speedup=10.0), StopAfter(N))
-    stats = await asyncio.wait_for(endless.run(), 5)
+    endless = ControlLoop(ctl, SimulatedClock(), StopAfter(N))
+    stats = await endless.run(1.0)  # stopped long before 1 s
     assert stats.ticks == 40 and stats.wakes == 10 and stats.simulated == pytest.approx(0.04)
+    assert ctl.time == pytest.approx(0.04)
 
 
 def test_recorder_is_bounded_and_exports_csv() -> None:

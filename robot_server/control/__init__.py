@@ -3,8 +3,11 @@ drives, the control loop.
 
 Independent of sockets and of the wire: points arrive in SI units (:mod:`.points`), and
 :mod:`robot_server.emulator` turns messages into the controller's verbs. See the module docs of
-:mod:`.points`, :mod:`.policies`, :mod:`.blend`, :mod:`.motion`, :mod:`.segments`, :mod:`.servo`,
-:mod:`.controller` and :mod:`.clock`.
+:mod:`.points`, :mod:`.policies`, :mod:`.blend`, :mod:`.motion`, :mod:`.segments`, :mod:`.peaks`,
+:mod:`.servo`, :mod:`.controller` (sans-I/O), :mod:`.loop` (asyncio) and :mod:`.clock`.
+
+The names in ``__all__`` are this layer's public API (clients, such as :mod:`client`, import them
+from here, never from its modules).
 """
 
 from .clock import Clock, RealTimeClock, SimulatedClock, SteppedClock
@@ -13,15 +16,19 @@ from .controller import (
     SOFT_LIMIT_ALARM,
     Controller,
     ControllerConfig,
-    ControlLoop,
-    LoopStats,
     Tick,
-    run_simulated,
     submit_together,
 )
+from .loop import ControlLoop, LoopStats, run_simulated
 from .motion import MotionQueue
+from .peaks import (
+    CUBIC_PEAK_ACCELERATION,
+    CUBIC_PEAK_VELOCITY,
+    QUINTIC_PEAK_ACCELERATION,
+    QUINTIC_PEAK_VELOCITY,
+)
 from .points import Limits, Point, PointRejected, Reason, State, check_point
-from .policies import DEFAULT_POLICY, POLICIES, Policy, policy
+from .policies import DEFAULT_POLICY, POLICIES, Policy, policy, register_policy, scoped_policies, unregister_policy
 from .recorder import QUANTITIES, Recorder
 from .segments import (
     Chain,
@@ -55,6 +62,13 @@ __all__ = [
     "run_simulated",
     "submit_together",
     "MotionQueue",
+    "register_policy",
+    "scoped_policies",
+    "unregister_policy",
+    "CUBIC_PEAK_VELOCITY",
+    "CUBIC_PEAK_ACCELERATION",
+    "QUINTIC_PEAK_VELOCITY",
+    "QUINTIC_PEAK_ACCELERATION",
     "Limits",
     "Point",
     "PointRejected",

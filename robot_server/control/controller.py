@@ -5,8 +5,10 @@ A :class:`Controller` is a sans-I/O state machine. Its verbs take received point
 the next ones, or :meth:`~Controller.start_download` ... :meth:`~Controller.finish_download` a whole
 trajectory; :meth:`~Controller.stop` aborts. What points mean over time (look-ahead, slowing down,
 a queue that runs dry) is :mod:`.motion`'s; how they are joined is the policy's (:mod:`.policies`).
-:meth:`~Controller.step` advances one servo period; :class:`ControlLoop` drives it from a
-:mod:`.clock`.
+:meth:`~Controller.step` advances one servo period and :meth:`~Controller.run_for` many at once;
+nothing here waits or reads a clock: :class:`.loop.ControlLoop` drives controllers from a
+:mod:`.clock`. :func:`submit_together` accepts points for several controllers (motion groups) all
+together or not at all.
 
 **Timing.** Every interpolation period (default 4 ms, as MotoROS) the queued motion is sampled on
 one continuous timeline, so a segment ending between two samples hands over to the next one at the
@@ -39,15 +41,13 @@ at full torque under their own loops) and new points are refused until :meth:`Co
 from __future__ import annotations
 
 import logging
-import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 
 from ..model import RobotModel
-from .clock import Clock, SimulatedClock
 from .motion import MotionQueue, Plan
 from .points import Limits, Point, PointRejected, Reason, State, check_point
 from .policies import DEFAULT_POLICY, policy
@@ -57,13 +57,10 @@ from .servo import ServoDrives
 __all__ = [
     "Controller",
     "ControllerConfig",
-    "ControlLoop",
-    "LoopStats",
     "Tick",
     "FOLLOWING_ERROR_ALARM",
     "SOFT_LIMIT_ALARM",
     "MOTION_ALARM",
-    "run_simulated",
     "submit_together",
 ]
 
@@ -272,10 +269,18 @@ class Controller:
         return self.queue.plan(point, first=first, min_scale=min_scale)
 
     def commit(self, plan: Plan) -> None:
+        """Apply a plan of :meth:`prepare` (before the next :meth:`step`)."""
         self.queue.commit(plan)
         self.points_accepted += 1
         if self.queue.moving:
             self._settled = False
+
+    @staticmethod
+    def plan_scale(plan: Plan) -> float:
+        """The time scale of the trajectory once ``plan`` is committed (1: as the client timed it;
+        2: slowed down to twice its time). Controllers that move together compare it to share one
+        scale (:func:`submit_together`)."""
+        return plan.trajectory.scale
 
     def start_download(self, point: Point) -> None:
         """Open a download with its first point (within the start tolerance of where the queued
@@ -444,107 +449,13 @@ def submit_together(pairs: Sequence[tuple[Controller, Point]], *, first: bool = 
     that they stay together."""
     plans = [ctl.prepare(point, first=first) for ctl, point in pairs]
     for _ in range(3):  # a group slowed down to the shared scale may ask for a little more
-        scale = max(plan.trajectory.scale for plan in plans)
-        if all(plan.trajectory.scale >= scale * (1.0 - 1e-9) for plan in plans):
+        scales = [Controller.plan_scale(plan) for plan in plans]
+        scale = max(scales)
+        if all(s >= scale * (1.0 - 1e-9) for s in scales):
             break
         plans = [
-            plan if plan.trajectory.scale >= scale else ctl.prepare(point, first=first, min_scale=scale)
-            for (ctl, point), plan in zip(pairs, plans, strict=True)
+            plan if s >= scale else ctl.prepare(point, first=first, min_scale=scale)
+            for (ctl, point), plan, s in zip(pairs, plans, scales, strict=True)
         ]
     for (ctl, _), plan in zip(pairs, plans, strict=True):
         ctl.commit(plan)
-
-
-@dataclass
-class LoopStats:
-    """What a :class:`ControlLoop` run did. Lateness is how long after its deadline a wake-up
-    happened (controller time); an overrun is a wake-up later than one interpolation period."""
-
-    ticks: int = 0
-    wakes: int = 0
-    overruns: int = 0
-    max_lateness: float = 0.0
-    final_lateness: float = 0.0
-    simulated: float = 0.0
-    wall: float = 0.0
-
-    @property
-    def realtime_factor(self) -> float:
-        return self.simulated / self.wall if self.wall > 0 else float("inf")
-
-
-@dataclass
-class ControlLoop:
-    """Runs a controller on a clock: one wake-up per interpolation period at absolute deadlines,
-    each running that period's servo ticks (and any missed ones, so a late wake-up catches up)."""
-
-    controller: Controller
-    clock: Clock
-    #: records controller ticks while set (it may be set and cleared while the loop runs)
-    recorder: Recorder | None = None
-    stats: LoopStats = field(default_factory=LoopStats)
-    #: further controllers stepped in lockstep (other motion groups; same periods)
-    others: Sequence[Controller] = ()
-    #: records the ticks of ``others`` (by position; None or missing: not recorded)
-    other_recorders: list[Recorder | None] = field(default_factory=list)
-    #: called after every wake-up's ticks (e.g. to hand points over or to wake waiting replies)
-    on_wake: Callable[[], None] | None = None
-    _running: bool = field(default=False, init=False)
-
-    def stop(self) -> None:
-        self._running = False
-
-    async def run(self, duration: float | None = None) -> LoopStats:
-        """Run for ``duration`` seconds of controller time (None: until :meth:`stop`)."""
-        ctl, clock = self.controller, self.clock
-        period = ctl.config.interpolation_period
-        sub = ctl.servo_ticks_per_interpolation
-        origin = clock.now()
-        periods = None if duration is None else round(duration / period)
-        stats = self.stats
-        controllers = [ctl, *self.others]
-        for other in self.others:
-            if other.config.interpolation_period != period or other.servo_ticks_per_interpolation != sub:
-                raise ValueError("every controller of one loop must have the same interpolation and servo periods")
-        on_wake = self.on_wake
-        self._running = True
-        wall0 = time.perf_counter()
-        k = 0
-        try:
-            while self._running and (periods is None or k < periods):
-                deadline = origin + k * period
-                await clock.sleep_until(deadline)  # returns at once when late: the loop catches up
-                if clock.realtime:
-                    lateness = clock.now() - deadline
-                    stats.final_lateness = lateness
-                    stats.max_lateness = max(stats.max_lateness, lateness)
-                    if lateness > period:
-                        stats.overruns += 1
-                recorder = self.recorder  # may be attached or detached between wake-ups
-                others = [
-                    (c, self.other_recorders[i] if i < len(self.other_recorders) else None)
-                    for i, c in enumerate(controllers[1:])
-                ]
-                for _ in range(sub):
-                    tick = ctl.step()
-                    if recorder is not None:
-                        recorder.add(tick)
-                    for other, other_recorder in others:
-                        other_tick = other.step()
-                        if other_recorder is not None:
-                            other_recorder.add(other_tick)
-                if on_wake is not None:
-                    on_wake()
-                stats.ticks += sub
-                stats.wakes += 1
-                k += 1
-        finally:
-            self._running = False
-            stats.simulated += k * period
-            stats.wall += time.perf_counter() - wall0
-        return stats
-
-
-async def run_simulated(controller: Controller, seconds: float, recorder: Recorder | None = None) -> LoopStats:
-    """Convenience: run ``controller`` for ``seconds`` on a :class:`.SimulatedClock`."""
-    return await ControlLoop(controller, SimulatedClock(controller.time), recorder).run(seconds)

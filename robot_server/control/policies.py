@@ -1,7 +1,9 @@
 """Interpolation policies: how the controller joins points that carry positions only (JOINT_TRAJ_PT,
-and JOINT_TRAJ_PT_FULL without velocities). Every policy lives in :data:`POLICIES`; adding one
-means adding a class here (and its tests): the command line, the emulator and the docs take their
-choices from this table.
+and JOINT_TRAJ_PT_FULL without velocities). Every policy lives in :data:`POLICIES`, by name: the
+controller, the emulator and the command line take their choices from this table. A new policy is
+a :class:`Policy` subclass registered with :func:`register_policy`, in any module (no file of the
+package is edited); :func:`unregister_policy` and :func:`scoped_policies` undo registrations
+(tests). CONTRIBUTING.md, "Adding an interpolation policy", has the steps.
 
 * ``blend`` (the default): the robot passes through the points, as real controllers do with
   streamed points (MotoROS's cubic segments, ABB's zones, Fanuc's CNT, ros2_control's splines).
@@ -21,17 +23,28 @@ acceleration limit; ``blend`` takes it as the mean speed of the critical joint.
 
 from __future__ import annotations
 
-import math
+import re
 from abc import ABC, abstractmethod
-from typing import ClassVar
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import ClassVar, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
+from .peaks import CUBIC_PEAK_ACCELERATION, CUBIC_PEAK_VELOCITY, QUINTIC_PEAK_ACCELERATION, QUINTIC_PEAK_VELOCITY
 from .points import Limits, PointRejected, Reason, State
 from .segments import PlanningError, RuckigSegment, Segment, cubic, hold, linear, quintic
 
-__all__ = ["Policy", "POLICIES", "DEFAULT_POLICY", "policy"]
+__all__ = [
+    "Policy",
+    "POLICIES",
+    "DEFAULT_POLICY",
+    "policy",
+    "register_policy",
+    "unregister_policy",
+    "scoped_policies",
+]
 
 Array = NDArray[np.float64]
 
@@ -103,7 +116,7 @@ class Linear(_PeakShape):
 class Cubic(_PeakShape):
     name = "cubic"
     summary = "the rest-to-rest cubic (the acceleration jumps at each point)"
-    speed_factor, accel_factor = 1.5, 6.0
+    speed_factor, accel_factor = CUBIC_PEAK_VELOCITY, CUBIC_PEAK_ACCELERATION
 
     @staticmethod
     def _shape(start: Array, target: Array, duration: float) -> Segment:
@@ -114,7 +127,7 @@ class Quintic(_PeakShape):
     name = "quintic"
     summary = "the paper's rest-to-rest quintic (zero velocity and acceleration at each point)"
     # peak speed 1.875 D/T, peak acceleration (10 / sqrt 3) D/T^2 (motion.md §4)
-    speed_factor, accel_factor = 1.875, 10.0 / math.sqrt(3.0)
+    speed_factor, accel_factor = QUINTIC_PEAK_VELOCITY, QUINTIC_PEAK_ACCELERATION
 
     @staticmethod
     def _shape(start: Array, target: Array, duration: float) -> Segment:
@@ -172,3 +185,68 @@ def policy(name: str | Policy) -> Policy:
         return POLICIES[name]
     except KeyError:
         raise ValueError(f"unknown interpolation policy {name!r} (known: {', '.join(POLICIES)})") from None
+
+
+_P = TypeVar("_P", bound=Policy)
+_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_-]*")
+_ORDERS = frozenset((1, 2, 3))  # velocity, acceleration, jerk: the limits a segment is checked against
+
+
+def register_policy(entry: _P, *, replace: bool = False) -> _P:
+    """Make ``entry`` selectable by its :attr:`~Policy.name` everywhere a policy is named
+    (``ControllerConfig(policy=...)``, ``EmulatorConfig(interpolation=...)``, ``robot-server
+    --import MODULE --interpolation NAME``) and return it.
+
+    Registering the same policy again does nothing (importing its module twice is harmless). Raises
+    :class:`ValueError` if the name is another policy's (unless ``replace``), or if ``entry`` is not
+    well formed: a name of letters, digits, ``_`` and ``-``; a one-line ``summary``; ``checked_orders``
+    within (1, 2, 3); and, for a rest-to-rest policy (``passes_through`` false), its own
+    :meth:`~Policy.to_rest`. Nothing is changed then.
+    """
+    if not isinstance(entry, Policy):
+        raise ValueError(f"an interpolation policy is a Policy instance, not {entry!r}")
+    kind = type(entry).__name__
+    name = getattr(entry, "name", None)
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
+        raise ValueError(f"policy {kind}: its name must be letters, digits, '_' and '-', not {name!r}")
+    summary = getattr(entry, "summary", None)
+    if not isinstance(summary, str) or not summary.strip() or "\n" in summary:
+        raise ValueError(f"policy {name!r}: its summary must be one line of text, not {summary!r}")
+    if not isinstance(entry.passes_through, bool):
+        raise ValueError(f"policy {name!r}: passes_through must be True or False")
+    orders = entry.checked_orders
+    if not isinstance(orders, tuple) or not set(orders) <= _ORDERS:
+        raise ValueError(f"policy {name!r}: checked_orders must be a tuple of 1, 2 and 3, not {orders!r}")
+    if not entry.passes_through and type(entry).to_rest is Policy.to_rest:
+        raise ValueError(f"policy {name!r}: a rest-to-rest policy (passes_through False) must implement to_rest")
+    old = POLICIES.get(name)
+    if old is not None and old is not entry and not replace:
+        raise ValueError(
+            f"an interpolation policy named {name!r} is already registered ({type(old).__name__}); "
+            "pass replace=True to replace it"
+        )
+    POLICIES[name] = entry
+    return entry
+
+
+def unregister_policy(name: str) -> Policy:
+    """Forget the policy called ``name`` and return it. The default policy stays (every
+    configuration that names none uses it): :class:`ValueError`, as for a name not registered.
+    Controllers built with the policy keep it. See also :func:`scoped_policies`."""
+    if name == DEFAULT_POLICY:
+        raise ValueError(f"{name!r} is the default interpolation policy: it can be replaced, not unregistered")
+    entry = policy(name)
+    del POLICIES[name]
+    return entry
+
+
+@contextmanager
+def scoped_policies() -> Iterator[dict[str, Policy]]:
+    """Undo, on leaving the block, every :func:`register_policy` and :func:`unregister_policy`
+    made inside it (:data:`POLICIES` is left exactly as it was entered, the same dict; for tests)."""
+    saved = dict(POLICIES)
+    try:
+        yield POLICIES
+    finally:
+        POLICIES.clear()
+        POLICIES.update(saved)

@@ -536,9 +536,25 @@ class Chain(Segment):
 class RuckigSegment(Segment):
     """A time-optimal, jerk-limited state-to-state motion computed offline by ruckig.
 
-    Built with :meth:`plan`. Sampling evaluates ruckig's own piecewise-constant-jerk profiles
-    (an optional two-phase brake, then seven phases per joint) with numpy, so it is vectorised and
-    exact; the tests compare it with ``Trajectory.at_time``.
+    **Public API** of :mod:`robot_server.control` (import it from there): the controller's
+    ``ruckig`` policy and stops use it, and so may planners (the client's planner times its paths
+    with it). Built with :meth:`plan`; once built it is an immutable value. It guarantees:
+
+    * it starts exactly in the ``start`` state and ends exactly in the ``target`` state (position,
+      velocity, acceleration per joint; with ``velocity_interface`` the target position is free);
+    * every joint stays within ``max_velocity``, ``max_acceleration`` and ``max_jerk`` throughout
+      when the start state is within them (one beyond them is first braked back within them at
+      the jerk limit, ruckig's brake profile);
+    * all joints finish together at :attr:`duration`: the least time in which the slowest joint
+      can make its motion (and at least ``minimum_duration``);
+    * :meth:`sample` evaluates ruckig's own piecewise-constant-jerk profiles exactly (an optional
+      two-phase brake, then seven phases per joint), vectorised; times outside
+      ``[0, duration]`` give the end states (:class:`Segment`); :meth:`extremes` are exact;
+    * inputs it cannot plan (non-finite values, a target beyond the limits, a motion longer than
+      ruckig supports) raise :class:`PlanningError`, never ruckig's own exceptions.
+
+    Position limits are not enforced (the PyPI build of ruckig ignores them): check
+    :meth:`extremes` (order 0).
     """
 
     __slots__ = (

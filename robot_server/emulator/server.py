@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+from simple_message.constants import MAX_JOINTS
 from simple_message.dialects import ReplyStyle, reply_style_of
 from simple_message.endpoints import Server, Session
 from simple_message.wire import ByteOrder, WireFormat
@@ -40,7 +41,7 @@ from ..control import (
     policy,
 )
 from ..loader import load_model
-from ..model import RobotModel
+from ..model import ModelError, RobotModel
 from .cell import RobotCell
 from .generic import GENERIC_PROFILE
 from .io_table import IoTable
@@ -161,6 +162,9 @@ class Emulator:
         self.config = config = config if config is not None else EmulatorConfig()
         if models is None:
             models = [load_model(m) for m in config.models]
+        for model in models:
+            if model.dof > MAX_JOINTS:  # the state topics could not carry it
+                raise ModelError(f"{model.name} has {model.dof} joints; simple_message carries at most {MAX_JOINTS}")
         profile = config.emulated
         controller_config = ControllerConfig(
             policy=config.interpolation,
