@@ -280,7 +280,7 @@ class Controller:
         """The time scale of the trajectory once ``plan`` is committed (1: as the client timed it;
         2: slowed down to twice its time). Controllers that move together compare it to share one
         scale (:func:`submit_together`)."""
-        return plan.trajectory.scale
+        return plan.scale
 
     def start_download(self, point: Point) -> None:
         """Open a download with its first point (within the start tolerance of where the queued

@@ -220,6 +220,11 @@ class Plan:
     #: by how much the trajectory must still slow down (plans made with the slowing down deferred)
     needed: float = 1.0
 
+    @property
+    def scale(self) -> float:
+        """The trajectory's time scale once committed (1: as the client timed it)."""
+        return self.trajectory.scale
+
 
 class MotionQueue:
     """Received points as motion over time (see the module doc)."""
