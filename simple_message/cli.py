@@ -254,6 +254,7 @@ def main(argv: list[str] | None = None) -> int:
 
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)  # stdout's descriptor now points there itself
         return 0
     except OSError as exc:
         _emit_error("OSError", str(exc))

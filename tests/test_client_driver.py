@@ -17,6 +17,7 @@ from client.trajectory import Trajectory
 from robot_server.emulator import Emulator, EmulatorConfig
 from robot_server.loader import load_model
 from simple_message.wire import BE32
+from tests.stepped import advance_until, settle, stepped_emulator
 
 MODEL = load_model("jibot_zxs")
 
@@ -73,15 +74,25 @@ async def test_motoros_execute_with_busy_retries() -> None:
 
 
 async def test_stop_while_idle_and_cancel_stops_the_robot() -> None:
-    async with setup() as (emu, driver):
+    """On a clock the test advances: the robot stands still from the moment the test sees it past
+    0.05 rad until the cancelled execution's STOP is acknowledged, so where it stops does not
+    depend on how fast the machine is."""
+    async with contextlib.AsyncExitStack() as stack:
+        emu, clock = await stack.enter_async_context(stepped_emulator(state_rate=100.0))
+        ctl = emu.cell.groups[0]
+        driver = RobotDriver(motion_port=emu.ports["motion"], state_port=emu.ports["state"], model=MODEL)
+        await stack.enter_async_context(driver)
         await driver.stop()  # idle: STOP is sent and acknowledged
         task = asyncio.create_task(driver.execute(line([0.0] * 6, TARGET, 3.0, n=8)))
-        await emu.wait_until(lambda: emu.cell.groups[0].command.actual_position[5] > 0.05, 10.0)
+        await advance_until(clock, lambda: ctl.command.actual_position[5] > 0.05, what="moving")
+        assert not task.done()
         task.cancel()
         with pytest.raises(asyncio.CancelledError):
-            await task
-        await emu.wait_until(lambda: not emu.cell.in_motion, 10.0)
-        assert emu.cell.groups[0].command.actual_position[5] < 0.55  # stopped short of the goal
+            async with asyncio.timeout(10.0):
+                await task
+        await settle(emu, clock)
+        assert ctl.command.actual_position[5] < 0.55  # stopped short of the goal (0.6)
+        assert ctl.trajectories == 1
 
 
 async def test_refused_point_aborts_with_the_confirmed_index() -> None:

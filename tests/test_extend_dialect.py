@@ -8,6 +8,7 @@ The built-in profiles are checked against their dialects the same way.
 
 from __future__ import annotations
 
+import asyncio
 import dataclasses
 import importlib
 import sys
@@ -182,3 +183,19 @@ def test_a_model_the_wire_cannot_carry_is_refused() -> None:
     twelve = dataclasses.replace(MODEL, name="twelve", joints=MODEL.joints * 2, motors=())
     with pytest.raises(ModelError, match="twelve has 12 joints; simple_message carries at most 10"):
         Emulator(EmulatorConfig(), [twelve])
+
+
+async def test_a_port_that_cannot_be_bound_leaves_nothing_bound() -> None:
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        emulator = Emulator(EmulatorConfig(motion_port=0, state_port=port, simulated=True))
+        with pytest.raises(OSError):
+            await emulator.start()
+    bound = emulator.ports["motion"]  # bound before the state port failed, and closed again
+    with pytest.raises(ConnectionRefusedError):
+        _, writer = await asyncio.wait_for(asyncio.open_connection("127.0.0.1", bound), 5.0)
+        writer.close()

@@ -1,5 +1,8 @@
 """The emulator in process, driven with raw bytes: queue flow control, STOP, MotoROS, malformed
-frames, byte orders, float64, serial links, multi-group, IO, faults and many state clients."""
+frames, byte orders, float64, serial links, multi-group, IO, faults and many state clients.
+
+The controller runs on a clock the test advances (tests/stepped.py): what is asserted at a
+controller time holds however fast or loaded the machine is."""
 
 from __future__ import annotations
 
@@ -14,10 +17,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from robot_server.emulator import Emulator, EmulatorConfig, FaultError, IoTable, apply_fault_command
+from robot_server.control import SteppedClock
+from robot_server.emulator import Emulator, FaultError, IoTable, apply_fault_command
 from simple_message.transport import open_fd
 from tests.rawpeer import Frame, RawPeer, joint_position, joint_traj_pt, joint_traj_pt_full, status, vectors
 from tests.refdata import load_segments
+from tests.stepped import advance_until, poll, settle, step, stepped_emulator
 
 LE = vectors("<")
 BE = vectors(">")
@@ -31,13 +36,9 @@ START_TRAJ_MODE, STOP_TRAJ_MODE, DISCONNECT = 200121, 200122, 200130
 
 
 @contextlib.asynccontextmanager
-async def emulator(**options: Any) -> AsyncIterator[Emulator]:
-    options.setdefault("motion_port", 0)
-    options.setdefault("state_port", 0)
-    if options.get("profile") == "motoros":
-        options.setdefault("io_port", 0)
-    async with Emulator(EmulatorConfig(**options)) as emu:
-        yield emu
+async def emulator(**options: Any) -> AsyncIterator[tuple[Emulator, SteppedClock]]:
+    async with stepped_emulator(**options) as (emu, clock):
+        yield emu, clock
 
 
 def moto_ctrl(command: int, group: int = 0, order: str = "<") -> bytes:
@@ -59,15 +60,11 @@ async def next_status(peer: RawPeer, **expected: int) -> dict[str, int]:
                 return seen
 
 
-async def until_rest(emu: Emulator, timeout: float = 30.0) -> None:
-    await emu.wait_until(lambda: not emu.cell.in_motion, timeout)
-
-
 # -- generic profile ---------------------------------------------------------------------------------
 
 
 async def test_full_queue_delays_the_reply_and_a_stop_still_gets_through() -> None:
-    async with emulator(queue_capacity=3, speedup=4.0) as emu:
+    async with emulator(queue_capacity=3) as (emu, clock):
         ctl = emu.cell.groups[0]
         motion = await RawPeer.connect(emu.ports["motion"])
         other = await RawPeer.connect(emu.ports["motion"])
@@ -77,35 +74,40 @@ async def test_full_queue_delays_the_reply_and_a_stop_still_gets_through() -> No
             assert (await motion.request(joint_traj_pt(JTP, seq, points[seq], 0.0, 1.0))).reply_code == 1
         assert ctl.queue_fill == 3
         # the fourth waits for room: its reply comes only once the first segment has run
-        reply = await motion.request(joint_traj_pt(JTP, 4, points[4], 0.0, 1.0), timeout=10.0)
-        assert reply.reply_code == 1 and ctl.time >= 1.0
-        # the fifth waits again; a STOP behind it is obeyed at once, the waiting point is not run
+        await motion.send(joint_traj_pt(JTP, 4, points[4], 0.0, 1.0))
+        reply = asyncio.ensure_future(motion.frame(timeout=30.0))
+        await advance_until(clock, reply.done, limit=5.0, what="the reply to the fourth point")
+        assert (await reply).reply_code == 1 and ctl.time >= 1.0
+        # the fifth waits again; a STOP behind it is obeyed at once (no controller time passes
+        # before both replies), and the waiting point is not run
         await motion.send(joint_traj_pt(JTP, 5, points[5], 0.0, 1.0))
         t_stop = ctl.time
         await motion.send(STOP)
         waiting, stopped = await motion.frame(), await motion.frame()
         assert (struct.unpack_from("<i", waiting.raw, 16)[0], waiting.reply_code) == (5, 2)
         assert (struct.unpack_from("<i", stopped.raw, 16)[0], stopped.reply_code) == (-4, 1)
-        assert ctl.time - t_stop < 0.5  # long before the queue (about 3 s of motion) would have drained
+        assert ctl.time == t_stop
         assert (await other.request(LE["PING_REQUEST"])).raw == PING_REPLY  # the other client was never blocked
-        await until_rest(emu)
+        await settle(emu, clock)
         assert ctl.queue_fill == 0
         assert np.all(np.array(ctl.command.actual_position) < points[4][0])  # stopped short of the queued points
 
 
 async def test_a_refused_download_point_drops_the_whole_download() -> None:
-    async with emulator(speedup=10.0) as emu:
+    async with emulator() as (emu, clock):
         motion = await RawPeer.connect(emu.ports["motion"])
         topic = LE["JOINT_TRAJ_PT_TOPIC_SEQ3"]
         for seq, q in ((-1, [0.0] * 6), (1, [0.2] * 6), (2, [0.0, 3.0, 0, 0, 0, 0]), (3, [0.3] * 6), (-3, [0.4] * 6)):
             await motion.send(joint_traj_pt(topic, seq, q, 0.5))
         assert (await motion.request(LE["PING_REQUEST"])).raw == PING_REPLY  # no reply came to any topic
+        await step(clock, 0.5)  # nothing starts later either
         assert not emu.cell.in_motion and not emu.cell.groups[0].downloading
-        assert emu.cell.groups[0].queue_fill == 0
+        assert emu.cell.groups[0].queue_fill == 0 and emu.cell.groups[0].trajectories == 0
+        assert emu.cell.groups[0].command.actual_position == [0.0] * 6
 
 
 async def test_reply_style_header_is_abb_like() -> None:
-    async with emulator(reply_style="header") as emu:
+    async with emulator(reply_style="header") as (emu, _clock):
         motion = await RawPeer.connect(emu.ports["motion"])
         reply = await motion.request(joint_traj_pt(JTP, 0, [0.0] * 6, 0.5))
         assert reply.raw == LE["JOINT_TRAJ_PT_REPLY_SUCCESS"]
@@ -114,17 +116,18 @@ async def test_reply_style_header_is_abb_like() -> None:
 
 
 async def test_faults_stop_motion_and_refuse_points_until_reset() -> None:
-    async with emulator(speedup=4.0) as emu:
+    async with emulator() as (emu, clock):
         cell, ctl = emu.cell, emu.cell.groups[0]
         motion = await RawPeer.connect(emu.ports["motion"])
         state = await RawPeer.connect(emu.ports["state"])
         await motion.request(joint_traj_pt(JTP, 0, [0.0] * 6))
         await motion.request(joint_traj_pt(JTP, 1, [1.0] * 6, 0.5))
-        await emu.wait_until(lambda: ctl.command.actual_position[0] > 0.2, 10.0)
+        await advance_until(clock, lambda: ctl.command.actual_position[0] > 0.2, what="moving")
         apply_fault_command(cell, "estop")
         frozen = list(ctl.command.actual_position)
         t_estop = ctl.time
-        await emu.wait_until(lambda: ctl.time > t_estop + 0.1, 5.0)
+        await step(clock, 0.1)
+        assert ctl.time >= t_estop + 0.1
         assert ctl.command.actual_position == frozen  # stopped at once: brakes, no deceleration ramp
         assert not cell.in_motion
         seen = await next_status(state, e_stopped=1)
@@ -154,7 +157,8 @@ async def test_faults_stop_motion_and_refuse_points_until_reset() -> None:
 
 
 async def test_joint_feedback_for_clients_that_ask() -> None:
-    async with emulator(state_rate=200.0) as emu:
+    async with emulator(state_rate=200.0) as (emu, clock):
+        await step(clock, 0.25)
         plain = await RawPeer.connect(emu.ports["state"])
         asking = await RawPeer.connect(emu.ports["state"])
         request = bytearray(LE["JOINT_FEEDBACK_TOPIC"])
@@ -162,18 +166,15 @@ async def test_joint_feedback_for_clients_that_ask() -> None:
         reply = await asking.request(bytes(request))
         assert (reply.msg_type, reply.comm_type, reply.reply_code) == (JOINT_FEEDBACK, 3, 1)
         feedback = await asking.next_of(JOINT_FEEDBACK)
-        (
-            robot_id,
-            valid,
-        ) = feedback.ints(2)
-        assert (robot_id, valid) == (0, 0x0F)
-        assert feedback.reals(1, 8)[0] > 0.0  # controller time
+        assert feedback.ints(2) == (0, 0x0F)  # robot_id, valid_fields
+        controller_time = emu.cell.groups[0].command.time
+        assert feedback.reals(1, 8)[0] == np.float32(controller_time) and controller_time > 0.2
         kinds = {(await plain.frame()).msg_type for _ in range(10)}
         assert kinds == {JOINT_POSITION, STATUS}
 
 
 async def test_fifty_state_clients_all_get_every_topic() -> None:
-    async with emulator(state_rate=100.0) as emu:
+    async with emulator(state_rate=100.0) as (emu, _clock):
         peers = [await RawPeer.connect(emu.ports["state"]) for _ in range(50)]
         for peer in peers:
             kinds = [(await peer.frame()).msg_type for _ in range(6)]
@@ -196,7 +197,7 @@ async def test_fifty_state_clients_all_get_every_topic() -> None:
     ids=["zero", "negative", "short", "huge", "truncated"],
 )
 async def test_malformed_frames_close_only_that_client_and_move_nothing(garbage: bytes) -> None:
-    async with emulator() as emu:
+    async with emulator() as (emu, clock):
         good = await RawPeer.connect(emu.ports["motion"])
         bad = await RawPeer.connect(emu.ports["motion"])
         before = list(emu.cell.groups[0].command.actual_position)
@@ -205,11 +206,12 @@ async def test_malformed_frames_close_only_that_client_and_move_nothing(garbage:
         assert await bad.closed()
         assert (await good.request(LE["PING_REQUEST"])).raw == PING_REPLY
         assert (await good.request(joint_traj_pt(JTP, 0, [0.0] * 6))).reply_code == 1
+        await step(clock, 0.1)
         assert not emu.cell.in_motion and emu.cell.groups[0].command.actual_position == before
 
 
 async def test_malformed_bodies_and_bad_headers_get_failure_and_move_nothing() -> None:
-    async with emulator() as emu:
+    async with emulator() as (emu, clock):
         motion = await RawPeer.connect(emu.ports["motion"])
         short_body = struct.pack("<iiiii", 16, JOINT_TRAJ_PT, 2, 0, 1)  # a 4-byte JOINT_TRAJ_PT body
         assert (await motion.request(short_body)).reply_code == 2
@@ -221,37 +223,34 @@ async def test_malformed_bodies_and_bad_headers_get_failure_and_move_nothing() -
         extra_joints = joint_traj_pt(JTP, 0, [0.0] * 6 + [0.3], 0.5)
         assert (await motion.request(extra_joints)).reply_code == 2
         assert (await motion.request(LE["PING_REQUEST"])).raw == PING_REPLY
+        await step(clock, 0.1)
         assert not emu.cell.in_motion and emu.cell.groups[0].queue_fill == 0
+        assert emu.cell.groups[0].command.actual_position == [0.0] * 6
 
 
 # -- wire formats and links ------------------------------------------------------------------------------
 
 
-async def _stream_and_watch(motion: RawPeer, state: RawPeer, jtp: bytes, order: str, real: str = "f") -> None:
+async def _stream_and_watch(
+    emu: Emulator, clock: SteppedClock, motion: RawPeer, state: RawPeer, jtp: bytes, order: str, real: str = "f"
+) -> None:
     target = [0.2, -0.1, 0.3, 0.1, 0.2, -0.3]
     for seq, q in enumerate(([0.0] * 6, target)):
         reply = await motion.request(joint_traj_pt(jtp, seq, q, 1.0, order=order) if real == "f" else jtp_f64(seq, q))
         assert reply.reply_code == 1 and reply.msg_type == JOINT_TRAJ_PT
-    position = await _watch_motion(state, real)
+    position = await _watch_motion(emu, clock, state, real)
     assert max(abs(a - b) for a, b in zip(position, target, strict=True)) < 1e-3
 
 
-async def _watch_motion(peer: RawPeer, real: str = "f") -> list[float]:
-    """Read state topics until in_motion has been TRUE and is FALSE again; the last position."""
-    moving = False
-    position: list[float] = []
-    async with asyncio.timeout(30.0):
-        while True:
-            frame = await peer.frame()
-            if frame.msg_type == JOINT_TRAJ_PT:  # a reply on a link shared with state topics
-                assert frame.reply_code == 1
-            elif frame.msg_type == JOINT_POSITION:
-                position = joint_position(frame, real)[:6]
-            elif frame.msg_type == STATUS:
-                in_motion = status(frame)["in_motion"]
-                if moving and in_motion == 0 and position:
-                    return position
-                moving = moving or in_motion == 1
+async def _watch_motion(emu: Emulator, clock: SteppedClock, peer: RawPeer, real: str = "f") -> list[float]:
+    """Run the motion through on the stepped clock, watching the state topics: while the robot
+    stands frozen mid-motion a STATUS says in_motion TRUE; once it has settled a STATUS says
+    FALSE, and the JOINT_POSITION after it is where it came to rest."""
+    await advance_until(clock, lambda: emu.cell.in_motion, what="the motion starting")
+    await next_status(peer, in_motion=1)
+    await settle(emu, clock)
+    await next_status(peer, in_motion=0)
+    return joint_position(await peer.next_of(JOINT_POSITION), real)[:6]
 
 
 def jtp_f64(seq: int, joints: list[float]) -> bytes:
@@ -260,15 +259,15 @@ def jtp_f64(seq: int, joints: list[float]) -> bytes:
 
 
 async def test_big_endian_end_to_end() -> None:
-    async with emulator(byte_order="big", speedup=10.0) as emu:
+    async with emulator(byte_order="big") as (emu, clock):
         motion = await RawPeer.connect(emu.ports["motion"], ">")
         state = await RawPeer.connect(emu.ports["state"], ">")
         assert (await motion.request(BE["PING_REQUEST"])).raw == BE["PING_REPLY_SUCCESS"]
-        await _stream_and_watch(motion, state, BE["JOINT_TRAJ_PT_REQUEST_SEQ3"], ">")
+        await _stream_and_watch(emu, clock, motion, state, BE["JOINT_TRAJ_PT_REQUEST_SEQ3"], ">")
 
 
 async def test_float64_end_to_end() -> None:
-    async with emulator(float64=True, speedup=10.0) as emu:
+    async with emulator(float64=True) as (emu, clock):
         motion = await RawPeer.connect(emu.ports["motion"])
         state = await RawPeer.connect(emu.ports["state"])
         status_frame = await state.next_of(STATUS)
@@ -277,11 +276,11 @@ async def test_float64_end_to_end() -> None:
         assert position_frame.length == 12 + 4 + 80
         reply = await motion.request(jtp_f64(0, [0.0] * 6))
         assert reply.length == 112 and reply.reply_code == 1
-        await _stream_and_watch(motion, state, b"", "<", real="d")
+        await _stream_and_watch(emu, clock, motion, state, b"", "<", real="d")
 
 
 async def test_byte_order_autodetection_per_client() -> None:
-    async with emulator(byte_order="auto", speedup=10.0) as emu:
+    async with emulator(byte_order="auto") as (emu, clock):
         little = await RawPeer.connect(emu.ports["motion"], "<")
         big = await RawPeer.connect(emu.ports["motion"], ">")
         assert (await little.request(LE["PING_REQUEST"])).raw == LE["PING_REPLY_SUCCESS"]
@@ -289,33 +288,30 @@ async def test_byte_order_autodetection_per_client() -> None:
         await little.close()
         # a state client never speaks: it gets the order the motion port was last spoken in
         state = await RawPeer.connect(emu.ports["state"], ">")
-        await _stream_and_watch(big, state, BE["JOINT_TRAJ_PT_REQUEST_SEQ3"], ">")
+        await _stream_and_watch(emu, clock, big, state, BE["JOINT_TRAJ_PT_REQUEST_SEQ3"], ">")
 
 
 async def test_serial_link_over_a_pseudo_terminal() -> None:
     master, slave = os.openpty()
     try:
-        async with emulator(serial=os.ttyname(slave), speedup=10.0, state_rate=50.0) as emu:
+        async with emulator(serial=os.ttyname(slave), state_rate=50.0) as (emu, clock):
             # pyserial puts the port in raw mode when it opens it: until then the tty would echo
-            await emu.wait_until(lambda: bool(emu.motion_server.sessions), 10.0)
+            await poll(lambda: bool(emu.motion_server.sessions))
             reader, writer = await open_fd(master, close_fd=False, name="pty master")
             link = RawPeer(reader, writer)
             await link.send(LE["PING_REQUEST"])
             assert (await link.next_of(1)).raw == PING_REPLY  # state topics share the link
             await link.send(joint_traj_pt(JTP, 0, [0.0] * 6))
             assert (await link.next_of(JOINT_TRAJ_PT)).reply_code == 1
-            await _stream_and_watch_on_one_link(link)
+            await link.send(joint_traj_pt(JTP, 1, [0.1] * 6, 1.0))
+            assert (await link.next_of(JOINT_TRAJ_PT)).reply_code == 1
+            position = await _watch_motion(emu, clock, link)
+            assert max(abs(x - 0.1) for x in position) < 1e-3
             writer.close()
     finally:
         for fd in (master, slave):
             with contextlib.suppress(OSError):
                 os.close(fd)
-
-
-async def _stream_and_watch_on_one_link(link: RawPeer) -> None:
-    await link.send(joint_traj_pt(JTP, 1, [0.1] * 6, 1.0))
-    position = await _watch_motion(link)
-    assert max(abs(x - 0.1) for x in position) < 1e-3
 
 
 # -- MotoROS ----------------------------------------------------------------------------------------------
@@ -336,7 +332,7 @@ async def test_motoros_replays_the_fs100_capture() -> None:
     start = None
     # 200 increments of 2 ms: 0.4 s of buffer, which is what the FS100's BUSY pattern shows
     # (seq 1..4 accepted up to t = 0.436 s, seq 5 BUSY until the robot has moved on)
-    async with emulator(profile="motoros", byte_order="big", interpolation_period=0.002) as emu:
+    async with emulator(profile="motoros", byte_order="big", interpolation_period=0.002) as (emu, clock):
         motion = await RawPeer.connect(emu.ports["motion"], ">")
         state = await RawPeer.connect(emu.ports["state"], ">")
         kinds = set()
@@ -358,17 +354,17 @@ async def test_motoros_replays_the_fs100_capture() -> None:
                 kinds.add((command, result))
                 if (command, result) != (JTPF, 1):
                     break
-                await state.frame()  # BUSY: retry after the next state message (MotoROS's client retries too)
+                await step(clock, 0.002)  # BUSY: retry once the robot has moved on (MotoROS's client retries too)
         assert kinds == capture_kinds == {(CHECK_MOTION_READY, 2), (START_TRAJ_MODE, 0), (JTPF, 0), (JTPF, 1)}
         feedback = await state.next_of(JOINT_FEEDBACK)
         assert feedback.ints(2) == (0, 0x06) and feedback.reals(1, 8) == (0.0,)  # MotoROS: no time
-        await until_rest(emu)
+        await settle(emu, clock)
         reached = emu.cell.groups[0].command.actual_position
         assert max(abs(a - b) for a, b in zip(reached, last, strict=True)) < 1e-3
 
 
 async def test_motoros_motion_control_and_point_checks() -> None:
-    async with emulator(profile="motoros", speedup=4.0) as emu:
+    async with emulator(profile="motoros") as (emu, clock):
         motion = await RawPeer.connect(emu.ports["motion"])
         template = LE["JOINT_TRAJ_PT_FULL_REQUEST"]
 
@@ -399,10 +395,10 @@ async def test_motoros_motion_control_and_point_checks() -> None:
         assert await send(point(2, 2.5, [0.6] * 6)) == (1, 0)
         assert (await ctrl(CHECK_QUEUE_CNT))[1] == 200  # 2 s queued, but MotoROS's queue holds 200 increments
         assert await ctrl(CHECK_QUEUE_CNT, group=5) == (3, 3004)
-        await emu.wait_until(lambda: emu.cell.groups[0].remaining < 0.8, 10.0)
+        await advance_until(clock, lambda: emu.cell.groups[0].remaining < 0.8, what="the queue draining")
         assert await send(point(2, 2.5, [0.6] * 6)) == (0, 0)
         assert await ctrl(STOP_MOTION) == (0, 0)
-        await until_rest(emu)
+        await settle(emu, clock)
         assert emu.cell.groups[0].command.actual_position[0] < 0.55
         assert await ctrl(STOP_SERVOS) == (0, 0)
         assert await ctrl(CHECK_MOTION_READY) == (2, 5006)
@@ -429,7 +425,7 @@ async def test_motoros_motion_control_and_point_checks() -> None:
 
 
 async def test_motoros_refused_types_close_the_connection_and_one_client_at_a_time() -> None:
-    async with emulator(profile="motoros") as emu:
+    async with emulator(profile="motoros") as (emu, _clock):
         first = await RawPeer.connect(emu.ports["motion"])
         assert (await first.request(LE["PING_REQUEST"])).raw == PING_REPLY
         second = await RawPeer.connect(emu.ports["motion"])  # idle robot: the newcomer replaces the first
@@ -439,7 +435,7 @@ async def test_motoros_refused_types_close_the_connection_and_one_client_at_a_ti
 
 
 async def test_motoros_two_groups() -> None:
-    async with emulator(profile="motoros", models=("jibot_zxs", "puma560"), speedup=4.0) as emu:
+    async with emulator(profile="motoros", models=("jibot_zxs", "puma560")) as (emu, clock):
         motion = await RawPeer.connect(emu.ports["motion"])
         state = await RawPeer.connect(emu.ports["state"])
         assert moto_reply(await motion.request(moto_ctrl(START_TRAJ_MODE)))[3] == 0
@@ -461,14 +457,14 @@ async def test_motoros_two_groups() -> None:
         assert moto_reply(await motion.request(ex_point(1, 0.5, [0.2] * 6, target_b)))[2:4] == (2016, 0)
         # one group's point beyond its limits: neither group takes the point
         assert moto_reply(await motion.request(ex_point(2, 1.0, [0.3] * 6, [9.0] * 6)))[3:5] == (3, 3012)
-        await until_rest(emu)
+        await settle(emu, clock)
         assert max(abs(x - 0.2) for x in emu.cell.groups[0].command.actual_position) < 1e-3
         reached = emu.cell.groups[1].command.actual_position
         assert max(abs(a - b) for a, b in zip(reached, target_b, strict=True)) < 1e-3
 
 
 async def test_motoros_io_port() -> None:
-    async with emulator(profile="motoros") as emu:
+    async with emulator(profile="motoros") as (emu, _clock):
         io = await RawPeer.connect(emu.ports["io"])
 
         async def call(msg_type: int, *words: int) -> Frame:

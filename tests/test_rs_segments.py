@@ -24,12 +24,13 @@ from robot_server.control import (
 )
 from robot_server.control.segments import run_up, stop_travel
 
-RNG = np.random.default_rng(5)
 N = 6
 
 
-def states(count: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    return [(RNG.uniform(-2, 2, N), RNG.uniform(-1, 1, N), RNG.uniform(-3, 3, N)) for _ in range(count)]
+def states(count: int, seed: int = 5) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """``count`` random joint states, the same for every test that asks (whatever ran before it)."""
+    rng = np.random.default_rng(seed)
+    return [(rng.uniform(-2, 2, N), rng.uniform(-1, 1, N), rng.uniform(-3, 3, N)) for _ in range(count)]
 
 
 def close(a: np.ndarray, b: np.ndarray, tol: float = 1e-12) -> None:
@@ -107,7 +108,7 @@ def chain(kind: str, points: list[tuple[np.ndarray, np.ndarray, np.ndarray]], du
 def test_continuity_across_chained_segments(kind: str, continuous_orders: int) -> None:
     """C0 for linear, C1 for cubic Hermite, C2 for quintic; and the next order does jump."""
     points = states(6)
-    durations = list(RNG.uniform(0.2, 1.5, 5))
+    durations = list(np.random.default_rng(6).uniform(0.2, 1.5, 5))
     segments = chain(kind, points, durations)
     for left, right in itertools.pairwise(segments):
         a, b = left.end(), right.sample(0.0)
@@ -134,14 +135,17 @@ def test_sampling_is_vectorised_and_consistent() -> None:
     close(hold(p0, 1.0).sample(times).position, np.broadcast_to(p0, (1201, N)))
 
 
-def test_extremes_are_exact() -> None:
-    (p0, v0, a0), (p1, v1, a1) = states(2)
+@pytest.mark.parametrize("seed", range(5))
+def test_extremes_are_exact(seed: int) -> None:
+    (p0, v0, a0), (p1, v1, a1) = states(2, seed)
     for segment in (
         cubic_hermite(p0, v0, p1, v1, 0.8),
         quintic_hermite((p0, v0, a0), (p1, v1, a1), 0.8),
         RuckigSegment.plan((p0, v0, np.zeros(N)), (p1, np.zeros(N), np.zeros(N)), *LIMITS),
     ):
-        dense = segment.sample(np.linspace(0, segment.duration, 200_001))
+        samples = 200_001
+        dense = segment.sample(np.linspace(0, segment.duration, samples))
+        step = segment.duration / (samples - 1)
         for order in range(4):
             lo, hi = segment.extremes(order)
             scale = max(1.0, float(np.max(np.abs(dense[order]))))
@@ -149,8 +153,11 @@ def test_extremes_are_exact() -> None:
             assert np.all(lo <= dense[order].min(axis=0) + tol), (segment, order)
             assert np.all(hi >= dense[order].max(axis=0) - tol), (segment, order)
             if order < 3 or segment.kind != "ruckig":  # ruckig's jerk is exact at phase starts, sampled inside
-                assert np.all(dense[order].min(axis=0) - lo < 1e-6 * scale), (segment, order)
-                assert np.all(hi - dense[order].max(axis=0) < 1e-6 * scale), (segment, order)
+                # the samples come within a step's change of an extreme at a kink (ruckig's
+                # acceleration is piecewise linear), within far less of a smooth one
+                resolution = np.max(np.abs(dense[order + 1]), axis=0) * step if order < 3 else 0.0
+                assert np.all(dense[order].min(axis=0) - lo < 1e-6 * scale + resolution), (segment, order)
+                assert np.all(hi - dense[order].max(axis=0) < 1e-6 * scale + resolution), (segment, order)
             bound_lo, bound_hi = segment.bounds(order)
             assert np.all(bound_lo <= lo + tol) and np.all(bound_hi >= hi - tol)
 

@@ -4,7 +4,6 @@ in real time; MotoROS's timing, queue count, DH reply and joint slots."""
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import math
 import struct
@@ -19,6 +18,7 @@ from robot_server.emulator import Emulator, EmulatorConfig
 from robot_server.emulator.motoros import motoros_milliseconds
 from robot_server.loader import load_model
 from tests.rawpeer import RawPeer, joint_traj_pt, joint_traj_pt_full, vectors
+from tests.stepped import settle, step, stepped_emulator
 from tests.streams import Plan, measure, ros_points
 
 MODEL = load_model("jibot_zxs")
@@ -30,35 +30,12 @@ CHECK_MOTION_READY, CHECK_QUEUE_CNT, START_TRAJ_MODE = 200101, 200102, 200121
 ALL_FIELDS = 0x0F
 
 
-#: wall-clock bound of one step of the stepped clock (the loop answers within milliseconds)
-STEP_TIMEOUT = 10.0
-
-
-async def step(clock: SteppedClock, seconds: float) -> None:
-    """Advance the controller by ``seconds``, bounded: a loop that died fails the test, never hangs it."""
-    async with asyncio.timeout(STEP_TIMEOUT):
-        await clock.advance(seconds)
-
-
 @contextlib.asynccontextmanager
 async def stepped(**options: Any) -> AsyncIterator[tuple[Emulator, SteppedClock, Recorder]]:
     """An emulator whose controller time moves only when the test advances it, recording."""
-    options.setdefault("motion_port", 0)
-    options.setdefault("state_port", 0)
-    if options.get("profile") == "motoros":
-        options.setdefault("io_port", 0)
-    clock = SteppedClock()
-    async with Emulator(EmulatorConfig(**options), clock=clock) as emu:
-        record = emu.record(30.0)[0]
-        await step(clock, 0.0)  # the loop has run its first period and waits
-        yield emu, clock, record
-
-
-async def settle(emu: Emulator, clock: SteppedClock, limit: float = 20.0) -> None:
-    """Advance until the robot has settled (at most ``limit`` s of controller time)."""
-    while emu.cell.in_motion:
-        assert emu.cell.groups[0].time < limit, "the robot never settled"
-        await step(clock, 0.004)
+    async with stepped_emulator(record=30.0, **options) as (emu, clock):
+        assert emu.control.recorder is not None
+        yield emu, clock, emu.control.recorder
 
 
 def ros_frames(plan: Plan) -> list[bytes]:

@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
+import os
+import runpy
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from simple_message import BE32, LE32, JointTrajPt, Status
+from simple_message import BE32, BE64, LE32, JointTrajPt, Status
 from simple_message.cli import main
 
 from .refdata import DATA, load_vectors
@@ -164,3 +167,89 @@ def test_python_dash_m_entry_point(tmp_path: Path) -> None:
     )
     assert result.returncode == 0, result.stderr
     assert len(result.stdout.splitlines()) == 26
+
+
+# -- in process: the paths a user meets (raw streams on stdin/stdout, missing files, interrupts) -----------
+
+
+def test_decode_raw_from_stdin_reports_a_truncated_tail(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    stream = Status().encode(LE32) + JointTrajPt(7).encode(LE32)
+    code, out, err = run(["decode", "--raw"], stream + stream[:10], monkeypatch=monkeypatch, capsys=capsys)
+    assert code == 1
+    assert [o["name"] for o in out] == ["STATUS", "JOINT_TRAJ_PT"] and out[1]["body"]["sequence"] == 7
+    assert err == [{"error": "10 bytes at the end do not make a whole frame", "type": "TruncatedFrame"}]
+
+
+def test_decode_float64_big_endian(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    frame = JointTrajPt(2, [0.1, -1.5], 0.25, 3.0).encode(BE64)
+    argv = ["decode", "--byte-order", "big", "--float64"]
+    code, out, _ = run(argv, frame.hex(), monkeypatch=monkeypatch, capsys=capsys)
+    assert code == 0
+    assert out[0]["body"]["joint_data"][:2] == [0.1, -1.5] and out[0]["body"]["duration"] == 3.0  # 0.1: a double
+
+
+def test_encode_raw_writes_the_frames_to_stdout(
+    monkeypatch: pytest.MonkeyPatch, capsysbinary: pytest.CaptureFixture[bytes]
+) -> None:
+    lines = [{"name": "PING", "comm_type": 2, "body": {}}, {"name": "JOINT_TRAJ_PT", "body": {"sequence": 4}}]
+    monkeypatch.setattr(sys, "stdin", io.StringIO("\n".join(json.dumps(line) for line in lines) + "\n# done\n"))
+    assert main(["encode", "--raw", "--byte-order", "big"]) == 0
+    out = capsysbinary.readouterr().out
+    ping = bytes.fromhex("0000000c000000010000000200000000")
+    assert out[: len(ping)] == ping and out[len(ping) :] == JointTrajPt(4).encode(BE32)
+
+
+def test_a_missing_file_is_one_error_line_and_status_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    for command in ("decode", "encode"):
+        assert main([command, str(tmp_path / "missing.txt")]) == 2
+        errors = [json.loads(line) for line in capsys.readouterr().err.splitlines()]
+        assert len(errors) == 1 and errors[0]["type"] == "OSError" and "missing.txt" in errors[0]["error"]
+
+
+class _Interrupted(io.StringIO):
+    """Standard input on which the user presses Ctrl-C."""
+
+    def __iter__(self) -> _Interrupted:
+        return self
+
+    def __next__(self) -> str:
+        raise KeyboardInterrupt
+
+
+def test_ctrl_c_exits_130(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(sys, "stdin", _Interrupted())
+    assert main(["decode"]) == 130
+
+
+def test_a_reader_that_goes_away_ends_the_command_quietly(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    read, write = os.pipe()
+    os.close(read)  # `simple-message decode FILE | head`, once head has exited
+    stdout = open(write, "w", encoding="utf-8")  # noqa: SIM115 - closed below
+    try:
+        monkeypatch.setattr(sys, "stdout", stdout)
+        frames = tmp_path / "frames.txt"
+        frames.write_text("\n".join(JointTrajPt(k).encode(LE32).hex() for k in range(2000)))
+        assert main(["decode", str(frames)]) == 0
+        assert os.readlink(f"/proc/self/fd/{write}") == os.devnull  # the rest goes nowhere
+    finally:
+        with contextlib.suppress(OSError):
+            stdout.close()
+
+
+def test_help_and_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as info:
+        main(["--help"])
+    assert info.value.code == 0 and "decode" in capsys.readouterr().out
+    for argv in ([], ["decode", "--byte-order", "sideways"], ["encode", "--byte-order", "auto"]):
+        with pytest.raises(SystemExit) as info:
+            main(argv)
+        assert info.value.code == 2 and "usage: simple-message" in capsys.readouterr().err
+
+
+def test_python_dash_m_in_process(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr(sys, "argv", ["simple_message", "decode", str(DATA / "vectors_le.txt")])
+    with pytest.raises(SystemExit) as info:
+        runpy.run_module("simple_message", run_name="__main__", alter_sys=True)
+    assert info.value.code == 0 and len(capsys.readouterr().out.splitlines()) == 26

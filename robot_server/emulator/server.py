@@ -218,10 +218,15 @@ class Emulator:
             return self
         self._started = True
         cfg = self.config
-        for name, server in self.servers.items():
-            port = cfg.port(name)
-            if port is not None:
-                self.ports[name] = await server.serve_tcp(cfg.host, port)
+        try:
+            for name, server in self.servers.items():
+                port = cfg.port(name)
+                if port is not None:
+                    self.ports[name] = await server.serve_tcp(cfg.host, port)
+        except BaseException:  # e.g. a port taken: nothing stays bound
+            for server in self.servers.values():
+                await server.close()
+            raise
         loop = asyncio.get_running_loop()
         self._tasks.append(loop.create_task(self._run_control(), name="emulator control loop"))
         self._tasks.append(loop.create_task(self._run_state(), name="emulator state topics"))

@@ -1,0 +1,239 @@
+"""What every test runs under: a guard that fails a test which leaks asyncio tasks, threads or
+file descriptors (sockets, pipes, files), naming what leaked.
+
+* **Tasks**: the tasks still pending on the test's event loop once the test and its async fixtures
+  are done, just before pytest-asyncio's runner closes the loop (which would cancel them
+  silently). They get a bounded time to finish first (a task cancelled on the way out needs a
+  turn of the loop); what is still pending then is a leak.
+* **Threads**: threads alive after the test that were not before, once each has been joined
+  (bounded).
+* **File descriptors**: entries of ``/proc/self/fd`` that were not there before the test, after
+  the event loop has closed, a garbage collection and a bounded wait; a socket is named by its
+  addresses (from ``/proc/net``).
+
+The guard only speaks when the test itself passed (a failing test says enough). A test that has a
+reason to leak says so with ``@pytest.mark.leaks_allowed("why")``: its leaks are then a warning.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import gc
+import os
+import socket
+import threading
+import time
+import warnings
+from collections.abc import Callable, Generator, Iterator
+from pathlib import Path
+
+import pytest
+
+#: how long leftovers may take to go away after a test (seconds): a bound, never a delay
+SETTLE = float(os.environ.get("LEAK_GUARD_SETTLE", "2.0"))
+#: the same for descriptors, checked once the loop has closed and the new threads have ended:
+#: what is left then closes with a garbage collection or not at all
+FD_SETTLE = min(SETTLE, 0.5)
+_POLL = 0.01
+
+_PENDING_TASKS = pytest.StashKey[list[str]]()
+#: tests whose setup or call failed (the guard stays silent about them)
+_FAILED: set[str] = set()
+_RUNNER_FIXTURE = "_function_scoped_runner"
+
+
+class LeakWarning(UserWarning):
+    """Leaks of a test marked ``leaks_allowed``."""
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers",
+        "leaks_allowed(reason): the leak guard (tests/conftest.py) only warns about this test's leaked "
+        "tasks, threads and file descriptors; say why they are acceptable",
+    )
+
+
+# -- the test's outcome --------------------------------------------------------------------------------
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    # a plain hook, after the report is made (a wrapper of pytest_runtest_makereport would sit in
+    # the stack that renders the failure)
+    if report.failed and report.when in ("setup", "call"):
+        _FAILED.add(report.nodeid)
+
+
+# -- tasks: checked before the runner closes the loop -------------------------------------------------
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_fixture_setup(
+    fixturedef: pytest.FixtureDef[object], request: pytest.FixtureRequest
+) -> Generator[None, object, object]:
+    result = yield
+    if fixturedef.argname == _RUNNER_FIXTURE and isinstance(result, asyncio.Runner):
+        # A fixture's finalizers run last-in first-out: this one runs after the async fixtures'
+        # teardowns (pytest-asyncio adds them later) and before the runner closes the loop.
+        node = request.node
+        fixturedef.addfinalizer(lambda: _check_tasks(result, node))
+    return result
+
+
+def _check_tasks(runner: asyncio.Runner, node: pytest.Item) -> None:
+    loop = runner.get_loop()
+    if loop.is_closed() or loop.is_running():
+        return
+    pending = runner.run(_settle_tasks(SETTLE))
+    if pending:
+        node.stash[_PENDING_TASKS] = [_describe_task(task) for task in pending]
+
+
+async def _settle_tasks(limit: float) -> list[asyncio.Task[object]]:
+    """Wait (at most ``limit`` s) for the loop's other tasks to finish; the ones still pending."""
+    me = asyncio.current_task()
+    loop = asyncio.get_running_loop()
+    end = loop.time() + limit
+    await asyncio.sleep(0)  # one turn: callbacks scheduled by the test's last step run
+    while True:
+        pending = [t for t in asyncio.all_tasks() if t is not me and not t.done()]
+        remaining = end - loop.time()
+        if not pending or remaining <= 0:
+            return pending
+        await asyncio.wait(pending, timeout=remaining)
+
+
+def _describe_task(task: asyncio.Task[object]) -> str:
+    coro = task.get_coro()
+    name = getattr(coro, "__qualname__", repr(coro))
+    where = ""
+    frames = task.get_stack(limit=1)
+    if frames:
+        code = frames[-1].f_code
+        where = f", waiting at {Path(code.co_filename).name}:{frames[-1].f_lineno} in {code.co_name}"
+    return f"task {task.get_name()!r} running {name}{where}"
+
+
+# -- threads and descriptors: checked once every fixture is torn down -----------------------------------
+
+
+def _fds() -> dict[int, str]:
+    """Open descriptors and what they are (``/proc/self/fd``), but the standard streams (pytest's
+    capture moves them)."""
+    found = {}
+    for entry in os.listdir("/proc/self/fd"):
+        if int(entry) <= 2:
+            continue
+        try:
+            found[int(entry)] = os.readlink(f"/proc/self/fd/{entry}")
+        except OSError:  # the listing's own descriptor, closed by now
+            continue
+    return found
+
+
+def _socket_names() -> dict[str, str]:
+    """``socket:[inode]`` -> its local and remote address (TCP, TCP6 and UNIX sockets)."""
+    names: dict[str, str] = {}
+    for table, family in (("tcp", socket.AF_INET), ("tcp6", socket.AF_INET6)):
+        try:
+            lines = Path(f"/proc/self/net/{table}").read_text().splitlines()[1:]
+        except OSError:
+            continue
+        for line in lines:
+            fields = line.split()
+            if len(fields) > 9:
+                state = _TCP_STATES.get(fields[3], fields[3])
+                names[f"socket:[{fields[9]}]"] = (
+                    f"{table} socket {_address(fields[1], family)} -> {_address(fields[2], family)} {state}"
+                )
+    try:
+        lines = Path("/proc/self/net/unix").read_text().splitlines()[1:]
+    except OSError:
+        lines = []
+    for line in lines:
+        fields = line.split()
+        if len(fields) > 6:
+            names[f"socket:[{fields[6]}]"] = "unix socket " + (fields[7] if len(fields) > 7 else "(unnamed)")
+    return names
+
+
+_TCP_STATES = {
+    "01": "ESTABLISHED",
+    "02": "SYN_SENT",
+    "03": "SYN_RECV",
+    "04": "FIN_WAIT1",
+    "05": "FIN_WAIT2",
+    "06": "TIME_WAIT",
+    "07": "CLOSE (unconnected)",
+    "08": "CLOSE_WAIT",
+    "09": "LAST_ACK",
+    "0A": "LISTEN",
+    "0B": "CLOSING",
+}
+
+
+def _address(text: str, family: int) -> str:
+    host, port = text.split(":")
+    raw = bytes.fromhex(host)  # 32-bit words in host (little-endian) order
+    raw = b"".join(raw[i : i + 4][::-1] for i in range(0, len(raw), 4))
+    return f"{socket.inet_ntop(family, raw)}:{int(port, 16)}"
+
+
+def _new_fds(before: dict[int, str]) -> dict[int, str]:
+    return {fd: target for fd, target in _fds().items() if before.get(fd) != target}
+
+
+def _poll(condition: Callable[[], bool], limit: float) -> None:
+    """Check ``condition`` until it holds or ``limit`` seconds have passed (a bounded poll)."""
+    end = time.monotonic() + limit
+    while not condition() and time.monotonic() < end:
+        time.sleep(_POLL)
+
+
+def _leaked_threads(before: set[threading.Thread]) -> list[threading.Thread]:
+    new = [t for t in threading.enumerate() if t not in before and t is not threading.current_thread()]
+    end = time.monotonic() + SETTLE
+    for thread in new:
+        thread.join(max(0.0, end - time.monotonic()))
+    return [t for t in new if t.is_alive()]
+
+
+def _describe_thread(thread: threading.Thread) -> str:
+    target = getattr(thread, "_target", None)
+    runs = f" running {getattr(target, '__qualname__', repr(target))}" if target is not None else ""
+    return f"thread {thread.name!r}{' (daemon)' if thread.daemon else ''}{runs}"
+
+
+@pytest.fixture(autouse=True)
+def leak_guard(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Fails the test if it leaves tasks, threads or descriptors behind (see the module doc).
+
+    Being autouse it is set up before pytest-asyncio's runner fixture (which pytest-asyncio adds to
+    each async test) and so torn down after it: the loop is closed by then and its own descriptors
+    are gone; tasks are checked earlier, by the runner's finalizer (:func:`_check_tasks`)."""
+    threads = set(threading.enumerate())
+    fds = _fds()
+    yield
+    item = request.node
+    if item.nodeid in _FAILED:
+        _FAILED.discard(item.nodeid)
+        return
+    leaks = list(item.stash.get(_PENDING_TASKS, []))
+    leaks += [_describe_thread(t) for t in _leaked_threads(threads)]
+    new = _new_fds(fds)
+    if new:
+        gc.collect()  # descriptors only garbage holds (closed with a ResourceWarning)
+        _poll(lambda: not _new_fds(fds), FD_SETTLE)
+        new = _new_fds(fds)
+    if new:
+        sockets = _socket_names()
+        leaks += [f"fd {fd} {sockets.get(target, target)}" for fd, target in sorted(new.items())]
+    if not leaks:
+        return
+    marker = item.get_closest_marker("leaks_allowed")
+    text = f"{item.nodeid} leaked:\n  " + "\n  ".join(leaks)
+    if marker is not None:
+        reason = marker.args[0] if marker.args else "no reason given"
+        warnings.warn(LeakWarning(f"{text}\n(allowed: {reason})"), stacklevel=1)
+        return
+    pytest.fail(text, pytrace=False)

@@ -1,0 +1,297 @@
+"""``robot-client`` in process: ``main(argv, out)`` for every command against an emulator on
+127.0.0.1 (free ports), and the failures a user meets (exit status 1 with one line, 2 for usage).
+
+``main`` runs its own event loop (``asyncio.run``), so it runs in a worker thread while the
+emulator serves on the test's loop. tests/test_client_cli.py runs the installed command as a
+process against a ``robot-server`` process.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import importlib.util
+import io
+import json
+import runpy
+import socket
+import sys
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from client import cli
+from client.trajectory import Trajectory
+from robot_server.emulator import Emulator, EmulatorConfig
+from tests.fakecontroller import JOINT_TRAJ_PT, FakeController, Reply
+from tests.rawpeer import Frame
+
+#: bound of one command (s of wall time): the moves below take well under a second
+COMMAND_TIMEOUT = 60.0
+
+
+class Terminal(io.StringIO):
+    """An output that says it is a terminal (the commands draw a progress line there)."""
+
+    def isatty(self) -> bool:
+        return True
+
+
+async def client(*argv: str, out: io.StringIO | None = None) -> tuple[int, str]:
+    """``robot-client argv`` in a worker thread: its exit status and what it printed."""
+    out = out if out is not None else io.StringIO()
+    async with asyncio.timeout(COMMAND_TIMEOUT):
+        code = await asyncio.to_thread(cli.main, list(argv), out)
+    return code, out.getvalue()
+
+
+@contextlib.asynccontextmanager
+async def controller(**options: Any) -> AsyncIterator[tuple[Emulator, list[str]]]:
+    """An emulator on free loopback ports (8x real time), and the options that reach it."""
+    config = EmulatorConfig(motion_port=0, state_port=0, io_port=0, speedup=8.0, state_rate=100.0, **options)
+    async with Emulator(config) as emu:
+        ports = ["--motion-port", str(emu.ports["motion"]), "--state-port", str(emu.ports["state"])]
+        if config.profile != "generic":
+            ports += ["--profile", config.profile]
+        yield emu, ports
+
+
+def positions(emu: Emulator) -> np.ndarray:
+    return np.array(emu.cell.groups[0].command.actual_position)
+
+
+async def test_ping_status_stop_and_monitor(capsys: pytest.CaptureFixture[str]) -> None:
+    async with controller() as (_, ports):
+        code, out = await client("ping", "--count", "3", *ports)
+        assert code == 0
+        lines = out.splitlines()
+        assert [line.split(":")[0] for line in lines[:3]] == ["PING 1", "PING 2", "PING 3"]
+        assert lines[3].startswith("3 replies, min/median/max")
+
+        code, out = await client("status", *ports)
+        assert code == 0
+        state = json.loads(out)
+        assert state["positions"] == [0.0] * 6 and "velocities" not in state
+        assert state["status"] == {
+            "drives_powered": "TRUE",
+            "e_stopped": "FALSE",
+            "error_code": 0,
+            "in_error": "FALSE",
+            "in_motion": "FALSE",
+            "mode": "AUTO",
+            "motion_possible": "TRUE",
+        }
+
+        code, out = await client("stop", *ports)
+        assert (code, out) == (0, "stopped\n")
+
+        # a rate line per second of states
+        code, out = await client("monitor", "--duration", "1.5", *ports)
+        assert code == 0
+        assert " Hz  q=[+0.0000 " in out and "in_motion=FALSE in_error=FALSE e_stopped=FALSE drives=TRUE" in out
+    assert capsys.readouterr().err == ""
+
+
+async def test_move_to_joints_then_along_a_line_and_run_a_file(tmp_path: Path) -> None:
+    goal = [0.2, 0.1, -0.1, 0.0, 0.5, 0.0]
+    async with controller() as (emu, ports):
+        code, out = await client("move", "--joints", *map(str, goal), *ports)
+        assert code == 0 and out.startswith("done: 2 points")
+        assert np.allclose(positions(emu), goal, atol=2e-3)
+
+        # a Cartesian move that keeps the orientation, drawn with a progress bar on a terminal
+        terminal = Terminal()
+        code, out = await client("move", "--pose", "0.34", "0.05", "0.06", "--speed", "0.5", *ports, out=terminal)
+        assert code == 0
+        assert out.startswith("\r[") and "rad from goal" in out and "\ndone: " in out
+
+        # a pose with an orientation (about the one above), downloaded
+        pose = ["0.35", "0.06", "0.04", "-3.1416", "-0.5", "0.2"]
+        code, out = await client("move", "--pose", *pose, "--mode", "download", *ports)
+        assert code == 0, out
+
+        here = positions(emu)
+        path = tmp_path / "back.csv"
+        Trajectory(np.array([0.0, 0.5, 1.0]), np.array([here, (here + goal) / 2, goal])).save(path)
+        code, out = await client("run", str(path), *ports)
+        assert code == 0 and out.startswith("done: 3 points")
+        assert np.allclose(positions(emu), goal, atol=2e-3)
+
+
+async def test_record_writes_the_joint_states(tmp_path: Path) -> None:
+    record = tmp_path / "record.csv"
+    async with controller() as (_, ports):
+        code, out = await client("record", str(record), "--duration", "0.5", *ports)
+    assert code == 0
+    rows = record.read_text().splitlines()
+    assert out == f"{len(rows) - 1} joint states written to {record}\n"
+    assert rows[0].startswith("time,position_joint_1") and len(rows) >= 2
+
+
+async def test_motoros_move(capsys: pytest.CaptureFixture[str]) -> None:
+    async with controller(profile="motoros") as (emu, ports):
+        code, out = await client("move", "--joints", "0.1", "0", "0", "0", "0", "0.1", *ports)
+        assert code == 0, capsys.readouterr().err
+        assert out.startswith("done: ") and np.allclose(positions(emu)[[0, 5]], 0.1, atol=2e-3)
+        code, out = await client("stop", *ports)
+        assert (code, out) == (0, "stopped\n")
+
+
+async def test_failures_exit_1_with_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    def one_line() -> str:
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("robot-client: "), err
+        return err
+
+    async with controller() as (emu, ports):
+        assert (await client("move", "--joints", "9", "0", "0", "0", "0", "0", *ports))[0] == 1
+        assert "outside the joint limits" in one_line()
+
+        bad = tmp_path / "bad.csv"
+        bad.write_text("time,a\n0,x\n")
+        assert (await client("run", str(bad), *ports))[0] == 1
+        assert str(bad) in one_line()
+
+        far = tmp_path / "far.csv"
+        Trajectory(np.array([0.0, 1.0]), np.array([[0.0] * 6, [3.0] + [0.0] * 5])).save(far)
+        assert (await client("run", str(far), *ports))[0] == 1
+        assert "refused point 1" in one_line()
+
+        elsewhere = tmp_path / "elsewhere.csv"
+        Trajectory(np.array([0.0, 1.0]), np.array([[0.5] * 6, [0.6] * 6])).save(elsewhere)
+        assert (await client("run", str(elsewhere), *ports))[0] == 1
+        assert "starts 0.5 away" in one_line()
+
+        emu.cell.estop()
+        assert (await client("move", "--joints", "0.1", "0", "0", "0", "0", "0", *ports))[0] == 1
+        one_line()
+        assert not emu.cell.in_motion
+
+    with socket.socket() as closed:  # bound, not listening: every connection is refused
+        closed.bind(("127.0.0.1", 0))
+        port = str(closed.getsockname()[1])
+        code, _ = await client("status", "--motion-port", port, "--state-port", port, "--timeout", "0.5")
+    assert code == 1 and "cannot connect" in one_line()
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (["move", "--joints", "1"], "needs 6 values"),
+        (["move", "--pose", "0.3", "0.1"], "X Y Z"),
+        (["move", "--joints", "0", "0", "0", "0", "0", "nan"], "finite"),
+        (["move", "--joints", *["0"] * 6, "--speed", "1.5"], "--speed must be in (0, 1]"),
+        (["status", "--model", "no_such_robot"], "no_such_robot"),
+        (["demo", "--serial", "/dev/null"], "--serial is not supported"),
+        (["demo", "--policies", "no_such_policy"], "no_such_policy"),
+        (["status", "--import", "tests.no_such_module"], "cannot import tests.no_such_module"),
+    ],
+)
+def test_bad_arguments_exit_2_before_connecting(
+    argv: list[str], words: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert cli.main(argv, io.StringIO()) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("robot-client: ") and words in err, err
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (["teleport"], "invalid choice"),
+        (["status", "--timeout", "0"], "must be > 0"),
+        (["status", "--timeout", "inf"], "must be > 0"),
+        (["status", "--motion-port", "0"], "a port is 1..65535"),
+        (["move"], "one of the arguments --joints --pose is required"),
+    ],
+)
+def test_malformed_arguments_are_usage_errors(argv: list[str], words: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as info:
+        cli.main(argv)
+    assert info.value.code == 2
+    assert words in capsys.readouterr().err
+
+
+def test_help_names_every_command(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as info:
+        cli.main(["--help"])
+    assert info.value.code == 0
+    out = capsys.readouterr().out
+    for command in ("ping", "status", "monitor", "move", "run", "stop", "record", "demo"):
+        assert f"    {command} " in out, command
+
+
+def test_python_dash_m_client_is_the_command(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(sys, "argv", ["client", "move", "--joints", "1"])
+    with pytest.raises(SystemExit) as info:
+        runpy.run_module("client", run_name="__main__", alter_sys=True)
+    assert info.value.code == 2
+    assert "needs 6 values" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="session")
+def plotting() -> bool:
+    """Whether the plot extra (matplotlib) is installed. Its fonts are opened here, once: its font
+    cache keeps them open for the life of the process, and a session fixture is set up before the
+    leak guard looks at a test's descriptors."""
+    if importlib.util.find_spec("matplotlib") is None:
+        return False
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure = plt.figure()
+    figure.text(0.5, 0.5, "rad/s²")
+    figure.canvas.draw()
+    plt.close(figure)
+    return True
+
+
+@pytest.mark.slow
+def test_demo_without_a_controller_runs_the_embedded_emulator_and_draws_the_figure(
+    tmp_path: Path, plotting: bool
+) -> None:
+    out = io.StringIO()
+    argv = ["demo", "--short", "--simulated", "--policies", "linear", "quintic", "--output", str(tmp_path)]
+    with socket.socket() as closed:  # where the demo looks for a controller first: refused
+        closed.bind(("127.0.0.1", 0))
+        port = str(closed.getsockname()[1])
+        assert cli.main([*argv, "--motion-port", port, "--state-port", port], out) == 0
+    text = out.getvalue()
+    table = [line.split() for line in text.splitlines() if line.startswith(("linear ", "quintic "))]
+    assert [row[0] for row in table] == ["linear", "quintic"]
+    assert table[1][4] == "0"  # the quintic's acceleration discontinuities
+    assert "linear: embedded emulator (simulated clock) ..." in text
+    assert f"traces: {tmp_path / 'demo_waypoints.csv'}" in text
+    assert (tmp_path / "demo_linear.csv").exists() and (tmp_path / "demo_quintic.csv").exists()
+    if plotting:
+        assert f"figure: {tmp_path / 'demo_fig6.png'}" in text and (tmp_path / "demo_fig6.png").stat().st_size > 0
+    else:
+        assert "figure: not drawn" in text
+
+
+async def test_demo_runs_the_rectangle_on_a_controller_that_answers(tmp_path: Path) -> None:
+    """The scripted fake controller (tests/fakecontroller.py) answers each point 30 ms late and
+    jumps to it: the demo runs its rectangle there and reports on the joint states it saw."""
+
+    def late_success(_frame: Frame, _count: int) -> Reply:
+        return Reply("success", delay=0.03)
+
+    async with FakeController(late_success) as fake:
+        ports = ["--motion-port", str(fake.ports["motion"]), "--state-port", str(fake.ports["state"])]
+        code, out = await client("demo", "--short", "--no-plot", "--output", str(tmp_path), *ports)
+        assert code == 0, out
+        assert fake.overlapping == 0
+        points = fake.frames(JOINT_TRAJ_PT)
+    assert f"a controller answers at 127.0.0.1:{ports[1]}: running the rectangle there" in out
+    assert len(points) > 11  # the approach, then the rectangle's waypoints
+    row = next(line.split() for line in out.splitlines() if line.startswith("controller's own"))
+    assert len(row) == 8 and row[-1] == "n/a"  # no following error from joint states alone
+    lines = (tmp_path / "demo_controller.csv").read_text().splitlines()
+    assert lines[0].startswith("time,") and len(lines) > 4

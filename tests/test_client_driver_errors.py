@@ -1,0 +1,155 @@
+"""How the driver fails: the errors a user meets, each against the emulator on a clock the test
+advances (so the robot is exactly where the test left it) or against the scripted fake controller.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import AsyncIterator
+from typing import Any
+
+import numpy as np
+import pytest
+
+from client.driver import DriverError, ExecutionAborted, RobotDriver
+from client.trajectory import Trajectory
+from robot_server.control import SteppedClock
+from robot_server.emulator import Emulator
+from robot_server.loader import load_model
+from simple_message.wire import BE32
+from tests.fakecontroller import JOINT_TRAJ_PT, MOTO_MOTION_CTRL, FakeController, Reply
+from tests.rawpeer import Frame
+from tests.stepped import advance_until, settle, stepped_emulator
+from tests.test_client_driver import TARGET, line
+
+MODEL = load_model("jibot_zxs")
+#: wall-clock bound of a driver call that is expected to fail
+FAIL_WITHIN = 20.0
+
+
+@contextlib.asynccontextmanager
+async def setup(
+    profile: str = "generic", **driver_options: Any
+) -> AsyncIterator[tuple[Emulator, SteppedClock, RobotDriver]]:
+    async with contextlib.AsyncExitStack() as stack:
+        emu, clock = await stack.enter_async_context(stepped_emulator(profile=profile, state_rate=100.0))
+        driver_options.setdefault("model", MODEL)
+        driver = RobotDriver(
+            motion_port=emu.ports["motion"], state_port=emu.ports["state"], profile=profile, **driver_options
+        )
+        await stack.enter_async_context(driver)
+        yield emu, clock, driver
+
+
+async def bounded(call: Any) -> Any:
+    async with asyncio.timeout(FAIL_WITHIN):
+        return await call
+
+
+async def test_an_alarm_during_the_motion_aborts_with_its_code() -> None:
+    async with setup() as (emu, clock, driver):
+        task = asyncio.create_task(driver.execute(line([0.0] * 6, TARGET, 3.0, n=8)))
+        await advance_until(clock, lambda: emu.cell.groups[0].command.actual_position[5] > 0.05, what="moving")
+        emu.cell.alarm(4321, "overheated")
+        with pytest.raises(ExecutionAborted, match="in error 4321") as info:
+            await bounded(task)
+        assert info.value.confirmed == 7  # every point had been acknowledged
+        await settle(emu, clock)
+        assert emu.cell.in_error and emu.cell.groups[0].command.actual_position[5] < 0.3
+
+
+async def test_a_robot_that_stops_moving_short_of_the_goal_times_out() -> None:
+    """The controller's time stands still mid-motion: in_motion stays TRUE, the goal never comes."""
+    async with setup(goal_timeout=0.2) as (emu, clock, driver):
+        task = asyncio.create_task(driver.execute(line([0.0] * 6, TARGET, 0.2, n=3)))
+        await advance_until(clock, lambda: emu.cell.in_motion and emu.cell.groups[0].queue_fill == 0, what="moving")
+        with pytest.raises(ExecutionAborted, match="did not reach the goal in time"):
+            await bounded(task)
+
+
+async def test_a_dropped_download_shows_as_a_robot_standing_still() -> None:
+    """A download point beyond the limits: the controller drops the download without a word
+    (TOPICs have no reply); the robot never moves and the driver says so after stall_timeout."""
+    async with setup(stall_timeout=0.2) as (emu, _clock, driver):
+        beyond = Trajectory(np.array([0.0, 0.5, 1.0]), np.array([[0.0] * 6, [0.1] * 6, [0.0, 3.0, 0, 0, 0, 0]]))
+        with pytest.raises(ExecutionAborted, match="stands still") as info:
+            await bounded(driver.execute(beyond, "download"))
+        assert info.value.confirmed == 2  # every point was written (a download has no acknowledgements)
+        assert emu.cell.groups[0].trajectories == 0
+
+
+async def test_a_single_point_download_is_sent_twice_as_the_reference_downloader_does() -> None:
+    async with setup() as (emu, _clock, driver):
+        final = await bounded(driver.execute(Trajectory(np.array([0.0]), np.zeros((1, 6))), "download"))
+        assert np.all(final.positions == 0.0)
+        assert emu.cell.groups[0].trajectories == 1
+
+
+async def test_no_joint_state_is_the_watchdog() -> None:
+    async with setup(watchdog=0.3) as (emu, clock, driver):
+        task = asyncio.create_task(driver.execute(line([0.0] * 6, TARGET, 3.0, n=8)))
+        await advance_until(clock, lambda: emu.cell.in_motion, what="moving")
+        await emu.state_server.close()  # the state port goes away
+        with pytest.raises(ExecutionAborted, match=r"no joint state for 0.3 s \(watchdog\)"):
+            await bounded(task)
+
+
+async def test_trajectories_that_do_not_fit_the_robot_are_refused_before_anything_is_sent() -> None:
+    async with setup() as (emu, _clock, driver):
+        with pytest.raises(DriverError, match="the trajectory has 5 joints, the robot 6"):
+            await driver.execute(Trajectory(np.array([0.0, 1.0]), np.zeros((2, 5))))
+        with pytest.raises(DriverError, match=r"starts 0\.5 away"):
+            await driver.execute(line([0.5] * 6, TARGET, 1.0))
+        with pytest.raises(ValueError, match="sideways"):
+            await driver.execute(line([0.0] * 6, TARGET, 1.0), "sideways")
+        assert emu.cell.groups[0].trajectories == 0
+    async with setup(model=None) as (_emu, _clock, driver):
+        # without a model the driver knows only the joints the controller reports (10 on the wire)
+        with pytest.raises(DriverError, match="the controller reports 10"):
+            await driver.execute(line([0.0] * 6, TARGET, 1.0))
+
+
+async def test_motoros_refuses_to_start_while_the_emergency_stop_is_engaged() -> None:
+    async with setup("motoros") as (emu, _clock, driver):
+        emu.cell.estop()
+        with pytest.raises(ExecutionAborted, match=r"START_TRAJ_MODE refused \(result 5, subcode 5003\)") as info:
+            await bounded(driver.execute(line([0.0] * 6, TARGET, 1.0, n=3)))
+        assert info.value.confirmed == -1
+
+
+async def test_motoros_refuses_a_point_beyond_the_limits() -> None:
+    async with setup("motoros") as (emu, _clock, driver):
+        beyond = Trajectory(np.array([0.0, 0.5]), np.array([[0.0] * 6, [0.0, 3.0, 0, 0, 0, 0]]))
+        with pytest.raises(ExecutionAborted, match=r"refused point 1: result 3, subcode 3012") as info:
+            await bounded(driver.execute(beyond))
+        assert info.value.confirmed == 0
+        assert emu.cell.groups[0].command.actual_position == [0.0] * 6
+
+
+# -- controllers that refuse to stop (the scripted fake) ------------------------------------------------
+
+
+async def test_a_generic_controller_that_answers_failure_to_stop() -> None:
+    def script(frame: Frame, _count: int) -> Reply:
+        return Reply("failure" if frame.msg_type == JOINT_TRAJ_PT else "success")
+
+    async with FakeController(script) as fake:
+        async with RobotDriver("127.0.0.1", fake.ports["motion"], fake.ports["state"], model=MODEL) as driver:
+            with pytest.raises(DriverError, match="answered FAILURE to STOP"):
+                await bounded(driver.stop())
+        assert [f.ints(1)[0] for f in fake.frames(JOINT_TRAJ_PT)] == [-4]
+
+
+async def test_a_motoros_controller_that_refuses_stop_motion() -> None:
+    def script(frame: Frame, _count: int) -> Reply:
+        return Reply("moto", result=3, subcode=3006) if frame.msg_type == MOTO_MOTION_CTRL else Reply("moto")
+
+    async with FakeController(script, order=">") as fake:
+        driver = RobotDriver(
+            "127.0.0.1", fake.ports["motion"], fake.ports["state"], profile="motoros", wire=BE32, model=MODEL
+        )
+        async with driver:
+            with pytest.raises(DriverError, match="STOP_MOTION refused: result 3, subcode 3006"):
+                await bounded(driver.stop())
+        assert len(fake.frames(MOTO_MOTION_CTRL)) == 1
