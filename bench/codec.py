@@ -1,7 +1,16 @@
 """Codec benchmark: encode/decode rates per message type and frame-decoder throughput.
 
-Plain script; prints a table. Target (issue 2): decoding at least 300,000 JOINT_TRAJ_PT frames per
-second on one core, frame cutting included.
+Plain script; prints a table. Targets: decoding at least 300,000 JOINT_TRAJ_PT frames per second on
+one core, frame cutting included (issue 2); 1,000,000 on the path a Link takes,
+``FrameDecoder.feed_messages`` (issue 16).
+
+Columns: ``cut+decode`` is ``feed`` + ``decode`` of each frame, each message dropped at once;
+``kept`` the same with the messages of a call kept until its end; ``feed_messages`` cuts and decodes
+in one pass and returns the call's messages in a list (iterated, as a Link does, whose event queue
+keeps them too). Keeping ~1000 messages alive makes the garbage collector run during the call (most
+visible with the three-array types), so ``kept`` is the like-for-like comparison. Each call takes
+1000 coalesced frames of one type, which ``feed_messages`` decodes as one run; the mixed-stream
+table below shows both paths on a random mix of four types (runs of about one frame).
 
     python bench/codec.py [--seconds 0.5]
 """
@@ -72,8 +81,11 @@ def main() -> None:
     ]
     print(f"# simple_message codec benchmark: {machine()}")
     print()
-    print(f"| {'message':<22} | {'encode msg/s':>14} | {'decode msg/s':>14} | {'cut+decode msg/s':>17} |")
-    print(f"|{'-' * 24}|{'-' * 16}|{'-' * 16}|{'-' * 19}|")
+    print(
+        f"| {'message':<22} | {'encode msg/s':>14} | {'decode msg/s':>14} | {'cut+decode msg/s':>17} "
+        f"| {'kept msg/s':>11} | {'feed_messages msg/s':>20} |"
+    )
+    print(f"|{'-' * 24}|{'-' * 16}|{'-' * 16}|{'-' * 19}|{'-' * 13}|{'-' * 22}|")
     for name, msg in samples:
         frame = encode(msg, LE32)
         enc = rate(lambda m=msg: encode(m, LE32), args.seconds)
@@ -88,7 +100,20 @@ def main() -> None:
                 decode(f, LE32)
 
         both = rate(cut_and_decode, args.seconds, batch=1) * 1000
-        print(f"| {name:<22} | {enc:>14,.0f} | {dec:>14,.0f} | {both:>17,.0f} |")
+
+        def cut_and_decode_kept(chunk: bytes = chunk, decoder: FrameDecoder = decoder) -> None:
+            decoder.feed(chunk)
+            for _m in [decode(f, LE32) for f in decoder]:
+                pass
+
+        kept = rate(cut_and_decode_kept, args.seconds, batch=1) * 1000
+
+        def feed_messages(chunk: bytes = chunk, decoder: FrameDecoder = decoder) -> None:
+            for _m in decoder.feed_messages(chunk, LE32):
+                pass
+
+        one_pass = rate(feed_messages, args.seconds, batch=1) * 1000
+        print(f"| {name:<22} | {enc:>14,.0f} | {dec:>14,.0f} | {both:>17,.0f} | {kept:>11,.0f} | {one_pass:>20,.0f} |")
 
     # Frame-decoder throughput on a 10 MB mixed stream fed in 64 KiB reads (as a socket delivers it).
     rng = random.Random(1)
@@ -116,6 +141,33 @@ def main() -> None:
     print("| frame decoder, 10 MB mixed stream in 64 KiB reads | MB/s | frames/s |")
     print("|---|---:|---:|")
     print(f"| {len(stream) / 1e6:.1f} MB, {frames:,} frames | {best / 1e6:,.1f} | {best / len(stream) * frames:,.0f} |")
+
+    # The same stream cut and decoded: feed + decode of each frame, and feed_messages.
+    def plain() -> None:
+        decoder = FrameDecoder()
+        for c in chunks:
+            decoder.feed(c)
+            for f in decoder:
+                decode(f, LE32)
+
+    def plain_kept() -> None:
+        decoder = FrameDecoder()
+        for c in chunks:
+            decoder.feed(c)
+            for _m in [decode(f, LE32) for f in decoder]:
+                pass
+
+    def one_pass() -> None:
+        decoder = FrameDecoder()
+        for c in chunks:
+            for _m in decoder.feed_messages(c, LE32):
+                pass
+
+    print()
+    print("| the same stream cut and decoded | msg/s |")
+    print("|---|---:|")
+    for label, fn in (("feed + decode", plain), ("feed + decode, kept", plain_kept), ("feed_messages", one_pass)):
+        print(f"| {label} | {rate(fn, args.seconds, batch=1) * frames:,.0f} |")
 
 
 if __name__ == "__main__":

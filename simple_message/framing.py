@@ -13,6 +13,11 @@ are cut as soon as they are complete, so the decoder never holds more than one i
 which is at most ``4 + max_length`` bytes: a peer cannot make it allocate more by announcing a
 huge length, because the length is checked before any of the body is kept.
 
+:meth:`FrameDecoder.feed_messages` is ``feed`` plus :func:`~.messages.decode` of each frame in one
+pass, the path of a :class:`~.link.Link`: a frame of a fixed layout is decoded where it lies in the
+received bytes, and a run of frames with the same header (a streamed trajectory, a feedback topic)
+is decoded in one loop that compares each next header's bytes instead of reading them.
+
 Byte-order autodetection (§10 pitfall 1, the Wireshark dissector's rule): the first length prefix is
 read both ways; the order in which it is a plausible length wins. Once decided it holds for the rest
 of the stream and is available as :attr:`FrameDecoder.byte_order`.
@@ -24,14 +29,21 @@ import struct
 from collections import deque
 from collections.abc import Iterator
 
-from .constants import HEADER_SIZE, LENGTH_SIZE
-from .errors import FrameError
-from .wire import ByteOrder
+from .constants import HEADER_SIZE, LENGTH_SIZE, CommType
+from .errors import FrameError, MalformedMessage
+from .messages import Message, decode, fast_decoders
+from .wire import DEFAULT_FORMAT, ByteOrder, WireFormat
 
 __all__ = ["FrameDecoder", "DEFAULT_MAX_LENGTH", "detect_byte_order"]
 
 #: Default largest accepted length prefix (header + body), in bytes.
 DEFAULT_MAX_LENGTH = 64 * 1024
+
+#: The smallest frame: the length prefix and the header.
+_FRAME_MIN = LENGTH_SIZE + HEADER_SIZE
+_SERVICE_REPLY = int(CommType.SERVICE_REPLY)
+#: At most this many distinct header-only frames are kept decoded (per wire format, for all decoders).
+_SMALL_FRAMES = 256
 
 _LE = struct.Struct("<i")
 _BE = struct.Struct(">i")
@@ -63,10 +75,24 @@ class FrameDecoder:
     """Cuts a byte stream into simple_message frames.
 
     ``byte_order=None`` detects the order from the first frame. Each frame is returned whole, as
-    ``bytes`` including its length prefix, ready for :func:`~.messages.decode`.
+    ``bytes`` including its length prefix, ready for :func:`~.messages.decode`; or, with
+    :meth:`feed_messages`, frames are cut and decoded in one pass.
     """
 
-    __slots__ = ("_buf", "_error", "_frames", "_order", "_prefix", "detected", "frames_decoded", "max_length")
+    __slots__ = (
+        "_buf",
+        "_error",
+        "_frames",
+        "_given",
+        "_order",
+        "_plain",
+        "_prefix",
+        "_tables",
+        "_wire",
+        "detected",
+        "frames_decoded",
+        "max_length",
+    )
 
     def __init__(
         self, byte_order: ByteOrder | None = ByteOrder.LITTLE, *, max_length: int = DEFAULT_MAX_LENGTH
@@ -74,11 +100,17 @@ class FrameDecoder:
         if max_length < HEADER_SIZE:
             raise ValueError(f"max_length must be at least {HEADER_SIZE}")
         self.max_length = max_length
-        self._buf = bytearray()
+        self._buf = b""
         self._frames: deque[bytes] = deque()
         self._error: FrameError | None = None
         self._order: ByteOrder | None = ByteOrder(byte_order) if byte_order is not None else None
         self._prefix = (_LE if self._order is ByteOrder.LITTLE else _BE) if self._order else None
+        # feed_messages: the wire it was last given, the one it decodes in, whether that is in
+        # another byte order than frames are cut in (then the plain path), and its fast decoders.
+        self._given: WireFormat | None = None
+        self._wire = DEFAULT_FORMAT
+        self._plain = False
+        self._tables = fast_decoders(DEFAULT_FORMAT)
         #: True once the byte order was detected from the stream (autodetection only).
         self.detected = False
         #: Number of complete frames cut so far.
@@ -99,24 +131,28 @@ class FrameDecoder:
         """True once a framing error was found; the stream cannot be realigned."""
         return self._error is not None
 
+    @property
+    def error(self) -> FrameError | None:
+        """The framing error that ended the stream, or ``None``."""
+        return self._error
+
     def feed(self, data: bytes | bytearray | memoryview) -> None:
         """Take the next chunk of the stream. Frames it completes are queued for :meth:`next_frame`."""
         if self._error is not None or not data:
             return
         # Work on one immutable bytes object, so each frame costs one slice (one copy); only the
         # incomplete tail, at most one frame, is kept between calls.
-        buf = bytes(self._buf) + bytes(data) if self._buf else bytes(data)
+        buf = self._buf + data if self._buf else bytes(data)
         pos = 0
         end = len(buf)
-        prefix = self._prefix
         max_length = self.max_length
         append = self._frames.append
         try:
+            prefix = self._prefix or self._detect(buf, end)
+            if prefix is None:
+                self._buf = buf
+                return
             while end - pos >= LENGTH_SIZE:
-                if prefix is None:
-                    self._order = detect_byte_order(buf[pos : pos + LENGTH_SIZE], max_length)
-                    prefix = self._prefix = _LE if self._order is ByteOrder.LITTLE else _BE
-                    self.detected = True
                 (length,) = prefix.unpack_from(buf, pos)
                 if length < HEADER_SIZE or length > max_length:
                     raise FrameError(_length_problem(length, max_length), length=length)
@@ -127,9 +163,122 @@ class FrameDecoder:
                 pos = stop
         except FrameError as exc:
             self._error = exc
-            self._buf = bytearray()
+            self._buf = b""
             return
-        self._buf = bytearray(buf[pos:]) if pos < end else bytearray()
+        self._buf = buf[pos:] if pos < end else b""
+
+    def feed_messages(self, data: bytes | bytearray | memoryview, wire: WireFormat) -> list[Message | MalformedMessage]:
+        """:meth:`feed` and :func:`~.messages.decode` in one pass: the messages of the frames that
+        ``data`` completes, in stream order.
+
+        The same as ``feed(data)`` followed by ``decode(frame, wire)`` of every frame it completes
+        (frames queued by an earlier :meth:`feed` and not taken yet come first), but a frame of a
+        fixed layout is decoded straight from the stream, never cut out, and a header-only frame
+        (PING, an ack) seen before comes back as the same (immutable) message as then. A frame whose
+        body does not decode comes back as its :class:`~.errors.MalformedMessage` (returned, not
+        raised: the stream stays aligned). Frames are decoded in ``wire``, but in the stream's byte order once
+        it was detected (with ``wire``'s real size): what a :class:`~.link.Link` does.
+
+        A bad length prefix ends the stream as with :meth:`feed`: the messages of the frames before
+        it are returned, :attr:`failed` becomes true, :attr:`error` holds the
+        :class:`~.errors.FrameError`, and later calls return nothing.
+        """
+        if wire is not self._given:
+            self._use(wire)
+        out: list[Message | MalformedMessage] = []
+        if self._frames:
+            self._take_frames(out)
+        if self._error is not None or not data:
+            return out
+        if self._plain:
+            # Frames cut in one byte order and decoded in another (the wire a Link that does not
+            # detect decodes with was changed): the plain path, which does just what was asked.
+            self.feed(data)
+            self._take_frames(out)
+            return out
+        buf = self._buf + data if self._buf else data if type(data) is bytes else bytes(data)
+        pos = 0
+        end = len(buf)
+        max_length = self.max_length
+        queued = len(out)
+        try:
+            prefix = self._prefix
+            if prefix is None:
+                prefix = self._detect(buf, end)
+                if prefix is None:
+                    self._buf = buf
+                    return out
+                self._use(wire)  # now in the detected byte order
+            wire = self._wire
+            tables = self._tables
+            requests, replies, small = tables.requests, tables.replies, tables.small
+            header = wire.header.unpack_from
+            append = out.append
+            service_reply = _SERVICE_REPLY
+            # A complete frame is at least the length prefix and the header (16 bytes); with less
+            # left, only the length prefix can be checked (below).
+            while end - pos >= _FRAME_MIN:
+                length, msg_type, comm, reply = header(buf, pos)
+                if length < HEADER_SIZE or length > max_length:
+                    raise FrameError(_length_problem(length, max_length), length=length)
+                stop = pos + LENGTH_SIZE + length
+                if stop > end:
+                    break
+                if length == HEADER_SIZE:  # header only: decoded once per distinct frame
+                    frame = buf[pos:stop]
+                    item: Message | MalformedMessage | None = small.get(frame)
+                    if item is None:
+                        item = _decode(frame, wire)
+                        if isinstance(item, Message) and len(small) < _SMALL_FRAMES:
+                            small[frame] = item
+                    append(item)
+                    pos = stop
+                    continue
+                codec = (replies if comm == service_reply else requests)[msg_type]
+                if codec is not None and length == codec.length:
+                    # this frame and the ones after it with the same header, straight from buf
+                    pos = codec.unpack_run(buf, pos, end, comm, reply, append)
+                else:  # any other shape of the type, an unknown type, a malformed body
+                    append(_decode(buf[pos:stop], wire))
+                    pos = stop
+            if end - pos >= LENGTH_SIZE:
+                (length,) = prefix.unpack_from(buf, pos)
+                if length < HEADER_SIZE or length > max_length:
+                    raise FrameError(_length_problem(length, max_length), length=length)
+        except FrameError as exc:
+            self._error = exc
+            pos = end
+        self._buf = buf[pos:] if pos < end else b""
+        self.frames_decoded += len(out) - queued
+        return out
+
+    def _detect(self, buf: bytes, end: int) -> struct.Struct | None:
+        """Detect the byte order from the stream's first length prefix (``None``: not 4 bytes yet)."""
+        if end < LENGTH_SIZE:
+            return None
+        self._order = detect_byte_order(buf[:LENGTH_SIZE], self.max_length)
+        self._prefix = _LE if self._order is ByteOrder.LITTLE else _BE
+        self.detected = True
+        self._given = None  # feed_messages: decode in the detected order from now on
+        return self._prefix
+
+    def _use(self, wire: WireFormat) -> None:
+        """Prepare :meth:`feed_messages` for ``wire``."""
+        order = self._order
+        if self.detected and order is not None and order is not wire.byte_order:
+            self._wire = wire.with_byte_order(order)
+        else:
+            self._wire = wire
+        self._plain = order is not None and order is not self._wire.byte_order
+        self._tables = fast_decoders(self._wire)
+        self._given = wire
+
+    def _take_frames(self, out: list[Message | MalformedMessage]) -> None:
+        """Decode the frames queued by :meth:`feed` into ``out`` (for :meth:`feed_messages`)."""
+        wire = self._wire
+        out.extend(_decode(frame, wire) for frame in self._frames)
+        self.frames_decoded += len(self._frames)
+        self._frames.clear()
 
     def next_frame(self) -> bytes | None:
         """The next complete frame, or ``None`` if more data is needed.
@@ -153,6 +302,13 @@ class FrameDecoder:
             yield frames.popleft()
         if self._error is not None:
             raise self._error
+
+
+def _decode(frame: bytes, wire: WireFormat) -> Message | MalformedMessage:
+    try:
+        return decode(frame, wire)
+    except MalformedMessage as exc:
+        return exc
 
 
 def _length_problem(length: int, max_length: int) -> str:

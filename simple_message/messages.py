@@ -32,6 +32,7 @@ numpy array) and pad it with zeros.
 
 from __future__ import annotations
 
+import keyword
 import re
 import struct
 import weakref
@@ -40,7 +41,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field, fields, is_dataclass
 from enum import IntEnum, IntFlag
 from types import MappingProxyType
-from typing import Any, ClassVar, TypeAlias, cast
+from typing import Any, ClassVar, TypeAlias
 
 from .constants import (
     HEADER_SIZE,
@@ -175,6 +176,7 @@ def _converter_table(converter: Converter) -> dict[int, Any]:
 # Small caches that turn wire ints into enum members without the cost of Enum.__call__.
 _COMM = {int(c): c for c in CommType}
 _REPLY = {int(c): c for c in ReplyCode}
+_SERVICE_REPLY = int(CommType.SERVICE_REPLY)
 #: valid_fields of the EX groups (ExGroup is no message, so it converts this one field itself).
 _VALID = _converter_table(ValidFields)
 
@@ -284,12 +286,30 @@ class _Codec:
     """A precompiled struct for one fixed-layout class in one wire format.
 
     The struct covers the whole frame (prefix, header, body), so a frame is packed or unpacked in a
-    single call. ``unpack`` is generated as straight-line code per class (as :mod:`dataclasses`
-    generates ``__init__``): decoding is the protocol's hot path, and a generic per-field loop costs
-    a third of the time.
+    single call. Decoding is the protocol's hot path, so its functions are generated as
+    straight-line code per class (as :mod:`dataclasses` generates ``__init__``; a generic per-field
+    loop costs a third of the time):
+
+    * ``unpack(frame)`` decodes one whole frame of exactly ``struct.size`` bytes;
+    * ``unpack_run(buf, pos, end, comm_type, reply_code, append)`` decodes, straight from a stream
+      (``bytes``, complete frames up to ``end``), the frame at ``pos``, whose header the caller
+      read (its ``comm_type`` and ``reply_code``, and a length prefix equal to :attr:`length`), and
+      every frame after it with the same 16 header bytes, passing each message to ``append``; it
+      returns the position after the last. Messages of one type mostly come in such runs (a
+      trajectory, a feedback topic), so the caller reads one header per run, and the run compares
+      the next header's bytes instead of unpacking them.
+
+    Neither runs the class's ``__init__``/``__post_init__`` (decoding never has). What
+    ``Message.__post_init__`` checks, the layout guarantees: each joint array is a slice of exactly
+    10 unpacked reals, so it is already the tuple of 10 floats that ``_normalise_arrays`` makes of
+    an argument (and never more than 10); ints are ints of their field's wire range. The fields are
+    set through the class's builder (:func:`_builder`) when it has one.
     """
 
-    __slots__ = ("__weakref__", "length", "plan", "struct", "unpack")
+    __slots__ = ("__weakref__", "body", "builder", "length", "plan", "struct", "unpack", "unpack_run")
+
+    unpack: Callable[[bytes], Message]
+    unpack_run: Callable[[bytes, int, int, int, int, Callable[[Message], object]], int]
 
     def __init__(self, cls: type[Message], wire: WireFormat) -> None:
         plan: list[tuple[str, int, int]] = []
@@ -299,32 +319,72 @@ class _Codec:
             plan.append((name, pos, pos + count if count > 1 else -1))
             pos += count
         self.struct = wire.struct(_HEADER + _body_format(cls.LAYOUT))
+        #: the body alone (the 16 bytes of prefix and header skipped): values at plan index - 4
+        self.body = wire.struct(f"{LENGTH_SIZE + HEADER_SIZE}x" + _body_format(cls.LAYOUT))
         self.length = self.struct.size - LENGTH_SIZE
         self.plan = tuple(plan)
-        self.unpack = self._compile_unpack(cls)
-        # (re)registering the class with other converters recompiles ``unpack`` (see _refresh_codecs)
+        self.builder = _builder(cls)
+        self.compile(cls)
+        # (re)registering the class with other converters recompiles it (see _refresh_codecs)
         _LIVE_CODECS.setdefault(cls, weakref.WeakSet()).add(self)
 
-    def _compile_unpack(self, cls: type[Message]) -> Callable[[bytes], Message]:
+    def compile(self, cls: type[Message]) -> None:
+        """(Re)generate ``unpack`` and ``unpack_run`` for the class's current converters."""
         converters = _CLASS_CONVERTERS.get(cls, {})
-        env: dict[str, Any] = {"_unpack": self.struct.unpack, "_new": object.__new__, "_set": object.__setattr__}
-        env.update(_cls=cls, _COMM=_COMM, _REPLY=_REPLY)
-        lines = [
+        env: dict[str, Any] = {
+            "_unpack": self.struct.unpack,
+            "_unpack_body": self.body.unpack_from,
+            "_new": object.__new__,
+            "_set": object.__setattr__,
+            "_cls": cls,
+            "_builder": self.builder,
+            "_COMM": _COMM,
+            "_REPLY": _REPLY,
+        }
+        fast = self.builder is not None
+
+        def build(comm: str, reply: str, offset: int, indent: str) -> list[str]:
+            """Statements that make ``o`` from the unpacked values ``v`` (field k at k - offset)."""
+            values = [("comm_type", comm), ("reply_code", reply)]
+            for k, (name, start, stop) in enumerate(self.plan):
+                value = f"v[{start - offset}]" if stop < 0 else f"v[{start - offset}:{stop - offset}]"
+                if name in converters:
+                    env[f"_conv{k}"] = dict(converters[name])  # a plain dict: .get is faster than a proxy's
+                    value = f"_conv{k}.get({value}, {value})"
+                values.append((name, value))
+            lines = ["o = _builder()" if fast else "o = _new(_cls)"]
+            for name, value in values:
+                if fast and name.isidentifier() and not keyword.iskeyword(name):
+                    lines.append(f"o.{name} = {value}")  # a specialised slot store on the builder
+                else:
+                    lines.append(f"_set(o, {name!r}, {value})")
+            if fast:
+                lines.append("o.__class__ = _cls")
+            return [indent + line for line in lines]
+
+        size = self.struct.size
+        source = [
             "def unpack(frame):",
             "    v = _unpack(frame)",
-            "    o = _new(_cls)",
-            "    _set(o, 'comm_type', _COMM.get(v[2], v[2]))",
-            "    _set(o, 'reply_code', _REPLY.get(v[3], v[3]))",
+            *build("_COMM.get(v[2], v[2])", "_REPLY.get(v[3], v[3])", 0, "    "),
+            "    return o",
+            "def unpack_run(buf, pos, end, comm_type, reply_code, append):",
+            f"    head = buf[pos:pos + {LENGTH_SIZE + HEADER_SIZE}]",
+            "    same = buf.startswith",
+            "    comm_type = _COMM.get(comm_type, comm_type)",
+            "    reply_code = _REPLY.get(reply_code, reply_code)",
+            f"    last = end - {size}",
+            "    while True:",
+            "        v = _unpack_body(buf, pos)",
+            *build("comm_type", "reply_code", 4, "        "),
+            "        append(o)",
+            f"        pos += {size}",
+            "        if pos > last or not same(head, pos):",
+            "            return pos",
         ]
-        for name, start, stop in self.plan:
-            value = f"v[{start}]" if stop < 0 else f"v[{start}:{stop}]"
-            if name in converters:
-                env[f"_conv_{name}"] = converters[name]
-                value = f"_conv_{name}.get({value}, {value})"
-            lines.append(f"    _set(o, {name!r}, {value})")
-        lines.append("    return o")
-        exec("\n".join(lines), env)  # generated from the class's own LAYOUT only
-        return cast(Callable[[bytes], Message], env["unpack"])
+        exec("\n".join(source), env)  # generated from the class's own LAYOUT only
+        self.unpack = env["unpack"]
+        self.unpack_run = env["unpack_run"]
 
     def pack(self, msg: Message) -> bytes:
         values: list[Any] = [self.length, msg.MSG_TYPE, msg.comm_type, msg.reply_code]
@@ -339,11 +399,111 @@ class _Codec:
             raise LocalProtocolError(f"cannot encode {type(msg).__name__}: {exc}") from None
 
 
+def _builder(cls: type[Message]) -> type[Message] | None:
+    """A subclass of ``cls`` that decoding builds instances with; ``None`` if ``cls`` cannot have one.
+
+    A frozen dataclass's ``__setattr__`` raises, so its fields can only be set with
+    ``object.__setattr__`` or the slot descriptors' ``__set__``: a C call through a wrapper per
+    field, the largest cost of decoding. The builder gives back ``object``'s ``__setattr__`` and
+    ``__delattr__`` (both: with either one overridden, every store goes through a Python-level
+    lookup), so its fields are set with plain attribute stores, which the interpreter specialises
+    to a direct slot write; the finished instance then becomes a ``cls`` by assigning its
+    ``__class__``. That assignment is legal because the builder adds nothing to ``cls``'s layout
+    (``__slots__ = ()``); it is checked here once on a probe. Decoded messages are thus exactly
+    ``cls`` instances (``type(msg) is cls``). A class with its own metaclass or ``__new__``, an
+    ``__init_subclass__`` (which creating the builder would run) or a ``__del__`` (which the
+    probe's end would run) gets no builder: its fields are set with ``object.__setattr__``.
+    """
+    if type(cls) is not type or cls.__new__ is not object.__new__:
+        return None
+    if any("__init_subclass__" in vars(k) or "__del__" in vars(k) for k in cls.__mro__[:-1]):
+        return None
+    namespace = {
+        "__slots__": (),
+        "__init__": object.__init__,
+        "__setattr__": object.__setattr__,
+        "__delattr__": object.__delattr__,
+        "__module__": cls.__module__,
+        "__qualname__": f"_{cls.__qualname__}Builder",
+        "__doc__": f"Builds decoded {cls.__name__} instances (an implementation detail of decoding).",
+    }
+    builder = type(f"_{cls.__name__}Builder", (cls,), namespace)
+    try:
+        probe = builder()
+        probe.__class__ = cls
+    except TypeError:
+        return None
+    return builder
+
+
 def _codec(cls: type[Message], wire: WireFormat) -> _Codec:
     codec: _Codec | None = wire.codecs.get(cls)
     if codec is None:
         codec = wire.codecs[cls] = _Codec(cls, wire)
     return codec
+
+
+class _FastTable(dict[int, "_Codec | None"]):
+    """msg_type -> the codec of the class that decodes it (requests and topics, or SERVICE_REPLYs),
+    ``None`` for a type without a fixed layout; filled on first lookup (``[]``). Only registered
+    types are kept: a stream can carry any int32 as its msg_type."""
+
+    __slots__ = ("replies", "wire")
+
+    def __init__(self, wire: WireFormat, replies: bool) -> None:
+        super().__init__()
+        self.wire = wire
+        self.replies = replies
+
+    def __missing__(self, msg_type: int) -> _Codec | None:
+        pair = MESSAGE_CLASSES.get(msg_type)
+        if pair is None:
+            return None
+        cls = pair[1] if self.replies else pair[0]
+        codec = _codec(cls, self.wire) if cls.LAYOUT else None
+        self[msg_type] = codec
+        return codec
+
+
+class _FastTables:
+    """What :meth:`.framing.FrameDecoder.feed_messages` decodes with in one wire format (an
+    implementation detail of this package). ``requests`` and ``replies`` (requests and topics,
+    SERVICE_REPLYs): see :class:`_FastTable`, look up with ``[]``, not ``.get``. ``small``: header-only
+    frames (PING, acks, FAILURE replies) already decoded, by their 16 bytes; the same bytes decode to
+    the same immutable message, so each is decoded once (the decoder bounds how many it keeps).
+    All three are emptied whenever the registry or a converter changes."""
+
+    __slots__ = ("replies", "requests", "small")
+
+    def __init__(self, wire: WireFormat) -> None:
+        self.requests = _FastTable(wire, False)
+        self.replies = _FastTable(wire, True)
+        self.small: dict[bytes, Message] = {}
+
+    def clear(self) -> None:
+        self.requests.clear()
+        self.replies.clear()
+        self.small.clear()
+
+
+#: The fast tables per wire format (byte order, real size). They live as long as the module (a
+#: FrameDecoder keeps them) and are emptied whenever the registry or a converter changes.
+_FAST: dict[tuple[str, int], _FastTables] = {}
+
+
+def _clear_fast() -> None:
+    for tables in _FAST.values():
+        tables.clear()
+
+
+def fast_decoders(wire: WireFormat) -> _FastTables:
+    """The :class:`_FastTables` of ``wire`` (the same object for every equal format, kept current
+    as the registry changes), for :meth:`.framing.FrameDecoder.feed_messages`."""
+    key = (wire.byte_order, wire.real_size)
+    tables = _FAST.get(key)
+    if tables is None:
+        tables = _FAST[key] = _FastTables(wire)
+    return tables
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1134,6 +1294,7 @@ def _same(a: MessageSpec, b: MessageSpec) -> bool:
 
 
 def _install(spec: MessageSpec) -> None:
+    _clear_fast()
     _REGISTRY[spec.msg_type] = spec
     MESSAGE_CLASSES[spec.msg_type] = (spec.request, spec.reply)
     _NAMES[spec.msg_type] = spec.name
@@ -1147,6 +1308,7 @@ def _install(spec: MessageSpec) -> None:
 
 
 def _remove(spec: MessageSpec) -> None:
+    _clear_fast()
     del _REGISTRY[spec.msg_type]
     del MESSAGE_CLASSES[spec.msg_type]
     if spec.msg_type in MsgType._value2member_map_:
@@ -1161,9 +1323,10 @@ def _remove(spec: MessageSpec) -> None:
 
 def _refresh_codecs(classes: Iterable[type[Message]]) -> None:
     """Recompile the decoders of ``classes`` in every wire format, for their current converters."""
+    _clear_fast()
     for cls in set(classes):
         for codec in list(_LIVE_CODECS.get(cls, ())):
-            codec.unpack = codec._compile_unpack(cls)
+            codec.compile(cls)
 
 
 def register(
@@ -1351,18 +1514,16 @@ def decode(frame: bytes, wire: WireFormat = DEFAULT_FORMAT) -> Message:
             frame=bytes(frame),
         )
     pair = MESSAGE_CLASSES.get(msg_type)
-    comm_e = _COMM.get(comm, comm)
-    reply_e = _REPLY.get(reply, reply)
     if pair is None:
+        comm_e, reply_e = _COMM.get(comm, comm), _REPLY.get(reply, reply)
         return RawMessage(msg_type, bytes(frame[16:]), comm_type=comm_e, reply_code=reply_e)
-    cls = pair[1] if comm == CommType.SERVICE_REPLY else pair[0]
+    cls = pair[1] if comm == _SERVICE_REPLY else pair[0]
     if cls.LAYOUT:
         codec = wire.codecs.get(cls) or _codec(cls, wire)
-        if size == codec.struct.size:
+        if length == codec.length:
             return codec.unpack(frame)
-        result: Message | None = None
-    else:
-        result = cls._decode_body(bytes(frame[16:]), wire, comm_e, reply_e)
+    comm_e, reply_e = _COMM.get(comm, comm), _REPLY.get(reply, reply)
+    result = None if cls.LAYOUT else cls._decode_body(bytes(frame[16:]), wire, comm_e, reply_e)
     if result is not None:
         return result
     body_size = size - 16

@@ -41,7 +41,9 @@ class WireFormat:
     real_size: int = 4
     #: Prefix + header struct (four int32), precomputed for the hot decode path.
     header: struct.Struct = field(init=False, repr=False, compare=False, hash=False)
-    #: Per-message-class codecs, filled lazily by :mod:`.messages` (an implementation detail).
+    #: Per-message-class codecs, filled lazily by :mod:`.messages` (an implementation detail); one
+    #: dict shared by all equal formats, so that a format made again (e.g. by :meth:`with_byte_order`
+    #: for each autodetecting link) does not compile them again.
     codecs: dict[type, Any] = field(init=False, repr=False, compare=False, hash=False)
 
     def __post_init__(self) -> None:
@@ -50,7 +52,7 @@ class WireFormat:
         if self.real_size not in (4, 8):
             raise ValueError(f"real_size must be 4 or 8 bytes, not {self.real_size!r}")
         object.__setattr__(self, "header", self.struct("iiii"))
-        object.__setattr__(self, "codecs", {})
+        object.__setattr__(self, "codecs", _CODECS.setdefault((self.byte_order, self.real_size), {}))
 
     @property
     def real_char(self) -> str:
@@ -65,6 +67,10 @@ class WireFormat:
 
     def __str__(self) -> str:
         return f"{self.byte_order.value}-endian float{self.real_size * 8}"
+
+
+#: The codecs dict of each format (byte order, real size): at most four.
+_CODECS: dict[tuple[ByteOrder, int], dict[type, Any]] = {}
 
 
 @cache

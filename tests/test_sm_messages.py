@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass
+from typing import ClassVar
+
 import numpy as np
 import pytest
 
 from simple_message import (
     BE32,
+    BE64,
     LE32,
     LE64,
     CommType,
     DhLink,
     DummyReply,
     ExGroup,
+    FrameDecoder,
     GetDhParameters,
     GetDhParametersReply,
     GetVersion,
@@ -26,8 +32,10 @@ from simple_message import (
     JointTrajPtFullEx,
     LocalProtocolError,
     MalformedMessage,
+    Message,
     MotoCommand,
     MotoMotionCtrl,
+    MotoMotionReply,
     MsgType,
     Ping,
     RawMessage,
@@ -40,6 +48,7 @@ from simple_message import (
     TrajPoint,
     TriState,
     ValidFields,
+    WireFormat,
     WriteMRegister,
     WriteMRegisterReply,
     decode,
@@ -47,6 +56,7 @@ from simple_message import (
     message_from_json,
     message_to_json,
 )
+from simple_message.messages import register, scoped_registry, unregister
 
 
 def test_joint_arrays_are_padded_and_normalised() -> None:
@@ -229,3 +239,81 @@ def test_unknown_type_is_raw_and_byte_exact() -> None:
 def test_moto_motion_ctrl_command() -> None:
     msg = MotoMotionCtrl(command=MotoCommand.STOP_MOTION)
     assert decode(msg.encode(), LE32).command == 200111  # type: ignore[attr-defined]
+
+
+# -- how decoding builds messages (messages._Codec, messages._builder) --------------------------
+
+
+@pytest.mark.parametrize("wire", [LE32, BE32, LE64, BE64], ids=str)
+def test_decoded_messages_are_exactly_their_class_frozen_and_equal(wire: WireFormat) -> None:
+    """Decoding sets the fields without the constructor: what comes out is a plain instance of the
+    class, immutable, and equal (hash, repr) to the message made by the constructor."""
+    plain = [
+        JointTrajPt(3, [0.5, -0.25], 0.5, 1.0),
+        ReadSingleIo(2**32 - 1),
+        SelectTool(0, 3, 9, comm_type=CommType.TOPIC),
+    ]
+    converted = [Status(1, 0, 7, 0, 1, 2, 1), JointFeedback(1, 0x0E, 1.5, [0.5]), MotoMotionReply(1, 2, 3, 4, 5)]
+    for msg in plain + converted:
+        frame = msg.encode(wire)
+        for back in (decode(frame, wire), *FrameDecoder(wire.byte_order).feed_messages(frame * 2, wire)):
+            assert type(back) is type(msg)
+            assert back == msg and hash(back) == hash(msg)
+            if msg in plain:
+                assert repr(back) == repr(msg)
+            with pytest.raises(AttributeError):
+                back.comm_type = 1  # type: ignore[misc]
+            with pytest.raises(AttributeError):
+                del back.reply_code  # type: ignore[misc]
+            assert dataclasses.replace(back) == msg and back.encode(wire) == frame
+
+
+@dataclass(frozen=True, slots=True)
+class GaugeBase(Message):
+    """A vendor base class with ``__init_subclass__``: decoding must not subclass its classes."""
+
+    subclasses: ClassVar[list[type]] = []
+
+    def __init_subclass__(cls) -> None:
+        GaugeBase.subclasses.append(cls)
+
+
+@dataclass(frozen=True, slots=True)
+class AcmeGauge(GaugeBase):
+    width: float = 0.0
+    state: int = 0
+    MSG_TYPE: ClassVar[int] = 1777
+    LAYOUT: ClassVar[tuple[tuple[str, str], ...]] = (("width", "r"), ("state", "i"))
+
+
+def test_a_class_without_a_builder_decodes_alike() -> None:
+    with scoped_registry():
+        register(AcmeGauge, converters={"state": TriState})
+        before = list(GaugeBase.subclasses)
+        msg = AcmeGauge(0.5, 1, comm_type=CommType.TOPIC)
+        frame = msg.encode(LE32)
+        for back in (decode(frame, LE32), *FrameDecoder().feed_messages(frame * 3, LE32)):
+            assert isinstance(back, AcmeGauge) and type(back) is AcmeGauge
+            assert back == msg and back.state is TriState.TRUE
+        assert GaugeBase.subclasses == before  # no builder subclass was made
+
+
+def test_registering_other_converters_changes_what_feed_messages_decodes() -> None:
+    """feed_messages's tables (and its decoded header-only frames) follow the registry."""
+    frame = AcmeGauge(0.5, 1).encode(LE32)
+    ack = HeaderOnly(AcmeGauge.MSG_TYPE, reply_code=ReplyCode.SUCCESS).encode(LE32)
+    dec = FrameDecoder()
+    assert dec.feed_messages(ack, LE32) == [RawMessage(AcmeGauge.MSG_TYPE, comm_type=3, reply_code=1)]
+    with scoped_registry():
+        register(AcmeGauge, converters={"state": TriState})
+        assert dec.feed_messages(ack * 2, LE32) == [decode(ack, LE32)] * 2
+        assert type(decode(ack, LE32)) is HeaderOnly
+        (back,) = dec.feed_messages(frame, LE32)
+        assert isinstance(back, AcmeGauge) and back.state is TriState.TRUE
+        register(AcmeGauge, replace=True)
+        (back,) = dec.feed_messages(frame, LE32)
+        assert isinstance(back, AcmeGauge) and back.state == 1 and type(back.state) is int
+        unregister(AcmeGauge.MSG_TYPE)
+        assert isinstance(dec.feed_messages(frame, LE32)[0], RawMessage)
+    assert isinstance(dec.feed_messages(frame, LE32)[0], RawMessage)
+    assert type(dec.feed_messages(ack, LE32)[0]) is RawMessage
