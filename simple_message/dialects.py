@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 from .constants import MsgType, Port
 from .messages import Message
+from .registry import Registry
 from .wire import BE32, LE32, WireFormat
 
 __all__ = [
@@ -149,28 +150,22 @@ MOTOROS = Dialect(
 )
 
 #: Every registered dialect by name.
-DIALECTS: dict[str, Dialect] = {}
+DIALECTS: Registry[Dialect] = Registry("dialect", KeyError)
 
 
 def register(value: Dialect, *, replace: bool = False) -> Dialect:
     """Make ``value`` known by its name (``replace``: over one of the same name)."""
-    if value.name in DIALECTS and not replace:
-        raise ValueError(f"a dialect named {value.name!r} is already registered")
-    DIALECTS[value.name] = value
-    return value
+    return DIALECTS.add(value.name, value, replace=replace)
 
 
 def unregister(name: str) -> None:
     """Forget the dialect called ``name`` (tests that register their own)."""
-    DIALECTS.pop(name, None)
+    DIALECTS.remove(name)
 
 
 def dialect(name: str) -> Dialect:
     """The registered dialect called ``name``; :class:`KeyError` names the known ones."""
-    try:
-        return DIALECTS[name]
-    except KeyError:
-        raise KeyError(f"unknown dialect {name!r} (known: {', '.join(sorted(DIALECTS))})") from None
+    return DIALECTS.named(name)
 
 
 def any_dialect_answers(request_type: int, reply: Message) -> bool:

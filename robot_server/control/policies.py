@@ -25,12 +25,13 @@ from __future__ import annotations
 
 import re
 from abc import ABC, abstractmethod
-from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager
 from typing import ClassVar, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
+
+from simple_message.registry import Registry
 
 from .peaks import CUBIC_PEAK_ACCELERATION, CUBIC_PEAK_VELOCITY, QUINTIC_PEAK_ACCELERATION, QUINTIC_PEAK_VELOCITY
 from .points import Limits, PointRejected, Reason, State
@@ -173,7 +174,9 @@ def _ratio(ratio: float) -> float:
 
 
 #: every policy, by name; the first is the default
-POLICIES: dict[str, Policy] = {p.name: p for p in (Blend(), Linear(), Cubic(), Quintic(), Ruckig())}
+POLICIES: Registry[Policy] = Registry("interpolation policy")
+for _builtin in (Blend(), Linear(), Cubic(), Quintic(), Ruckig()):
+    POLICIES.add(_builtin.name, _builtin)
 DEFAULT_POLICY = "blend"
 
 
@@ -181,10 +184,7 @@ def policy(name: str | Policy) -> Policy:
     """The policy called ``name`` (ValueError naming the known ones otherwise)."""
     if isinstance(name, Policy):
         return name
-    try:
-        return POLICIES[name]
-    except KeyError:
-        raise ValueError(f"unknown interpolation policy {name!r} (known: {', '.join(POLICIES)})") from None
+    return POLICIES.named(name)
 
 
 _P = TypeVar("_P", bound=Policy)
@@ -219,13 +219,7 @@ def register_policy(entry: _P, *, replace: bool = False) -> _P:
         raise ValueError(f"policy {name!r}: checked_orders must be a tuple of 1, 2 and 3, not {orders!r}")
     if not entry.passes_through and type(entry).to_rest is Policy.to_rest:
         raise ValueError(f"policy {name!r}: a rest-to-rest policy (passes_through False) must implement to_rest")
-    old = POLICIES.get(name)
-    if old is not None and old is not entry and not replace:
-        raise ValueError(
-            f"an interpolation policy named {name!r} is already registered ({type(old).__name__}); "
-            "pass replace=True to replace it"
-        )
-    POLICIES[name] = entry
+    POLICIES.add(name, entry, replace=replace)
     return entry
 
 
@@ -240,13 +234,7 @@ def unregister_policy(name: str) -> Policy:
     return entry
 
 
-@contextmanager
-def scoped_policies() -> Iterator[dict[str, Policy]]:
+def scoped_policies() -> AbstractContextManager[Registry[Policy]]:
     """Undo, on leaving the block, every :func:`register_policy` and :func:`unregister_policy`
     made inside it (:data:`POLICIES` is left exactly as it was entered, the same dict; for tests)."""
-    saved = dict(POLICIES)
-    try:
-        yield POLICIES
-    finally:
-        POLICIES.clear()
-        POLICIES.update(saved)
+    return POLICIES.scoped()

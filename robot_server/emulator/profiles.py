@@ -22,6 +22,7 @@ from typing import Protocol
 
 from simple_message.dialects import Dialect
 from simple_message.endpoints import Server, Session
+from simple_message.registry import Registry
 
 from .cell import RobotCell
 from .io_table import IoTable
@@ -104,25 +105,19 @@ class EmulatorProfile:
 
 
 #: Every profile the emulator can play, by name (the dialect's).
-PROFILES: dict[str, EmulatorProfile] = {}
+PROFILES: Registry[EmulatorProfile] = Registry("profile")
 
 
 def register_profile(profile: EmulatorProfile, *, replace: bool = False) -> EmulatorProfile:
     """Make ``profile`` selectable by its name (``replace``: over one of the same name)."""
-    if profile.name in PROFILES and not replace:
-        raise ValueError(f"an emulator profile named {profile.name!r} is already registered")
-    PROFILES[profile.name] = profile
-    return profile
+    return PROFILES.add(profile.name, profile, replace=replace)
 
 
 def unregister_profile(name: str) -> None:
     """Forget the profile called ``name`` (tests that register their own)."""
-    PROFILES.pop(name, None)
+    PROFILES.remove(name)
 
 
 def profile_named(name: str) -> EmulatorProfile:
     """The registered profile called ``name``; :class:`ValueError` names the known ones."""
-    try:
-        return PROFILES[name]
-    except KeyError:
-        raise ValueError(f"unknown profile {name!r} (known: {', '.join(sorted(PROFILES))})") from None
+    return PROFILES.named(name)
