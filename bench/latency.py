@@ -15,7 +15,13 @@ p99 and max only). The C++ decode rate (`sm_client decode N`) is printed too. Lo
 VM the placement of the processes decides much of a round trip (a wake-up on the other core costs tens of us):
 --pin same or split makes runs comparable.
 
+--server-loop asyncio,uvloop measures robot-server on each event loop (forced; default: as the command picks it, uvloop
+when installed once it runs through simple_message.endpoints.run), and --baseline DIR the robot-server of another
+checkout too (e.g. `git worktree add /tmp/base HEAD~1`), all in the same alternation; --peer-only skips the asyncio
+client's table.
+
     python bench/latency.py [--count 10000] [--peer DIR] [--peer-runs 5] [--pin none|same|split]
+                            [--server-loop LOOPS] [--baseline DIR] [--peer-only]
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
@@ -193,10 +200,11 @@ def running(
     stdout: int | None = subprocess.PIPE,
     stderr: IO[bytes] | int | None = None,
     env: dict[str, str] | None = None,
+    cwd: Path | None = None,
 ) -> Iterator[subprocess.Popen[bytes]]:
     """A child process, always ended on leaving (also on Ctrl-C): its stdin closed (the bench's own servers exit
     then), SIGTERM if it is still running (robot-server stops cleanly), SIGKILL if that does not end it in time."""
-    proc = subprocess.Popen(list(cmd), stdin=stdin, stdout=stdout, stderr=stderr, env=env)
+    proc = subprocess.Popen(list(cmd), stdin=stdin, stdout=stdout, stderr=stderr, env=env, cwd=cwd)
     try:
         yield proc
     finally:
@@ -252,13 +260,46 @@ def cpp_server(peer: Path) -> Iterator[int]:
     raise PeerError("sm_server did not accept connections")
 
 
+#: how a robot-server variant is started: its event loop forced, then the command's own main()
+LAUNCH = (
+    "import asyncio, sys\n"
+    "if sys.argv[1] == 'uvloop':\n"
+    "    import uvloop\n"
+    "    asyncio.set_event_loop_policy(uvloop.EventLoopPolicy())\n"
+    "from robot_server.cli import main\n"
+    "sys.exit(main(sys.argv[2:]))"
+)
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One robot-server to measure: its name in the tables, the checkout it runs from, its event loop
+    (``default``: whatever the command picks; ``asyncio`` or ``uvloop``: forced)."""
+
+    name: str
+    root: Path
+    loop: str = "default"
+
+    def env(self, base: dict[str, str]) -> dict[str, str]:
+        env = {**base, "PYTHONPATH": str(self.root)}
+        if self.loop != "default":
+            env["SIMPLE_MESSAGE_LOOP"] = self.loop  # honoured by simple_message.endpoints.run
+        return env
+
+
 @contextlib.contextmanager
-def robot_server(env: dict[str, str]) -> Iterator[int]:
+def robot_server(env: dict[str, str], variant: Variant | None = None) -> Iterator[int]:
     """A robot-server process (default generic profile, jibot_zxs, real time) on free ports; yields its motion
-    port."""
-    cmd = [sys.executable, "-m", "robot_server", "--host", "127.0.0.1", "--motion-port", "0", "--state-port", "0"]
-    cmd += ["--no-stdin", "--log-level", "WARNING"]
-    with tempfile.TemporaryFile() as log, running(cmd, stderr=log, env=env) as proc:
+    port. ``variant``: from another checkout and/or on a forced event loop (default: this checkout, as it is)."""
+    args = ["--host", "127.0.0.1", "--motion-port", "0", "--state-port", "0", "--no-stdin", "--log-level", "WARNING"]
+    cwd = None
+    if variant is None:
+        cmd = [sys.executable, "-m", "robot_server", *args]
+    else:
+        cmd = [sys.executable, "-c", LAUNCH, variant.loop, *args]
+        env = variant.env(env)
+        cwd = variant.root  # python -c puts the working directory first on sys.path
+    with tempfile.TemporaryFile() as log, running(cmd, stderr=log, env=env, cwd=cwd) as proc:
         try:
             line = read_line(proc.stdout, START_TIMEOUT, "robot-server")
         except PeerError as e:
@@ -358,24 +399,28 @@ def spread(values: list[float]) -> str:
     return f"{statistics.median(values):.0f} ({min(values):.0f}-{max(values):.0f})"
 
 
-def compare_with_peer(peer: Path, count: int, runs: int, env: dict[str, str], pin: str) -> None:
-    """The same C++ client against robot-server and the C++ server, alternating runs, both servers up throughout
-    (so that both are measured with the same background load); then the C++ decode rate."""
-    names = ("C++ sm_server", "robot-server")
+def compare_with_peer(
+    peer: Path, count: int, runs: int, env: dict[str, str], pin: str, variants: Sequence[Variant | None]
+) -> None:
+    """The same C++ client against each robot-server variant and the C++ server, alternating runs (the order
+    rotates from run to run), every server up throughout (so that all are measured under the same background
+    load); then the C++ decode rate."""
+    cpp_name = "C++ sm_server"
+    names = [cpp_name, *("robot-server" if v is None else v.name for v in variants)]
     cpp: dict[str, list[dict[str, float]]] = {name: [] for name in names}
     raw: dict[str, list[int]] = {name: [] for name in names}
     server_cpus, client_cpus, where = placement(pin)
     with contextlib.ExitStack() as servers:
         with affinity(server_cpus):
-            cpp_port = servers.enter_context(cpp_server(peer))
-            rs_port = servers.enter_context(robot_server(env))
-        ports = dict(zip(names, (cpp_port, rs_port), strict=True))
+            ports = {cpp_name: servers.enter_context(cpp_server(peer))}
+            for name, variant in zip(names[1:], variants, strict=True):
+                ports[name] = servers.enter_context(robot_server(env, variant))
         servers.enter_context(affinity(client_cpus))
         for run in range(runs):
-            for name in names if run % 2 == 0 else names[::-1]:
+            for name in names[run % len(names) :] + names[: run % len(names)]:
                 cpp[name].append(sm_client_ping(peer, ports[name], count))
         for run in range(runs):
-            for name in names if run % 2 == 0 else names[::-1]:
+            for name in names[run % len(names) :] + names[: run % len(names)]:
                 raw[name] += raw_ping(ports[name], count)
     print()
     print(f"# against the reference C++ peer in {peer} (ROS-Industrial simple_message, industrial_core); {where}")
@@ -391,15 +436,16 @@ def compare_with_peer(peer: Path, count: int, runs: int, env: dict[str, str], pi
             f"| {name} | {spread([x['p50'] for x in r])} | n/a | {spread([x['p99'] for x in r])} "
             f"| {max(x['max'] for x in r):.0f} |"
         )
-    ratio = {
-        q: statistics.median(x[q] for x in cpp[names[1]]) / statistics.median(x[q] for x in cpp[names[0]])
-        for q in ("p50", "p99")
-    }
-    paired = [b["p50"] / a["p50"] for a, b in zip(cpp[names[0]], cpp[names[1]], strict=True)]
-    print(
-        f"| ratio robot-server / C++ (target p50 <= 1.5x; p50 run pairs {min(paired):.2f}-{max(paired):.2f}x) "
-        f"| {ratio['p50']:.2f}x | | {ratio['p99']:.2f}x | |"
-    )
+    for name in names[1:]:
+        ratio = {
+            q: statistics.median(x[q] for x in cpp[name]) / statistics.median(x[q] for x in cpp[cpp_name])
+            for q in ("p50", "p99")
+        }
+        paired = [b["p50"] / a["p50"] for a, b in zip(cpp[cpp_name], cpp[name], strict=True)]
+        print(
+            f"| ratio {name} / C++ (target p50 <= 1.5x; p50 run pairs {min(paired):.2f}-{max(paired):.2f}x) "
+            f"| {ratio['p50']:.2f}x | | {ratio['p99']:.2f}x | |"
+        )
     print()
     print(
         f"| PING, blocking raw-socket Python client, {runs} alternating runs of {count}, pooled | p50 us | p90 us "
@@ -414,17 +460,35 @@ def compare_with_peer(peer: Path, count: int, runs: int, env: dict[str, str], pi
         }
         pct[name]["max"] = s[-1] / 1000
         print(f"| {name} | " + " | ".join(f"{pct[name][q]:.0f}" for q in ("p50", "p90", "p99", "max")) + " |")
-    print(
-        "| ratio robot-server / C++ | "
-        + " | ".join(f"{pct[names[1]][q] / pct[names[0]][q]:.2f}x" for q in ("p50", "p90", "p99"))
-        + " | |"
-    )
+    for name in names[1:]:
+        print(
+            f"| ratio {name} / C++ | "
+            + " | ".join(f"{pct[name][q] / pct[cpp_name][q]:.2f}x" for q in ("p50", "p90", "p99"))
+            + " | |"
+        )
     print("\n(sm_client prints p50, p99 and max only: the p90 is the raw-socket client's)")
     rates = [sm_client_decode(peer, DECODE_COUNT) for _ in range(3)]
     print()
     print("| C++ decode: frame from its bytes + JOINT_TRAJ_PT message (`sm_client decode`), best of 3 | msg/s |")
     print("|---|---:|")
     print(f"| {DECODE_COUNT:,} frames (runs: {', '.join(f'{x / 1e6:.2f} M' for x in rates)}) | {max(rates):,.0f} |")
+
+
+def variants_of(loops: str, baseline: str | None) -> list[Variant | None]:
+    """The robot-server variants of ``--server-loop`` and ``--baseline``."""
+    here = Path(__file__).resolve().parents[1]
+    chosen = [loop.strip() for loop in loops.split(",") if loop.strip()]
+    roots = [("robot-server", here)]
+    if baseline is not None:
+        roots.append((f"baseline {Path(baseline).name or baseline}", Path(baseline).resolve()))
+    out: list[Variant | None] = []
+    for label, root in roots:
+        for loop in chosen:
+            if loop == "default" and root == here:
+                out.append(None)  # exactly as users start it
+            else:
+                out.append(Variant(label if loop == "default" else f"{label} ({loop})", root, loop))
+    return out
 
 
 def main() -> None:
@@ -442,11 +506,48 @@ def main() -> None:
         default="none",
         help="against the C++ peer: servers and client on one CPU (same), on two (split), or where the OS puts them",
     )
+    parser.add_argument(
+        "--server-loop",
+        default="default",
+        metavar="LOOPS",
+        help="against the C++ peer: robot-server's event loop, comma-separated (default: as the command picks it; "
+        "asyncio or uvloop: forced), each measured in the same alternation",
+    )
+    parser.add_argument(
+        "--baseline",
+        metavar="DIR",
+        help="against the C++ peer: also measure the robot-server of another checkout (e.g. a git worktree of an "
+        "older commit), in the same alternation",
+    )
+    parser.add_argument("--peer-only", action="store_true", help="only the comparison with the C++ peer")
     parser.add_argument("--serve", metavar="LOOP", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.serve:
         run_loop(args.serve, lambda: serve(args.serve))
         return
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from codec import machine  # the benchmarks' shared machine description
+
+    print(f"# {machine()}")
+    print()
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    if not args.peer_only:
+        python_client(args.count, env)
+    peer, where = find_peer(args.peer)
+    if peer is None:
+        print(f"\n(C++ reference peer not built: no sm_client/sm_server in {where}; {BUILD_HINT}, or --peer DIR)")
+        return
+    try:
+        compare_with_peer(
+            peer, args.count, max(args.peer_runs, 1), env, args.pin, variants_of(args.server_loop, args.baseline)
+        )
+    except PeerError as e:
+        print(f"\n(comparison with the C++ peer in {peer} failed: {e})")
+        sys.exit(1)
+
+
+def python_client(count: int, env: dict[str, str]) -> None:
+    """The asyncio client against the bench's own server on each event loop, and the bare echo floor."""
     loops = ["asyncio"]
     try:
         import uvloop  # noqa: F401
@@ -454,40 +555,27 @@ def main() -> None:
         loops.append("uvloop")
     except ImportError:
         pass
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from codec import machine  # the benchmarks' shared machine description
-
-    print(f"# simple_message loopback latency: {machine()}; server in a child process")
+    print("# simple_message loopback latency: the asyncio client against the bench's server in a child process")
     print()
     print("| event loop | PING p50 us | p99 us | max us | mean us | JOINT_TRAJ_PT req/s, 1 in flight | 16 in flight |")
     print("|---|---:|---:|---:|---:|---:|---:|")
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     for loop_name in [*loops, "echo"]:
         with running([sys.executable, __file__, "--serve", loop_name], stdin=subprocess.PIPE, env=env) as child:
             port = int(read_line(child.stdout, START_TIMEOUT, f"bench server ({loop_name})"))
             if loop_name == "echo":
-                r: dict[str, float] = asyncio.run(measure_echo(port, args.count))
+                r: dict[str, float] = asyncio.run(measure_echo(port, count))
                 print(
                     f"| floor: bare asyncio echo, no protocol | {r['p50']:.0f} | {r['p99']:.0f} | {r['max']:.0f} "
                     f"| {r['mean']:.0f} | | |"
                 )
                 continue
-            r = run_loop(loop_name, lambda port=port: measure(port, args.count))  # type: ignore[assignment]
+            r = run_loop(loop_name, lambda port=port: measure(port, count))  # type: ignore[assignment]
         print(
             f"| {loop_name} | {r['p50']:.0f} | {r['p99']:.0f} | {r['max']:.0f} | {r['mean']:.0f} "
             f"| {r['serial']:,.0f} | {r['pipelined']:,.0f} |"
         )
     if len(loops) == 1:
         print("\n(uvloop is not installed; `pip install uvloop` to measure it too)")
-    peer, where = find_peer(args.peer)
-    if peer is None:
-        print(f"\n(C++ reference peer not built: no sm_client/sm_server in {where}; {BUILD_HINT}, or --peer DIR)")
-        return
-    try:
-        compare_with_peer(peer, args.count, max(args.peer_runs, 1), env, args.pin)
-    except PeerError as e:
-        print(f"\n(comparison with the C++ peer in {peer} failed: {e})")
-        sys.exit(1)
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from simple_message.cli import add_import_argument, preimport
+from simple_message.endpoints import run
 
 from .control import DEFAULT_POLICY, POLICIES, Recorder
 from .emulator import FAULT_COMMANDS, PROFILES, Emulator, EmulatorConfig, FaultError, apply_fault_command
@@ -182,7 +183,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("robot-server: not enough memory for the record: a smaller --record-seconds", file=sys.stderr)
         return 2
     try:
-        code = asyncio.run(_serve(emulator, args.fault, read_stdin=not args.no_stdin))
+        code = run(_serve(emulator, args.fault, read_stdin=not args.no_stdin))  # on uvloop when installed
     except OSError as exc:  # e.g. the port is taken
         print(f"robot-server: {exc}", file=sys.stderr)
         return 1

@@ -2,7 +2,10 @@
 
 The asyncio layer over the sans-I/O :class:`~.link.Link`, which owns the protocol's rules (frames,
 byte order, which reply answers which request, requests given up on). A :class:`Connection`
-moves bytes and time: one reader task feeds what arrives to its link and acts on the events.
+moves bytes and time. It is the asyncio :class:`~asyncio.Protocol` of its transport (TCP, serial,
+pty, memory pair): what arrives is fed to the link in the transport's own callback and the
+events are acted on there, with no task and no stream buffer in between; a reply computed at once
+goes out in the same loop iteration as the request that asked for it.
 
 * A reply that answers a request completes its caller's future; a reply that cannot answer it
   (another type, reply_code INVALID, a malformed body) fails it with
@@ -11,13 +14,18 @@ moves bytes and time: one reader task feeds what arrives to its link and acts on
 * Anything else goes to the connection's message handler (servers; a body that does not decode
   arrives as the :class:`~.errors.MalformedMessage` itself) and to every subscription.
 
+A message handler may return an awaitable (back-pressure, e.g. a server whose request queue is
+full): reading pauses until it is done, and the messages after it wait in the link, in order.
+
 Subscriptions are bounded: a subscriber that does not keep up loses its *oldest* messages, and the
 loss is counted (:attr:`Subscription.dropped`). It never blocks the reader or grows memory.
 
 Writes are bounded too: :meth:`Connection.send` waits for the peer at most ``drain_timeout``
 seconds once ``max_write_buffer`` bytes are queued, then closes the connection; the non-waiting
 :meth:`Connection.send_nowait` (for broadcasting topics) closes it as soon as the buffer is over the
-limit. A stalled peer therefore costs at most one buffer of memory and never delays anyone else.
+limit, and so does :meth:`Connection.flush` of frames gathered with :meth:`Connection.queue_frame`
+(a server's broadcast: one write per connection for the topics of one loop iteration). A stalled
+peer therefore costs at most one buffer of memory and never delays anyone else.
 
 When the connection ends for any reason, every pending request fails at once with
 :class:`~.errors.ConnectionClosed`. Nothing is ever re-sent by this layer.
@@ -28,9 +36,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import enum
+import inspect
 import logging
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
+from typing import cast
 
 from .constants import ReplyCode
 from .dialects import any_dialect_answers
@@ -56,7 +66,7 @@ from .link import (
     Unanswerable,
 )
 from .messages import Message, type_name
-from .transport import READ_SIZE, StreamPair, set_nodelay
+from .transport import StreamPair, set_nodelay, take_over
 from .wire import DEFAULT_FORMAT, WireFormat
 
 __all__ = ["Connection", "ConnectionState", "Subscription", "MessageHandler"]
@@ -144,18 +154,21 @@ class Subscription:
             raise StopAsyncIteration from None
 
 
-class Connection:
-    """A simple_message link over one stream pair (TCP socket, serial port, memory pair).
+class Connection(asyncio.Protocol):
+    """A simple_message link over one transport (TCP socket, serial port, pty, memory pair).
 
-    ``autodetect`` detects the byte order from the peer's first frame (servers); until then, and for
-    everything sent, ``wire`` applies. ``answers``: which replies may answer which requests (the
-    peer's dialect, :meth:`.dialects.Dialect.answers`; default: what any dialect may send). Call
-    :meth:`start` (or use ``async with``) to begin reading.
+    ``streams``: the stream pair of an opened link (:mod:`.transport`; the connection takes its
+    transport over, with whatever was already read), or an asyncio transport (a server's accepted
+    socket). ``autodetect`` detects the byte order from the peer's first frame (servers); until
+    then, and for everything sent, ``wire`` applies. ``answers``: which replies may answer which
+    requests (the peer's dialect, :meth:`.dialects.Dialect.answers`; default: what any dialect may
+    send). Call :meth:`start` (or use ``async with``) to begin acting on what arrives; what arrives
+    before is kept.
     """
 
     def __init__(
         self,
-        streams: StreamPair,
+        streams: StreamPair | asyncio.BaseTransport,
         wire: WireFormat = DEFAULT_FORMAT,
         *,
         autodetect: bool = False,
@@ -167,18 +180,15 @@ class Connection:
         max_write_buffer: int = 256 * 1024,
         answers: ReplyRule = any_dialect_answers,
     ) -> None:
-        self.reader, self.writer = streams
-        set_nodelay(self.writer)
         #: the protocol state (sans-I/O): frames, byte order, requests and replies
         self.link = Link(wire, autodetect=autodetect, max_length=max_length, answers=answers)
-        self.name = name or str(self.writer.get_extra_info("peername") or "link")
+        self._autodetect = autodetect
         self.drain_timeout = drain_timeout
         self.max_write_buffer = max_write_buffer
         self.on_message = on_message
         #: Shared with a reconnecting client, so subscriptions outlive one connection.
         self.subscriptions: list[Subscription] = subscriptions if subscriptions is not None else []
         self._futures: dict[Request, asyncio.Future[Message]] = {}
-        self._task: asyncio.Task[None] | None = None
         self._closed = asyncio.Event()
         self.state = ConnectionState.CONNECTED
         #: Why the connection ended (``None`` for a clean close or EOF).
@@ -187,6 +197,40 @@ class Connection:
         #: If set, called when reading ends (EOF or a frame error) instead of closing at once, so a
         #: server can still answer the requests it already read; it must close the connection.
         self.on_read_end: Callable[[BaseException | None], None] | None = None
+        self._started = False
+        #: bytes and the end of input that arrived before start(), acted on by start()
+        self._early: list[bytes] | None = []
+        self._early_end: tuple[BaseException | None] | None = None
+        #: a handler's awaitable is pending: events wait in the link, reading is paused
+        self._blocked = False
+        self._resume_task: asyncio.Task[None] | None = None
+        self._awaited: Awaitable[None] | None = None
+        self._reading = True
+        self._read_done = False
+        self._lost_reason: BaseException | None = None
+        self._transport_lost = asyncio.Event()
+        self._write_paused = False
+        self._drain_waiters: list[asyncio.Future[None]] = []
+        #: frames queued by queue_frame(), written together by flush()
+        self._queued: list[bytes] = []
+        #: the stream pair given, kept only because a StreamWriter closes its transport when collected
+        self._streams: StreamPair | None = None
+        if isinstance(streams, tuple):
+            self._streams = streams
+            transport, early, end, gone = take_over(streams, self)
+            if early:
+                self._early.append(early)
+            if end is not None:
+                self._early_end = end
+            if gone:
+                self._transport_lost.set()
+        else:
+            transport = streams
+            transport.set_protocol(self)
+        #: the transport this connection is the protocol of
+        self.transport = cast(asyncio.Transport, transport)
+        set_nodelay(transport)
+        self.name = name or str(transport.get_extra_info("peername") or "link")
 
     @property
     def wire(self) -> WireFormat:
@@ -200,9 +244,23 @@ class Connection:
     # -- lifecycle -----------------------------------------------------------------------------
 
     def start(self) -> Connection:
-        if self._task is None:
-            log.info("%s: connected (%s)", self.name, self.wire)
-            self._task = asyncio.get_running_loop().create_task(self._read_loop(), name=f"sm-read {self.name}")
+        """Begin acting on what arrives (including what arrived before)."""
+        if self._started:
+            return self
+        self._started = True
+        log.info("%s: connected (%s)", self.name, self.wire)
+        if frames_log.isEnabledFor(logging.DEBUG):
+            self.link.on_frame = lambda frame: frames_log.debug("%s <- %s", self.name, frame.hex())
+        early, self._early = self._early, None
+        end, self._early_end = self._early_end, None
+        if self.state is ConnectionState.CLOSED:
+            return self
+        for data in early or ():
+            self.data_received(data)
+        if end is not None:
+            self._input_ended(end[0])
+        elif not self._reading and not self._blocked and not self._read_done:
+            self._set_reading(True)
         return self
 
     async def __aenter__(self) -> Connection:
@@ -219,20 +277,19 @@ class Connection:
         await self._closed.wait()
 
     async def close(self) -> None:
-        """Close the connection, fail pending requests, and wait for the reader to finish."""
+        """Close the connection, fail pending requests, and wait (at most 1 s) for the transport."""
         self._shutdown(None)
-        if self._task is not None and self._task is not asyncio.current_task():
-            self._task.cancel()
+        task = self._resume_task
+        if task is not None and task is not asyncio.current_task():
+            task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-        with contextlib.suppress(Exception):
-            await asyncio.wait_for(self.writer.wait_closed(), 1.0)
+                await task
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(self._transport_lost.wait(), 1.0)
 
     def abort(self, reason: BaseException | None = None) -> None:
         """Close without waiting (usable from callbacks)."""
         self._shutdown(reason)
-        if self._task is not None and self._task is not asyncio.current_task():
-            self._task.cancel()
 
     def _shutdown(self, reason: BaseException | None) -> None:
         if self.state is ConnectionState.CLOSED:
@@ -242,107 +299,216 @@ class Connection:
         if reason is None or _hang_up(reason):
             # the peer hung up (cleanly or not): normal life of a connection, not a warning
             log.info("%s: disconnected%s", self.name, f" ({reason})" if reason else "")
-            self.writer.close()
+            if self._queued:  # what was queued goes out before the close, like what was written
+                self.transport.write(b"".join(self._queued))
+                self._queued.clear()
+            self.transport.close()
         else:
             log.warning("%s: disconnected: %s", self.name, reason)
             # Drop what is buffered: a stalled peer would otherwise hold the close for ever.
-            if self.writer.transport is not None:
-                self.writer.transport.abort()
+            self._queued.clear()
+            self.transport.abort()
         error = ConnectionClosed(f"{self.name}: connection closed" + (f" ({reason})" if reason else ""))
         self.link.close()
         futures, self._futures = self._futures, {}
         for future in futures.values():
             if not future.done():
                 future.set_exception(error)
+        self._wake_drainers(error)
         if self._inbox is not None:
             self._inbox.close()
+        task = self._resume_task
+        if task is not None and task is not asyncio.current_task():
+            task.cancel()
+            awaited = self._awaited
+            if inspect.iscoroutine(awaited) and inspect.getcoroutinestate(awaited) == inspect.CORO_CREATED:
+                awaited.close()  # the task never started: nobody will await it
         self._closed.set()
+
+    # -- the transport's callbacks (asyncio.Protocol) ---------------------------------------------
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        """Not called: the connection is made with its transport (see the constructor)."""
+
+    def data_received(self, data: bytes) -> None:
+        link = self.link
+        if self._read_done or link.ended or self.state is ConnectionState.CLOSED:
+            return  # reading is over (what is still in flight from a thread or a memory pair)
+        if self._early is not None:  # not started: keep it, and stop reading until start()
+            self._early.append(data)
+            self._set_reading(False)
+            return
+        if self._autodetect:
+            detected = link.detected
+            link.receive_data(data)
+            if link.detected and not detected:
+                log.info("%s: detected %s byte order", self.name, link.wire.byte_order.value)
+        else:
+            link.receive_data(data)
+        if not self._blocked:
+            self._process()
+
+    def eof_received(self) -> bool:
+        self._input_ended(None)
+        return True  # keep the transport open: what was read is still answered
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._transport_lost.set()
+        self._lost_reason = exc
+        self._input_ended(exc)
+        if self.state is not ConnectionState.CLOSED and self._read_done and self.on_read_end is None:
+            self._shutdown(exc)
+        self._wake_drainers(ConnectionClosed(f"{self.name}: connection lost"))
+
+    def pause_writing(self) -> None:
+        self._write_paused = True
+
+    def resume_writing(self) -> None:
+        self._write_paused = False
+        self._wake_drainers(None)
 
     # -- receiving -------------------------------------------------------------------------------
 
-    async def _read_loop(self) -> None:
-        reason: BaseException | None = None
+    def _input_ended(self, reason: BaseException | None) -> None:
+        """No more bytes will come (EOF, or the transport is gone): the link ends after what it holds."""
+        if self._early is not None:
+            if self._early_end is None:
+                self._early_end = (reason,)
+            return
         link = self.link
-        if frames_log.isEnabledFor(logging.DEBUG):
-            link.on_frame = lambda frame: frames_log.debug("%s <- %s", self.name, frame.hex())
+        if link.ended:
+            return
+        if reason is not None:
+            self._lost_reason = reason
+        link.receive_data(b"")
+        if not self._blocked:
+            self._process()
+
+    def _set_reading(self, on: bool) -> None:
+        if on == self._reading:
+            return
+        self._reading = on
+        transport = self.transport
+        if transport.is_closing():
+            return
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            transport.resume_reading() if on else transport.pause_reading()
+
+    def _process(self) -> None:
+        """Act on the link's events, in order, until it needs data, the input ended, a handler's
+        awaitable must be waited for, or the connection closed."""
+        link = self.link
         try:
             while True:
-                data = await self.reader.read(READ_SIZE)
-                detected = link.detected
-                link.receive_data(data)
-                if link.detected and not detected:
-                    log.info("%s: detected %s byte order", self.name, link.wire.byte_order.value)
-                ended = await self._events()
+                event = link.next_event()
+                if event is NEED_DATA:
+                    return
+                if isinstance(event, Received):
+                    msg = event.message
+                    on_message = self.on_message
+                    if on_message is not None:
+                        result = on_message(msg)
+                        if result is not None:
+                            self._wait_for(result, msg)
+                            return
+                    self._deliver(msg)
+                elif isinstance(event, Answered):
+                    future = self._futures.pop(event.request, None)
+                    if future is not None and not future.done():
+                        future.set_result(event.reply)
+                elif isinstance(event, Unanswerable):
+                    self._unanswerable(event)
+                elif isinstance(event, Malformed):
+                    if self.on_message is not None:
+                        result = self.on_message(event.error)
+                        if result is not None:
+                            self._wait_for(result, None)
+                            return
+                    else:
+                        log.warning("%s: dropped malformed message: %s", self.name, event.error)
+                elif isinstance(event, LateReply):
+                    log.info("%s: late reply to an abandoned request consumed: %s", self.name, event.reply.name)
+                elif isinstance(event, StrayReply):
+                    stray = event.reply.name if event.reply else event.error
+                    log.debug("%s: stray reply ignored: %s", self.name, stray)
+                else:
+                    assert isinstance(event, Ended)
+                    self._read_ended(event.error or self._lost_reason)
+                    return
                 if self.state is ConnectionState.CLOSED:
                     return
-                if ended is not None:
-                    reason = ended.error
-                    break
-        except (ConnectionError, OSError) as exc:
-            reason = exc
-        except asyncio.CancelledError:
-            self._shutdown(None)
-            return
         except Exception as exc:  # a bug in a handler must not leave the peer hanging
             log.exception("%s: reader failed", self.name)
-            reason = exc
-        if self.on_read_end is not None and self.state is not ConnectionState.CLOSED:
+            self._read_ended(exc)
+
+    def _deliver(self, msg: Message) -> None:
+        for sub in self.subscriptions:
+            if sub.wants(msg):
+                sub.put(msg)
+        if self._inbox is not None:
+            self._inbox.put(msg)
+
+    def _unanswerable(self, event: Unanswerable) -> None:
+        future = self._futures.pop(event.request, None)
+        if future is not None and not future.done():
+            future.set_exception(
+                UnexpectedReply(
+                    f"{self.name}: {event.describe()} cannot answer a {_type_name(event.request.msg_type)} request",
+                    event.reply,
+                )
+            )
+
+    def _wait_for(self, awaitable: Awaitable[None], msg: Message | None) -> None:
+        """A handler's back-pressure: stop reading until ``awaitable`` is done, then go on."""
+        if self.closed:  # the handler closed the connection: nothing is waited for any more
+            if inspect.iscoroutine(awaitable):
+                awaitable.close()
+            return
+        self._blocked = True
+        self._set_reading(False)
+        self._awaited = awaitable
+        self._resume_task = asyncio.get_running_loop().create_task(
+            self._resume(awaitable, msg), name=f"sm-wait {self.name}"
+        )
+
+    async def _resume(self, awaitable: Awaitable[None], msg: Message | None) -> None:
+        try:
+            await awaitable
+        except asyncio.CancelledError:
+            self._blocked = False
+            self._shutdown(None)
+            return
+        except Exception as exc:
+            self._blocked = False
+            log.exception("%s: reader failed", self.name)
+            self._read_ended(exc)
+            return
+        self._blocked = False
+        self._resume_task = None
+        self._awaited = None
+        if self.closed:
+            return
+        if msg is not None:
+            self._deliver(msg)
+        self._process()
+        if not (self._blocked or self._read_done or self.closed):
+            self._set_reading(True)
+
+    def _read_ended(self, reason: BaseException | None) -> None:
+        """Reading is over (EOF, a frame error, a lost transport, a failed handler)."""
+        if self._read_done:
+            return
+        self._read_done = True
+        self._set_reading(False)
+        if self.state is ConnectionState.CLOSED:
+            return
+        if self.on_read_end is not None:
             if reason is not None:
                 level = logging.INFO if _hang_up(reason) else logging.WARNING
                 log.log(level, "%s: %s; answering what was read, then closing", self.name, reason)
             self.on_read_end(reason)
         else:
             self._shutdown(reason)
-
-    async def _events(self) -> Ended | None:
-        """Act on the link's events, in order, until it needs data (or the input ended)."""
-        link = self.link
-        while True:
-            event = link.next_event()
-            if event is NEED_DATA:
-                return None
-            if isinstance(event, Received):
-                msg = event.message
-                if self.on_message is not None:
-                    await self._call(msg)
-                for sub in self.subscriptions:
-                    if sub.wants(msg):
-                        sub.put(msg)
-                if self._inbox is not None:
-                    self._inbox.put(msg)
-            elif isinstance(event, Answered):
-                future = self._futures.pop(event.request, None)
-                if future is not None and not future.done():
-                    future.set_result(event.reply)
-            elif isinstance(event, Unanswerable):
-                future = self._futures.pop(event.request, None)
-                if future is not None and not future.done():
-                    future.set_exception(
-                        UnexpectedReply(
-                            f"{self.name}: {event.describe()} cannot answer a {_type_name(event.request.msg_type)} "
-                            "request",
-                            event.reply,
-                        )
-                    )
-            elif isinstance(event, Malformed):
-                if self.on_message is not None:
-                    await self._call(event.error)
-                else:
-                    log.warning("%s: dropped malformed message: %s", self.name, event.error)
-            elif isinstance(event, LateReply):
-                log.info("%s: late reply to an abandoned request consumed: %s", self.name, event.reply.name)
-            elif isinstance(event, StrayReply):
-                log.debug("%s: stray reply ignored: %s", self.name, event.reply.name if event.reply else event.error)
-            else:
-                return event
-            if self.state is ConnectionState.CLOSED:
-                return None
-
-    async def _call(self, msg: Message | MalformedMessage) -> None:
-        assert self.on_message is not None
-        result = self.on_message(msg)
-        if result is not None:
-            await result
 
     def subscribe(self, maxsize: int = 256, msg_types: Iterable[int] | None = None) -> Subscription:
         """A new bounded subscription to received topics (``msg_types``: only these types)."""
@@ -366,39 +532,79 @@ class Connection:
 
     # -- sending ---------------------------------------------------------------------------------
 
-    def _write(self, msg: Message) -> None:
-        if self.state is ConnectionState.CLOSED:
-            raise ConnectionClosed(f"{self.name}: connection closed")
-        self._write_frame(self.link.send(msg))
-
     def _write_frame(self, frame: bytes) -> None:
         if frames_log.isEnabledFor(logging.DEBUG):
             frames_log.debug("%s -> %s", self.name, frame.hex())
-        self.writer.write(frame)
+        if self._queued:  # what was queued goes first
+            self._queued.append(frame)
+            frame = b"".join(self._queued)
+            self._queued.clear()
+        self.transport.write(frame)
+
+    def queue_frame(self, frame: bytes) -> bool:
+        """Queue a frame in this connection's :attr:`wire` format, to be written with the others
+        queued, in one write, by :meth:`flush` (which the queuer calls, e.g. a server's broadcast at
+        the end of the loop iteration); anything sent meanwhile goes out after them. Returns whether
+        the frame was queued (not on a closed connection)."""
+        if self.state is ConnectionState.CLOSED:
+            return False
+        if frames_log.isEnabledFor(logging.DEBUG):
+            frames_log.debug("%s -> %s", self.name, frame.hex())
+        self._queued.append(frame)
+        return True
+
+    def flush(self) -> bool:
+        """Write what :meth:`queue_frame` queued; a peer with more than ``max_write_buffer`` bytes
+        unread is closed then. Returns whether the connection is still open."""
+        queued = self._queued
+        if not queued or self.state is ConnectionState.CLOSED:
+            queued.clear()
+            return self.state is not ConnectionState.CLOSED
+        data = queued[0] if len(queued) == 1 else b"".join(queued)
+        queued.clear()
+        transport = self.transport
+        transport.write(data)
+        if transport.get_write_buffer_size() > self.max_write_buffer:
+            self.abort(ConnectionClosed(f"peer fell {transport.get_write_buffer_size()} bytes behind"))
+            return False
+        return True
 
     def write_buffer_size(self) -> int:
-        transport = self.writer.transport
-        return transport.get_write_buffer_size() if transport is not None else 0
+        """Bytes queued in the transport, not yet taken by the peer (or the kernel)."""
+        return self.transport.get_write_buffer_size()
 
     async def send(self, msg: Message) -> None:
         """Send ``msg``; if the peer lets ``max_write_buffer`` bytes pile up, wait at most
         ``drain_timeout`` s for it, then close the connection and raise ConnectionClosed."""
-        self._write(msg)
-        await self._drained()
-
-    async def _send_frame(self, frame: bytes) -> None:
         if self.state is ConnectionState.CLOSED:
             raise ConnectionClosed(f"{self.name}: connection closed")
-        self._write_frame(frame)
-        await self._drained()
+        self._write_frame(self.link.send(msg))
+        if self.transport.get_write_buffer_size() > self.max_write_buffer:
+            await self._drained()
 
     async def _drained(self) -> None:
-        if self.write_buffer_size() > self.max_write_buffer:
-            try:
-                await asyncio.wait_for(self.writer.drain(), self.drain_timeout)
-            except (TimeoutError, ConnectionError) as exc:
-                self.abort(ConnectionClosed(f"peer did not read for {self.drain_timeout} s"))
-                raise ConnectionClosed(f"{self.name}: peer stalled, connection closed") from exc
+        """Wait for the transport to take the buffer down (at most ``drain_timeout`` s)."""
+        if not self._write_paused or self.state is ConnectionState.CLOSED:
+            return
+        waiter: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self._drain_waiters.append(waiter)
+        try:
+            await asyncio.wait_for(waiter, self.drain_timeout)
+        except (TimeoutError, ConnectionError) as exc:
+            self.abort(ConnectionClosed(f"peer did not read for {self.drain_timeout} s"))
+            raise ConnectionClosed(f"{self.name}: peer stalled, connection closed") from exc
+        finally:
+            with contextlib.suppress(ValueError):
+                self._drain_waiters.remove(waiter)
+
+    def _wake_drainers(self, error: BaseException | None) -> None:
+        waiters, self._drain_waiters = self._drain_waiters, []
+        for waiter in waiters:
+            if not waiter.done():
+                if error is None:
+                    waiter.set_result(None)
+                else:
+                    waiter.set_exception(error)
 
     def send_nowait(self, msg: Message) -> bool:
         """Send without waiting (topic broadcast). A peer with more than ``max_write_buffer`` bytes
@@ -412,9 +618,18 @@ class Connection:
         (a broadcast encodes each message once per wire format, not once per peer)."""
         if self.state is ConnectionState.CLOSED:
             return False
-        self._write_frame(frame)
-        if self.write_buffer_size() > self.max_write_buffer:
-            self.abort(ConnectionClosed(f"peer fell {self.write_buffer_size()} bytes behind"))
+        if frames_log.isEnabledFor(logging.DEBUG):
+            frames_log.debug("%s -> %s", self.name, frame.hex())
+        transport = self.transport
+        if self._queued:
+            self._queued.append(frame)
+            data = b"".join(self._queued)
+            self._queued.clear()
+            transport.write(data)
+        else:
+            transport.write(frame)
+        if transport.get_write_buffer_size() > self.max_write_buffer:
+            self.abort(ConnectionClosed(f"peer fell {transport.get_write_buffer_size()} bytes behind"))
             return False
         return True
 
@@ -435,7 +650,9 @@ class Connection:
         # A timer on the future itself, not wait_for(): no extra task per request on the hot path.
         timer = loop.call_later(timeout, _expire, future) if timeout is not None else None
         try:
-            await self._send_frame(frame)
+            self._write_frame(frame)
+            if self.transport.get_write_buffer_size() > self.max_write_buffer:
+                await self._drained()
             reply = await future
         except asyncio.CancelledError:
             self._give_up(request)
@@ -448,11 +665,12 @@ class Connection:
         finally:
             if timer is not None:
                 timer.cancel()
-        if reply.reply_code == ReplyCode.SUCCESS:
+        code = reply.reply_code
+        if code == _SUCCESS:
             return reply
-        if reply.reply_code == ReplyCode.FAILURE:
+        if code == _FAILURE:
             raise RequestFailed(f"{self.name}: {msg.name} request answered FAILURE", reply)
-        raise UnexpectedReply(f"{self.name}: reply to {msg.name} has reply_code {reply.reply_code}", reply)
+        raise UnexpectedReply(f"{self.name}: reply to {msg.name} has reply_code {code}", reply)
 
     def _give_up(self, request: Request) -> None:
         # keep its place in the FIFO: a late reply must not go to the next request
@@ -462,6 +680,10 @@ class Connection:
     @property
     def pending_requests(self) -> int:
         return self.link.pending_requests
+
+
+_SUCCESS = int(ReplyCode.SUCCESS)
+_FAILURE = int(ReplyCode.FAILURE)
 
 
 def _expire(future: asyncio.Future[Message]) -> None:

@@ -12,7 +12,9 @@ arrival order and answers every SERVICE_REQUEST exactly once, in order (simple-m
   return those and get header-only otherwise), or ``None`` for SUCCESS;
 * ``on_arrival`` hooks run synchronously the moment a request is read, before queued requests are
   handled: a STOP must act at once even while an earlier point waits for queue space (§10 pitfall 5);
-* PING is answered SUCCESS with an empty body unless a handler is registered;
+* PING is answered SUCCESS with an empty body unless a handler (or an arrival hook) is registered;
+  with nothing queued ahead of it, that reply is a cached frame written in the same callback that
+  read the request (a PING behind a slow request still waits its turn);
 * an unknown SERVICE_REQUEST gets a header-only FAILURE (or what ``unknown_request`` returns, e.g.
   the MotoROS 2002 INVALID/3003 reply); unknown TOPICs and stray SERVICE_REPLYs are ignored (debug);
 * a request with a malformed body or an invalid header (§1.2) is answered FAILURE;
@@ -25,7 +27,12 @@ arrival order and answers every SERVICE_REQUEST exactly once, in order (simple-m
 * at most ``max_connections`` connections per server: excess ones are accepted and closed at once,
   with a log line, so the peer sees a clean EOF rather than a hang;
 * writes are bounded per connection (:class:`~.connection.Connection`), so a stalled peer is closed
-  and never delays the others. :meth:`Server.broadcast` publishes a topic to every connection.
+  and never delays the others. :meth:`Server.broadcast` publishes a topic to every connection: encoded
+  once per wire format, and what one loop iteration broadcasts is written in one go per connection.
+
+An accepted TCP socket gets its :class:`~.connection.Connection` as its asyncio protocol before it
+reads a byte (no streams); serial, pty and other links come as stream pairs (:meth:`Server.serve_link`)
+whose transport the connection takes over. :func:`run` runs a program on uvloop when it is installed.
 
 :class:`Client` keeps one connection to a server and reconnects with bounded exponential backoff
 and jitter when it is lost. Its state is observable (:class:`~.connection.ConnectionState`); while it
@@ -39,13 +46,16 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import enum
+import functools
+import importlib
 import inspect
 import logging
+import os
 import random
 import socket
-from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
+from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine, Iterable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 from .connection import Connection, ConnectionState, Subscription
 from .constants import CommType, MsgType, ReplyCode
@@ -57,7 +67,7 @@ from .messages import HeaderOnly, Message, Ping
 from .transport import StreamPair, open_fd, open_serial, open_tcp
 from .wire import DEFAULT_FORMAT, WireFormat
 
-__all__ = ["Server", "Session", "Handler", "Client", "CloseConnection", "ReconnectPolicy"]
+__all__ = ["Server", "Session", "Handler", "Client", "CloseConnection", "ReconnectPolicy", "run"]
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +95,18 @@ class Session:
         self.data: dict[str, Any] = {}
         self.end_reason: BaseException | None = None
         self._end_task: asyncio.Task[None] | None = None
+        self._ping_wire: WireFormat | None = None
+        self._ping_frame = b""
+        #: the task that handles what is queued, in order
+        self.worker: asyncio.Task[None] | None = None
+
+    def ping_reply(self) -> bytes:
+        """The frame of the server's own PING reply in this session's wire format (cached)."""
+        wire = self.connection.link.wire
+        if wire is not self._ping_wire:
+            self._ping_frame = _PING_REPLY.encode(wire)
+            self._ping_wire = wire
+        return self._ping_frame
 
     @property
     def name(self) -> str:
@@ -155,11 +177,18 @@ class Server:
         self._arrival: dict[int, ArrivalHook] = {}
         self._servers: list[asyncio.base_events.Server] = []
         self._tasks: set[asyncio.Task[None]] = set()
+        #: one task per accepted TCP connection, serving it until it closes
+        self._accepted: set[asyncio.Task[None]] = set()
+        #: connections with broadcast frames queued, written at the end of the loop iteration
+        self._queued: set[Connection] = set()
+        self._flush_scheduled = False
         self._closing = False
         #: Called with each new and each ended session (e.g. to start publishing state).
         self.on_connect: Callable[[Session], None] | None = None
         self.on_disconnect: Callable[[Session], None] | None = None
         self.refused = 0
+        #: PING is answered by the server itself (no handler, no arrival hook): the fast path
+        self._ping_auto = True
 
     # -- configuration -----------------------------------------------------------------------------
 
@@ -168,62 +197,81 @@ class Server:
         self._handlers[msg_type] = handler
         if on_arrival is not None:
             self._arrival[msg_type] = on_arrival
+        self._ping_auto = _PING not in self._handlers and _PING not in self._arrival
 
     # -- serving -----------------------------------------------------------------------------------
 
     async def serve_tcp(self, host: str | None = "127.0.0.1", port: int = 0, *, reuse_address: bool = True) -> int:
         """Listen on ``host:port`` (127.0.0.1 unless told otherwise; ``::1`` for IPv6; port 0 picks
         a free port) and return the bound port."""
-        server = await asyncio.start_server(self._accept, host, port, reuse_address=reuse_address)
+        loop = asyncio.get_running_loop()
+        server = await loop.create_server(lambda: _Accepted(self), host, port, reuse_address=reuse_address)
         self._servers.append(server)
         bound = server.sockets[0].getsockname()[1]
         for sock in server.sockets:
             log.info("%s: listening on %s", self.name, _addr(sock))
         return int(bound)
 
-    async def _accept(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        sock = writer.get_extra_info("socket")
+    def _accept(self, transport: asyncio.BaseTransport) -> None:
+        """A TCP connection was accepted: serve it (its connection becomes the transport's protocol
+        before any byte is read), or close it at once if the server is full or closing."""
+        sock = transport.get_extra_info("socket")
         if self.socket_send_buffer is not None and sock is not None:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.socket_send_buffer)
+        peer = transport.get_extra_info("peername")
         if self._closing or len(self.sessions) >= self.max_connections:
             self.refused += 1
-            log.warning(
-                "%s: refused %s: %d connections is the limit",
-                self.name,
-                writer.get_extra_info("peername"),
-                self.max_connections,
-            )
-            writer.close()
-            with contextlib.suppress(Exception):
-                await writer.wait_closed()
+            log.warning("%s: refused %s: %d connections is the limit", self.name, peer, self.max_connections)
+            transport.close()
             return
-        await self.serve_link((reader, writer))
+        # The session is counted at once: connections accepted in the same loop iteration see it.
+        session = self._open(self._connection(transport, f"{self.name} {peer}"), None)
+        task = asyncio.get_running_loop().create_task(self._until_closed(session), name=f"sm-serve {session.name}")
+        self._accepted.add(task)
+        task.add_done_callback(self._accepted.discard)
 
     async def serve_link(
         self, streams: StreamPair, name: str | None = None, data: dict[str, Any] | None = None
     ) -> None:
         """Serve one link (an accepted socket, a serial port) until it closes. ``data`` starts the
         session's :attr:`Session.data` (e.g. to mark a serial link that also carries state)."""
-        connection = Connection(
+        connection = self._connection(streams, name or f"{self.name} {streams[1].get_extra_info('peername')}")
+        if self._closing:
+            await connection.close()
+            return
+        await self._until_closed(self._open(connection, data))
+
+    def _connection(self, streams: StreamPair | asyncio.BaseTransport, name: str) -> Connection:
+        return Connection(
             streams,
             self.wire,
             autodetect=self.autodetect,
             max_length=self.max_length,
-            name=name or f"{self.name} {streams[1].get_extra_info('peername')}",
+            name=name,
             drain_timeout=self.drain_timeout,
             max_write_buffer=self.max_write_buffer,
         )
+
+    def _open(self, connection: Connection, data: dict[str, Any] | None) -> Session:
+        """A new session on ``connection``, counted, with its worker, and reading."""
         session = Session(self, connection, self.request_queue)
         if data:
             session.data.update(data)
-        connection.on_message = lambda msg: self._arrived(session, msg)
+        connection.on_message = functools.partial(self._arrived, session)
         connection.on_read_end = session.end_of_input
         self.sessions.add(session)
-        worker = asyncio.get_running_loop().create_task(self._work(session), name=f"sm-work {connection.name}")
+        session.worker = asyncio.get_running_loop().create_task(self._work(session), name=f"sm-work {connection.name}")
         if self.on_connect is not None:
             self.on_connect(session)
+        connection.start()
+        return session
+
+    async def _until_closed(self, session: Session) -> None:
+        """Serve ``session`` until its connection closes, then end it."""
+        connection = session.connection
+        worker = session.worker
+        assert worker is not None
         try:
-            connection.start()
             await connection.wait_closed()
         finally:
             worker.cancel()
@@ -251,16 +299,39 @@ class Server:
 
     def broadcast(self, msg: Message, sessions: Iterable[Session] | None = None) -> int:
         """Send a topic to every connection (or to ``sessions``) without waiting, encoded once per
-        wire format; returns how many got it."""
+        wire format; returns how many open connections it was queued for.
+
+        The frames are written at the end of this loop iteration, one write per connection for
+        all the topics broadcast meanwhile (a state round of two or three topics costs one system
+        call per client, not one per topic); anything sent on a connection before then goes out
+        after what was queued for it. A peer found more than ``max_write_buffer`` bytes behind at
+        that write is closed (:meth:`.Connection.flush`).
+        """
         frames: dict[WireFormat, bytes] = {}
+        last_wire: WireFormat | None = None
+        frame = b""
         sent = 0
+        queued = self._queued
         for session in list(self.sessions if sessions is None else sessions):
-            wire = session.connection.wire
-            frame = frames.get(wire)
-            if frame is None:
-                frame = frames[wire] = msg.encode(wire)
-            sent += session.connection.send_frame_nowait(frame)
+            connection = session.connection
+            wire = connection.link.wire
+            if wire is not last_wire:  # sessions mostly share one WireFormat instance
+                last_wire = wire
+                got = frames.get(wire)
+                frame = frames[wire] = msg.encode(wire) if got is None else got
+            if connection.queue_frame(frame):
+                sent += 1
+                queued.add(connection)
+        if queued and not self._flush_scheduled:
+            self._flush_scheduled = True
+            asyncio.get_running_loop().call_soon(self._flush_queued)
         return sent
+
+    def _flush_queued(self) -> None:
+        self._flush_scheduled = False
+        queued, self._queued = self._queued, set()
+        for connection in queued:
+            connection.flush()
 
     async def close(self) -> None:
         """Stop listening and close every connection."""
@@ -269,6 +340,10 @@ class Server:
             server.close()
         for session in list(self.sessions):
             await session.connection.close()
+        if self._accepted:  # each finishes its session (on_disconnect) once its connection is closed
+            _, late = await asyncio.wait(list(self._accepted), timeout=2.0)
+            for task in late:
+                task.cancel()
         for server in self._servers:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(server.wait_closed(), 2.0)
@@ -287,9 +362,23 @@ class Server:
     # -- per-connection pipeline ---------------------------------------------------------------
 
     def _arrived(self, session: Session, msg: Message | MalformedMessage) -> Awaitable[None] | None:
-        if isinstance(msg, Message) and msg.comm_type == CommType.SERVICE_REQUEST:
+        if (
+            msg.__class__ is Ping
+            and self._ping_auto
+            and msg.comm_type == _SERVICE_REQUEST
+            and msg.reply_code == _INVALID
+            and not session.busy
+            and session.queue.empty()
+        ):
+            # The fast path of the commonest request: a PING the server answers itself, with nothing
+            # ahead of it (so the reply keeps its place in the order); its reply frame is cached.
+            connection = session.connection
+            if connection.transport.get_write_buffer_size() <= self.max_write_buffer:
+                connection.send_frame_nowait(session.ping_reply())
+                return None
+        if isinstance(msg, Message) and msg.comm_type == _SERVICE_REQUEST:
             hook = self._arrival.get(msg.msg_type)
-            if hook is not None and header_error(msg.msg_type, msg.comm_type, msg.reply_code) is None:
+            if hook is not None and _header_error(msg.msg_type, msg.comm_type, msg.reply_code) is None:
                 try:
                     hook(msg, session)
                 except Exception:
@@ -358,18 +447,19 @@ class Server:
         self, session: Session, msg: Message | MalformedMessage
     ) -> Message | _Later | Literal[_Marker.CLOSE] | None:
         """Everything up to the handler's result: the reply, nothing, or an awaitable to finish."""
-        is_request = msg.comm_type == CommType.SERVICE_REQUEST
+        is_request = msg.comm_type == _SERVICE_REQUEST
         if isinstance(msg, MalformedMessage):
             log.warning("%s: malformed message: %s", session.name, msg)
             return HeaderOnly(msg.msg_type or 0, reply_code=ReplyCode.FAILURE) if is_request else None
-        problem = header_error(msg.msg_type, msg.comm_type, msg.reply_code)
+        msg_type = msg.msg_type
+        problem = _header_error(msg_type, msg.comm_type, msg.reply_code)
         if problem is not None:
             log.warning("%s: %s", session.name, problem)
-            return HeaderOnly(msg.msg_type, reply_code=ReplyCode.FAILURE) if is_request else None
-        handler = self._handlers.get(msg.msg_type)
+            return HeaderOnly(msg_type, reply_code=ReplyCode.FAILURE) if is_request else None
+        handler = self._handlers.get(msg_type)
         if handler is None:
-            if msg.msg_type == MsgType.PING:
-                return Ping(comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS) if is_request else None
+            if msg_type == _PING:
+                return _PING_REPLY if is_request else None
             if not is_request and not (self.answer_topics and self.unknown_request is not None):
                 log.debug("%s: ignored %s comm_type %s", session.name, msg.name, msg.comm_type)
                 return None
@@ -383,7 +473,7 @@ class Server:
             return _Marker.CLOSE
         except Exception:
             return self._handler_failed(session, msg)
-        if inspect.isawaitable(result):
+        if result is not None and not isinstance(result, Message | int) and inspect.isawaitable(result):
             return _Later(msg, result)
         return self._finish(msg, result)
 
@@ -397,12 +487,34 @@ class Server:
         """Turn a handler's result into the reply (see the module docstring)."""
         if isinstance(result, Message):
             return result
-        if msg.comm_type != CommType.SERVICE_REQUEST:
+        if msg.comm_type != _SERVICE_REQUEST:
             return None
-        code = ReplyCode.SUCCESS if result is None else ReplyCode(result)
-        if self.reply_style is ReplyStyle.ECHO:
+        code = _SUCCESS if result is None else ReplyCode(result)
+        if self.reply_style is _ECHO:
             return msg.to_reply(code)
         return HeaderOnly(msg.msg_type, reply_code=code)
+
+
+_PING = int(MsgType.PING)
+_SERVICE_REQUEST = int(CommType.SERVICE_REQUEST)
+_INVALID = int(ReplyCode.INVALID)
+_SUCCESS = ReplyCode.SUCCESS
+_ECHO = ReplyStyle.ECHO
+#: header_error (the C++ validation rules) for the few headers a peer sends, looked up, not recomputed
+_header_error = functools.lru_cache(maxsize=1024)(header_error)
+#: the server's own answer to a PING (messages are immutable: one instance serves every reply)
+_PING_REPLY = Ping(comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS)
+
+
+class _Accepted(asyncio.Protocol):
+    """The protocol an accepted TCP socket starts with: it hands the transport to the server, whose
+    :class:`~.connection.Connection` becomes its protocol at once (or closes it)."""
+
+    def __init__(self, server: Server) -> None:
+        self.server = server
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.server._accept(transport)
 
 
 class _Later:
@@ -437,6 +549,34 @@ _Item = Message | MalformedMessage | _Later | _Ready | _Marker
 def _addr(sock: socket.socket) -> str:
     name = sock.getsockname()
     return f"[{name[0]}]:{name[1]}" if sock.family == socket.AF_INET6 else f"{name[0]}:{name[1]}"
+
+
+# ---------------------------------------------------------------------------------------------
+# Running a program
+# ---------------------------------------------------------------------------------------------
+
+#: ``$SIMPLE_MESSAGE_LOOP``: ``uvloop`` or ``asyncio`` forces :func:`run`'s event loop
+LOOP_VARIABLE = "SIMPLE_MESSAGE_LOOP"
+
+_T = TypeVar("_T")
+
+
+def run(main: Coroutine[Any, Any, _T], *, debug: bool | None = None) -> _T:
+    """:func:`asyncio.run` on uvloop's event loop when uvloop is installed (the ``uvloop`` extra), on
+    asyncio's own otherwise. ``$SIMPLE_MESSAGE_LOOP=asyncio`` forces asyncio's, ``uvloop`` uvloop's."""
+    choice = os.environ.get(LOOP_VARIABLE, "").strip().lower()
+    if choice not in ("", "auto", "asyncio", "uvloop"):
+        raise ValueError(f"${LOOP_VARIABLE} must be asyncio or uvloop, not {choice!r}")
+    if choice != "asyncio":
+        try:
+            uvloop = importlib.import_module("uvloop")
+        except ImportError:
+            if choice == "uvloop":
+                raise
+        else:
+            with asyncio.Runner(debug=debug, loop_factory=uvloop.new_event_loop) as runner:
+                return runner.run(main)
+    return asyncio.run(main, debug=debug)
 
 
 # ---------------------------------------------------------------------------------------------

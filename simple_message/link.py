@@ -50,6 +50,8 @@ __all__ = [
 #: Whether a reply (a decoded SERVICE_REPLY) can be the answer to a request of a message type.
 ReplyRule = Callable[[int, Message], bool]
 
+_SERVICE_REPLY = int(CommType.SERVICE_REPLY)
+
 
 class NeedData(enum.Enum):
     """The sentinel type of :data:`NEED_DATA`."""
@@ -224,15 +226,22 @@ class Link:
             self._end(None)
             return
         decoder = self._decoder
-        decoder.feed(data)
-        order = decoder.byte_order
-        if decoder.detected and order is not None and order is not self.wire.byte_order:
-            self.wire = self.wire.with_byte_order(order)  # detected from the peer's first frame
+        on_frame = self.on_frame
+        if on_frame is None:
+            # Cut and decode in one pass (a frame of a fixed layout is decoded straight from the
+            # bytes), in the order detected from the peer's first frame if this link detects.
+            for msg in decoder.feed_messages(data, self.wire):
+                self._message(msg)
+            self._detected_order()
+            if decoder.failed:
+                self._end(decoder.error)
+            return
+        decoder.feed(data)  # each frame is wanted as bytes too (logs, captures)
+        self._detected_order()
         try:
             for frame in decoder:
-                if self.on_frame is not None:
-                    self.on_frame(frame)
-                self._frame(frame)
+                on_frame(frame)
+                self._message(_decode(frame, self.wire))
         except FrameError as exc:
             self._end(exc)
 
@@ -240,20 +249,26 @@ class Link:
         """The next thing that happened, or :data:`NEED_DATA`."""
         return self._events.popleft() if self._events else NEED_DATA
 
+    def _detected_order(self) -> None:
+        """Speak the byte order detected from the peer's first frame (a link that detects)."""
+        decoder = self._decoder
+        if decoder.detected:
+            order = decoder.byte_order
+            if order is not None and order is not self.wire.byte_order:
+                self.wire = self.wire.with_byte_order(order)
+
     def _end(self, error: FrameError | None) -> None:
         self._ended = True
         self._events.append(Ended(error))
 
-    def _frame(self, frame: bytes) -> None:
-        try:
-            msg = decode(frame, self.wire)
-        except MalformedMessage as exc:
-            if exc.comm_type == CommType.SERVICE_REPLY:
-                self._reply(None, exc)
+    def _message(self, msg: Message | MalformedMessage) -> None:
+        """A frame, decoded (or its body that does not decode): a reply, or something received."""
+        if isinstance(msg, MalformedMessage):
+            if msg.comm_type == _SERVICE_REPLY:
+                self._reply(None, msg)
             else:
-                self._events.append(Malformed(exc))
-            return
-        if msg.comm_type == CommType.SERVICE_REPLY:
+                self._events.append(Malformed(msg))
+        elif msg.comm_type == _SERVICE_REPLY:
             self._reply(msg, None)
         else:
             self._events.append(Received(msg))
@@ -270,3 +285,10 @@ class Link:
             self._events.append(Unanswerable(head, reply, error))
             return
         self._events.append(StrayReply(reply, error))
+
+
+def _decode(frame: bytes, wire: WireFormat) -> Message | MalformedMessage:
+    try:
+        return decode(frame, wire)
+    except MalformedMessage as exc:
+        return exc

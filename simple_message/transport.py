@@ -1,8 +1,12 @@
 """Byte-stream transports: TCP, serial links and an in-process pair for tests.
 
-Every transport ends up as an asyncio ``(StreamReader, StreamWriter)`` pair, the one abstraction
-the connection layer (:mod:`.connection`) works on. Framing never happens here (pymodbus mixes the
-two; we do not).
+Every opener returns an asyncio ``(StreamReader, StreamWriter)`` pair, usable as it is (tests and
+tools speak raw bytes through it). A :class:`~.connection.Connection` given a pair takes its
+transport over (:func:`take_over`, with whatever the reader had buffered) and is that transport's
+protocol from then on: the bytes go from the transport's callback straight to the protocol state,
+with no stream buffer and no task in between. Every transport here supports that hand-over
+(``set_protocol``) and flow control both ways (``pause_reading``, ``pause_writing``). Framing never
+happens here (pymodbus mixes the two; we do not).
 
 * **TCP**: :func:`open_tcp` and the servers of :mod:`.endpoints` use asyncio streams; TCP_NODELAY is
   set on every socket (simple_message is request/reply with small frames; Nagle's algorithm would
@@ -32,12 +36,13 @@ import queue
 import socket
 import threading
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 __all__ = [
     "StreamPair",
     "open_tcp",
     "set_nodelay",
+    "take_over",
     "open_serial",
     "open_fd",
     "memory_pair",
@@ -54,8 +59,8 @@ READ_SIZE = 65536
 HIGH_WATER = 64 * 1024
 
 
-def set_nodelay(writer: asyncio.StreamWriter) -> None:
-    """Disable Nagle's algorithm on a TCP stream (a no-op for other transports)."""
+def set_nodelay(writer: asyncio.StreamWriter | asyncio.BaseTransport) -> None:
+    """Disable Nagle's algorithm on a TCP stream or transport (a no-op for other transports)."""
     sock = writer.get_extra_info("socket")
     if sock is not None and sock.family in (socket.AF_INET, socket.AF_INET6):
         with contextlib.suppress(OSError):
@@ -69,6 +74,31 @@ async def open_tcp(host: str, port: int, *, timeout: float | None = 10.0) -> Str
     return reader, writer
 
 
+def take_over(
+    streams: StreamPair, protocol: asyncio.BaseProtocol
+) -> tuple[asyncio.BaseTransport, bytes, tuple[BaseException | None] | None, bool]:
+    """Make ``protocol`` the protocol of the stream pair's transport, from now on.
+
+    Returns the transport; the bytes the reader had already buffered (nobody else must read the
+    pair any more); the end of the input if the reader had seen it, as ``(exception or None,)``,
+    else ``None``; and whether the transport is already closed (then ``protocol`` gets no
+    ``connection_lost``).
+    """
+    reader, writer = streams
+    transport = cast(asyncio.Transport, writer.transport)
+    transport.set_protocol(protocol)
+    buffer: bytearray = getattr(reader, "_buffer", bytearray())
+    data = bytes(buffer)
+    buffer.clear()
+    error = reader.exception()
+    end: tuple[BaseException | None] | None = None
+    if error is not None or getattr(reader, "_eof", False):
+        end = (error,)
+    if getattr(reader, "_paused", False) and not transport.is_closing():
+        transport.resume_reading()  # the reader had paused it (its buffer was full)
+    return transport, data, end, transport.is_closing()
+
+
 def _streams(
     loop: asyncio.AbstractEventLoop, make_transport: Callable[[asyncio.Protocol], asyncio.Transport]
 ) -> StreamPair:
@@ -80,12 +110,19 @@ def _streams(
 
 
 class _Base(asyncio.Transport):
-    """What every transport below shares: a closing flag, and no half-close."""
+    """What every transport below shares: a closing flag, its protocol (replaceable), no half-close."""
 
     _closing = False
+    _protocol: asyncio.Protocol
 
     def is_closing(self) -> bool:
         return self._closing
+
+    def set_protocol(self, protocol: asyncio.BaseProtocol) -> None:
+        self._protocol = protocol  # type: ignore[assignment]
+
+    def get_protocol(self) -> asyncio.BaseProtocol:
+        return self._protocol
 
     def can_write_eof(self) -> bool:
         return False
@@ -94,7 +131,6 @@ class _Base(asyncio.Transport):
 class _WriteFlow(_Base):
     """High/low water marks shared by the transports below (asyncio's flow-control contract)."""
 
-    _protocol: asyncio.Protocol
     _high = HIGH_WATER
     _low = HIGH_WATER // 4
     _paused = False
@@ -250,6 +286,8 @@ class _ThreadTransport(_WriteFlow):
         self._protocol = protocol
         self._closing = False
         self._stop = threading.Event()
+        self._may_read = threading.Event()
+        self._may_read.set()
         self._pending = 0
         self._queue: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
         port.timeout = 0.02
@@ -266,6 +304,8 @@ class _ThreadTransport(_WriteFlow):
         error: Exception | None = None
         try:
             while not self._stop.is_set():
+                if not self._may_read.wait(0.1):  # reading paused (flow control)
+                    continue
                 data = self._port.read(max(1, self._port.in_waiting))
                 if data:
                     self._loop.call_soon_threadsafe(self._deliver, bytes(data))
@@ -308,6 +348,15 @@ class _ThreadTransport(_WriteFlow):
     def get_write_buffer_size(self) -> int:
         return self._pending
 
+    def pause_reading(self) -> None:
+        self._may_read.clear()  # a read already handed over is still delivered
+
+    def resume_reading(self) -> None:
+        self._may_read.set()
+
+    def is_reading(self) -> bool:
+        return self._may_read.is_set() and not self._closing
+
     def close(self) -> None:
         self._lost(None)
 
@@ -319,6 +368,7 @@ class _ThreadTransport(_WriteFlow):
             return
         self._closing = True
         self._stop.set()
+        self._may_read.set()
         self._queue.put(None)  # the writer thread closes the port after what is queued
         self._loop.call_soon(self._protocol.connection_lost, exc)
 
@@ -394,6 +444,9 @@ class _MemoryTransport(_Base):
         self.peer: _MemoryTransport | None = None
         self._closing = False
         self._held = bytearray()
+        #: pieces that arrived while reading was paused, delivered on resume
+        self._paused_in: list[bytes] | None = None
+        self._resuming = False
         loop.call_soon(protocol.connection_made, self)
 
     def write(self, data: bytes | bytearray | memoryview) -> None:
@@ -423,10 +476,41 @@ class _MemoryTransport(_Base):
 
     def _deliver(self, pieces: list[bytes]) -> None:
         peer = self.peer
-        if peer is None or peer._closing:
+        if peer is None:
             return
+        peer._receive(pieces)
+
+    def _receive(self, pieces: list[bytes]) -> None:
         for piece in pieces:
-            peer._protocol.data_received(piece)
+            if self._closing:
+                return
+            if self._paused_in is not None:
+                self._paused_in.append(piece)
+            else:
+                self._protocol.data_received(piece)
+
+    def pause_reading(self) -> None:
+        if self._paused_in is None:
+            self._paused_in = []
+        self._resuming = False  # a release already scheduled finds reading paused again
+
+    def resume_reading(self) -> None:
+        if self._paused_in is not None and not self._resuming:
+            # Delivered from the loop, not from inside the protocol's call; until then what
+            # arrives keeps queueing behind what was held, so the order holds.
+            self._resuming = True
+            self._loop.call_soon(self._release)
+
+    def _release(self) -> None:
+        if not self._resuming:  # paused again meanwhile
+            return
+        self._resuming = False
+        held, self._paused_in = self._paused_in, None
+        if held:
+            self._receive(held)  # pieces after a new pause_reading() are held again, in order
+
+    def is_reading(self) -> bool:
+        return self._paused_in is None and not self._closing
 
     def get_write_buffer_size(self) -> int:
         return len(self._held)
@@ -444,6 +528,9 @@ class _MemoryTransport(_Base):
 
     def _hang_up(self) -> None:
         if not self._closing:
+            held, self._paused_in = self._paused_in, None
+            for piece in held or ():  # what arrived while paused comes before the end
+                self._protocol.data_received(piece)
             self._closing = True
             self._protocol.eof_received()
             self._protocol.connection_lost(None)

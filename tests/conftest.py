@@ -237,3 +237,15 @@ def leak_guard(request: pytest.FixtureRequest) -> Iterator[None]:
         warnings.warn(LeakWarning(f"{text}\n(allowed: {reason})"), stacklevel=1)
         return
     pytest.fail(text, pytrace=False)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _uvloop_opened_once() -> None:
+    """uvloop (the optional extra, which ``simple_message.endpoints.run`` and ``robot-server`` use
+    when installed) opens a pipe with its first event loop and keeps it for the life of the process:
+    open it before any test's descriptors are counted, so it is not taken for a leak."""
+    try:
+        import uvloop
+    except ImportError:
+        return
+    uvloop.new_event_loop().close()

@@ -132,6 +132,15 @@ class RawPeer:
         await self.send(data)
         return await self.frame(timeout)
 
+    async def reply_to(self, data: bytes, timeout: float = 5.0) -> Frame:
+        """Send ``data`` and return the next SERVICE_REPLY (topics arriving meanwhile are skipped)."""
+        await self.send(data)
+        async with asyncio.timeout(timeout):
+            while True:
+                frame = await self.frame(timeout)
+                if frame.comm_type == 3:
+                    return frame
+
     async def next_of(self, msg_type: int, timeout: float = 5.0) -> Frame:
         """The next frame of ``msg_type`` (others are skipped)."""
         async with asyncio.timeout(timeout):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import random
+import types
 
 import pytest
 
@@ -21,9 +22,10 @@ from simple_message import (
     ReplyCode,
     Status,
     decode,
+    endpoints,
 )
 from simple_message.connection import Connection, ConnectionState
-from simple_message.endpoints import Client, ReconnectPolicy, Server
+from simple_message.endpoints import LOOP_VARIABLE, Client, ReconnectPolicy, Server, run
 from simple_message.errors import (
     ConnectionClosed,
     LocalProtocolError,
@@ -163,6 +165,114 @@ async def test_stray_replies_and_topics() -> None:
     peer.reply(JointPosition(1))
     assert await asyncio.wait_for(anext(inbox), T) == JointPosition(1)
     await conn.close()
+
+
+# -- the hand-over from a stream pair, and reading before start() ----------------------------------
+
+
+async def test_what_the_stream_reader_had_buffered_is_not_lost() -> None:
+    """A connection takes a stream pair's transport over with the bytes its reader already holds."""
+    ours, theirs = memory_pair()
+    first, second = JointPosition(1).encode(LE32), JointPosition(2).encode(LE32)
+    theirs[1].write(first)
+    theirs[1].write(second)
+    reader = ours[0]
+    assert await asyncio.wait_for(reader.readexactly(len(first)), T) == first  # someone read the first
+    conn = Connection(ours, LE32, name="ours")
+    inbox = aiter(conn)
+    conn.start()
+    assert await asyncio.wait_for(anext(inbox), T) == JointPosition(2)  # the second was in the reader
+    theirs[1].write(JointPosition(3).encode(LE32))
+    assert await asyncio.wait_for(anext(inbox), T) == JointPosition(3)
+    await conn.close()
+
+
+async def test_what_arrives_before_start_is_acted_on_at_start_in_order() -> None:
+    ours, theirs = memory_pair()
+    conn = Connection(ours, LE32, name="ours")
+    inbox = aiter(conn)
+    peer = FakePeer(theirs)
+    for i in range(3):
+        peer.reply(JointPosition(i))
+    peer.writer.close()  # and the end of the input, before start() too
+    await asyncio.wait_for(theirs[1].wait_closed(), T)
+    assert len(inbox) == 0 and not conn.closed  # nothing acted on yet
+    conn.start()
+    assert [await inbox.get(timeout=T) for _ in range(3)] == [JointPosition(0), JointPosition(1), JointPosition(2)]
+    await asyncio.wait_for(conn.wait_closed(), T)
+    assert conn.close_reason is None
+
+
+async def test_the_memory_pair_pauses_and_resumes_reading_in_order() -> None:
+    ours, theirs = memory_pair()
+    transport = ours[1].transport
+    transport.pause_reading()
+    assert not transport.is_reading()
+    theirs[1].write(b"abc")
+    await asyncio.sleep(0)  # one turn of the loop: delivered, and held
+    transport.resume_reading()
+    transport.pause_reading()  # paused again before the release: it stays held
+    theirs[1].write(b"def")
+    await asyncio.sleep(0)
+    await asyncio.sleep(0)
+    assert len(ours[0]._buffer) == 0  # nothing delivered while paused
+    transport.resume_reading()
+    theirs[1].write(b"ghi")  # arrives before the held pieces are released: queued behind them
+    theirs[1].close()  # and the hang-up after everything
+    async with asyncio.timeout(T):
+        assert await ours[0].read() == b"abcdefghi"
+    ours[1].close()
+
+
+async def test_a_connection_over_the_thread_backed_serial_transport() -> None:
+    """pyserial's loop:// (no file descriptor): the connection takes over the thread transport and
+    reads what it sent itself, with reading paused and resumed on the way."""
+    conn = Connection(await open_serial("loop://"), LE32, name="loop").start()
+    inbox = aiter(conn)
+    transport = conn.transport
+    transport.pause_reading()
+    assert not transport.is_reading()
+    transport.resume_reading()
+    for i in range(3):
+        await conn.send(JointPosition(i))
+    assert [await asyncio.wait_for(anext(inbox), T) for _ in range(3)] == [JointPosition(i) for i in range(3)]
+    await conn.close()
+
+
+class _MarkedLoop(asyncio.SelectorEventLoop):
+    """The loop a stand-in uvloop module makes (the real one keeps process-wide descriptors)."""
+
+
+def test_run_uses_uvloop_when_it_is_installed(monkeypatch: pytest.MonkeyPatch) -> None:
+    async def loop_type() -> type:
+        return type(asyncio.get_running_loop())
+
+    modules: dict[str, object] = {}
+
+    def import_module(name: str) -> object:
+        if name not in modules:
+            raise ImportError(name)
+        return modules[name]
+
+    monkeypatch.setattr(endpoints.importlib, "import_module", import_module)
+    monkeypatch.delenv(LOOP_VARIABLE, raising=False)
+    assert run(loop_type()) is not _MarkedLoop  # not installed: asyncio.run's loop
+    modules["uvloop"] = types.SimpleNamespace(new_event_loop=_MarkedLoop)
+    assert run(loop_type()) is _MarkedLoop  # installed: used
+    monkeypatch.setenv(LOOP_VARIABLE, "asyncio")
+    assert run(loop_type()) is not _MarkedLoop  # unless told otherwise
+    monkeypatch.setenv(LOOP_VARIABLE, "uvloop")
+    assert run(loop_type()) is _MarkedLoop
+    del modules["uvloop"]
+    coro = loop_type()
+    with pytest.raises(ImportError):
+        run(coro)  # asked for, not installed
+    coro.close()
+    monkeypatch.setenv(LOOP_VARIABLE, "tokio")
+    coro = loop_type()
+    with pytest.raises(ValueError, match="asyncio or uvloop"):
+        run(coro)
+    coro.close()
 
 
 # -- the in-process pair's fault injection ------------------------------------------------------

@@ -144,17 +144,163 @@ async def test_one_byte_writes_and_coalesced_writes(link_kind: str) -> None:
 
 
 async def test_pipelined_requests_are_answered_in_order(link_kind: str) -> None:
+    """The first request finishes last of all (only once the other four have arrived behind it):
+    the replies still go out in the order of the requests."""
     server = echo_server()
+    arrived: list[int] = []
+    handled: list[int] = []
+    all_arrived = asyncio.Event()
 
-    async def slow_then_fast(msg: JointTrajPt, session: Session) -> None:
-        await asyncio.sleep(0.05 if msg.sequence == 0 else 0)  # the first takes longest
+    def on_arrival(msg: JointTrajPt, session: Session) -> None:
+        arrived.append(msg.sequence)
+        if len(arrived) == 5:
+            all_arrived.set()
 
-    server.handle(MsgType.JOINT_TRAJ_PT, slow_then_fast)  # type: ignore[arg-type]
+    async def first_finishes_last(msg: JointTrajPt, session: Session) -> None:
+        if msg.sequence == 0:
+            await asyncio.wait_for(all_arrived.wait(), T)
+        handled.append(msg.sequence)
+
+    server.handle(MsgType.JOINT_TRAJ_PT, first_finishes_last, on_arrival=on_arrival)  # type: ignore[arg-type]
     async with LINKS[link_kind](server) as link:
         conn = await link.connection()
         replies = await asyncio.gather(*(conn.request(JointTrajPt(seq), timeout=T) for seq in range(5)))
         assert [r.sequence for r in replies] == [0, 1, 2, 3, 4]  # type: ignore[attr-defined]
+        assert arrived == [0, 1, 2, 3, 4] and handled == [0, 1, 2, 3, 4]
         await conn.close()
+
+
+async def test_a_ping_queued_behind_a_slow_request_is_answered_after_it(link_kind: str) -> None:
+    """PING has a fast path (a cached reply, no handler): it still keeps its place in the order."""
+    server = echo_server()
+    later_arrived = asyncio.Event()
+
+    def on_arrival(msg: JointTrajPt, session: Session) -> None:
+        if msg.sequence == 1:  # read after the PING: the server has seen the PING by now
+            later_arrived.set()
+
+    async def first_waits(msg: JointTrajPt, session: Session) -> None:
+        if msg.sequence == 0:
+            await asyncio.wait_for(later_arrived.wait(), T)
+
+    server.handle(MsgType.JOINT_TRAJ_PT, first_waits, on_arrival=on_arrival)  # type: ignore[arg-type]
+    async with LINKS[link_kind](server) as link:
+        reader, writer = await link.open()
+        writer.write(JointTrajPt(0).encode(LE32) + Ping().encode(LE32) + JointTrajPt(1).encode(LE32))
+        replies = [decode(f, LE32) for f in await read_frames(reader, 3)]
+        assert [(r.msg_type, r.reply_code) for r in replies] == [
+            (MsgType.JOINT_TRAJ_PT, ReplyCode.SUCCESS),
+            (MsgType.PING, ReplyCode.SUCCESS),
+            (MsgType.JOINT_TRAJ_PT, ReplyCode.SUCCESS),
+        ]
+        assert replies[1] == Ping(comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS)
+        assert [r.sequence for r in (replies[0], replies[2])] == [0, 1]  # type: ignore[attr-defined]
+        writer.close()
+
+
+async def test_a_full_request_queue_stops_reading_until_there_is_room(link_kind: str) -> None:
+    """Back-pressure: with a queue of one, a request handled, one queued and one waiting for room,
+    the server reads nothing more (not even for the arrival hooks) until the first is done."""
+    server = echo_server(request_queue=1)
+    arrived: list[int] = []
+    three = asyncio.Event()
+    release = asyncio.Event()
+
+    def on_arrival(msg: JointTrajPt, session: Session) -> None:
+        arrived.append(msg.sequence)
+        if len(arrived) == 3:
+            three.set()
+
+    async def first_waits(msg: JointTrajPt, session: Session) -> None:
+        if msg.sequence == 0:
+            await asyncio.wait_for(release.wait(), T)
+
+    server.handle(MsgType.JOINT_TRAJ_PT, first_waits, on_arrival=on_arrival)  # type: ignore[arg-type]
+    async with LINKS[link_kind](server) as link:
+        reader, writer = await link.open()
+        writer.write(b"".join(JointTrajPt(seq).encode(LE32) for seq in range(5)))  # all five at once
+        await asyncio.wait_for(three.wait(), T)
+        assert arrived == [0, 1, 2]  # 0 is handled, 1 is queued, 2 waits for room: reading stopped
+        release.set()
+        replies = [decode(f, LE32) for f in await read_frames(reader, 5)]
+        assert [r.sequence for r in replies] == [0, 1, 2, 3, 4]  # type: ignore[attr-defined]
+        assert arrived == [0, 1, 2, 3, 4]
+        writer.close()
+
+
+async def test_a_server_closed_while_its_queue_is_full_leaves_nothing_behind(link_kind: str) -> None:
+    """The handler never finishes and the reading waits for room: closing the server ends the
+    session anyway (the guard in conftest.py fails the test on a leaked task or descriptor)."""
+    server = echo_server(request_queue=1)
+    three = asyncio.Event()
+    ended = asyncio.Event()
+    arrived: list[int] = []
+
+    def on_arrival(msg: JointTrajPt, session: Session) -> None:
+        arrived.append(msg.sequence)
+        if len(arrived) == 3:
+            three.set()
+
+    async def never(msg: JointTrajPt, session: Session) -> None:
+        await asyncio.Event().wait()
+
+    server.handle(MsgType.JOINT_TRAJ_PT, never, on_arrival=on_arrival)  # type: ignore[arg-type]
+    server.on_disconnect = lambda session: ended.set()
+    async with LINKS[link_kind](server) as link:
+        reader, writer = await link.open()
+        writer.write(b"".join(JointTrajPt(seq).encode(LE32) for seq in range(5)))
+        await asyncio.wait_for(three.wait(), T)
+        await asyncio.wait_for(server.close(), T)
+        assert ended.is_set() and not server.sessions and arrived == [0, 1, 2]
+        async with asyncio.timeout(T):
+            assert await reader.read() == b""  # nothing answered, then closed
+        writer.close()
+
+
+async def test_a_connection_closed_by_the_request_that_finds_the_queue_full(link_kind: str) -> None:
+    """An arrival hook closes the connection on the very request that must wait for room: nothing
+    is left waiting for that room (no task, no coroutine never awaited)."""
+    server = echo_server(request_queue=1)
+    ended = asyncio.Event()
+
+    def on_arrival(msg: JointTrajPt, session: Session) -> None:
+        if msg.sequence == 2:
+            session.connection.abort()
+
+    async def never(msg: JointTrajPt, session: Session) -> None:
+        await asyncio.Event().wait()
+
+    server.handle(MsgType.JOINT_TRAJ_PT, never, on_arrival=on_arrival)  # type: ignore[arg-type]
+    server.on_disconnect = lambda session: ended.set()
+    async with LINKS[link_kind](server) as link:
+        reader, writer = await link.open()
+        writer.write(b"".join(JointTrajPt(seq).encode(LE32) for seq in range(3)))
+        await asyncio.wait_for(ended.wait(), T)
+        async with asyncio.timeout(T):
+            assert await reader.read() == b""
+        writer.close()
+
+
+async def test_broadcast_topics_go_out_in_order_and_before_a_later_reply(link_kind: str) -> None:
+    """Topics broadcast in one loop iteration are written together at its end; a reply sent
+    meanwhile on the same connection goes out after them, not before."""
+    server = echo_server()
+
+    def publish_then_reply(msg: JointTrajPt, session: Session) -> None:
+        server.broadcast(JointFeedback(0, 0x0E, 1.0, [0.1]))
+        server.broadcast(Status(1, 0, 0, 0, 0, 2, 1))
+
+    server.handle(MsgType.JOINT_TRAJ_PT, publish_then_reply)  # type: ignore[arg-type]
+    async with LINKS[link_kind](server) as link:
+        reader, writer = await link.open()
+        writer.write(JointTrajPt(7).encode(LE32))
+        frames = [decode(f, LE32) for f in await read_frames(reader, 3)]
+        assert [f.msg_type for f in frames] == [MsgType.JOINT_FEEDBACK, MsgType.STATUS, MsgType.JOINT_TRAJ_PT]
+        assert frames[2].sequence == 7  # type: ignore[attr-defined]
+        assert server.broadcast(Status(1, 0, 0, 0, 0, 2, 1)) == 1
+        (topic,) = await read_frames(reader, 1)
+        assert decode(topic, LE32).msg_type == MsgType.STATUS
+        writer.close()
 
 
 async def test_handler_that_raises_gets_failure_and_the_server_lives(
@@ -292,14 +438,26 @@ async def test_malformed_frames_close_only_that_connection(bad_prefix: int) -> N
 
 
 async def test_truncated_frame_then_disconnect_leaves_the_server_serving() -> None:
-    async with tcp_link(echo_server()) as link:
+    """A peer that sends part of a frame and hangs up gets no reply; its session ends (and only
+    it), and the other client is served throughout."""
+    server = echo_server()
+    ended: asyncio.Queue[Session] = asyncio.Queue()
+    server.on_disconnect = ended.put_nowait
+    async with tcp_link(server) as link:
         healthy = await link.connection()
+        await healthy.request(Ping(), timeout=T)
+        (healthy_session,) = server.sessions
         for cut in (2, 10, 30):
-            _, writer = await link.open()
+            reader, writer = await link.open()
             writer.write(JointTrajPt(0).encode(LE32)[:cut])
-            await writer.drain()
+            writer.write_eof()  # the hang-up, while still reading what the server sends back
+            async with asyncio.timeout(T):
+                assert await reader.read() == b""  # no reply to the truncated request, then EOF
+            session = await asyncio.wait_for(ended.get(), T)
+            assert session is not healthy_session and session.end_reason is None
+            assert server.sessions == {healthy_session}
+            assert (await healthy.request(Ping(), timeout=T)).reply_code == ReplyCode.SUCCESS
             writer.close()
-            await healthy.request(Ping(), timeout=T)
         await healthy.close()
 
 
@@ -317,6 +475,26 @@ async def test_connection_limit_refuses_cleanly() -> None:
         await b.request(Ping(), timeout=T)
         await a.close()
         await b.close()
+
+
+async def test_connection_limit_holds_for_clients_that_connect_at_once() -> None:
+    """Connections accepted in one loop iteration count against the limit one by one."""
+    server = echo_server(max_connections=2)
+    async with tcp_link(server) as link:
+        opened = await asyncio.gather(*(link.open() for _ in range(5)))
+        ping = Ping().encode(LE32)
+        answers = []
+        for reader, writer in opened:
+            writer.write(ping)
+            async with asyncio.timeout(T):
+                try:
+                    answers.append(await reader.read(len(ping)))  # a PING reply, or the EOF of a refusal
+                except ConnectionResetError:  # refused: the PING reached a closed socket
+                    answers.append(b"")
+        assert sorted(len(a) for a in answers) == [0, 0, 0, len(ping), len(ping)]
+        assert server.refused == 3 and len(server.sessions) == 2
+        for _, writer in opened:
+            writer.close()
 
 
 async def test_ipv6_loopback() -> None:
@@ -361,13 +539,13 @@ async def test_stalled_peer_never_delays_the_others() -> None:
         healthy = await link.connection()
         everything = healthy.subscribe(maxsize=20_000)
         never_read = healthy.subscribe(maxsize=100)
+        both_connected = asyncio.Event()  # (set up first: the server may accept during the connect)
+        server.on_connect = lambda session: both_connected.set() if len(server.sessions) == 2 else None
         # A peer that never reads: a small receive window, so the kernel buffers fill quickly.
         raw = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
         raw.setblocking(False)
         await asyncio.get_running_loop().sock_connect(raw, ("127.0.0.1", server_port(server)))
-        both_connected = asyncio.Event()
-        server.on_connect = lambda session: both_connected.set() if len(server.sessions) == 2 else None
         _, stalled_writer = await asyncio.open_connection(sock=raw)
         await asyncio.wait_for(both_connected.wait(), T)
         sent_to_stalled = 0

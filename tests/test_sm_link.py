@@ -155,6 +155,69 @@ def test_the_byte_order_is_detected_from_the_peers_first_frame_and_spoken_back()
     assert fixed.wire == LE32
 
 
+def test_identical_frames_in_one_read_each_mean_what_their_place_says() -> None:
+    """Frames are cut and decoded in one pass per read: two identical frames in one read are two
+    messages, and what a reply means still depends on what is pending when it comes."""
+    server = Link(LE32, autodetect=True)
+    server.receive_data(Ping().encode(BE32) * 2)  # a big-endian peer, detected from the first frame
+    first, second = events(server)
+    assert isinstance(first, Received) and isinstance(second, Received)
+    assert first.message == second.message == Ping() and server.wire == BE32
+    client = Link(LE32)
+    ack = HeaderOnly(MsgType.JOINT_TRAJ_PT, comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS)
+    request, _ = client.send_request(JointTrajPt(0))
+    client.receive_data(ack.encode(LE32) * 2)  # the same bytes: an answer, then a stray reply
+    answered, stray = events(client)
+    assert isinstance(answered, Answered) and answered.request is request and answered.reply == ack
+    assert isinstance(stray, StrayReply) and stray.reply == ack
+
+
+@pytest.mark.parametrize("autodetect", [False, True])
+def test_a_link_that_hands_out_its_frames_means_the_same(autodetect: bool) -> None:
+    """With ``on_frame`` set (frame logs, captures) the link cuts frames, then decodes them; without,
+    it does both in one pass. Same events, in any chunking, up to and including a bad prefix."""
+    ack = HeaderOnly(MsgType.JOINT_TRAJ_PT, comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS)
+    stream = b"".join(
+        [
+            JointTrajPt(1, (0.5,) * 10).encode(LE32),
+            short(JointTrajPt(2)),  # a body that does not decode: Malformed
+            ack.encode(LE32),  # answers the pending request
+            ack.encode(LE32),  # stray
+            short(JointTrajPt(3).to_reply()),  # a reply that does not decode: stray, with its error
+            JointPosition(4).encode(LE32) * 3,
+            (3).to_bytes(4, "little") + bytes(12),  # a bad length prefix: the end
+        ]
+    )
+    outcomes = []
+    for logged in (False, True):
+        for chunk in (len(stream), 7, 1):
+            link = Link(LE32, autodetect=autodetect)
+            frames: list[bytes] = []
+            if logged:
+                link.on_frame = frames.append
+            link.send_request(JointTrajPt(0))
+            for i in range(0, len(stream), chunk):
+                if link.ended:  # at the bad prefix: what follows it is never fed
+                    break
+                link.receive_data(stream[i : i + chunk])
+            got = events(link)
+            assert [type(e) for e in got] == [
+                Received,
+                Malformed,
+                Answered,
+                StrayReply,
+                StrayReply,
+                Received,
+                Received,
+                Received,
+                Ended,
+            ]
+            assert isinstance(got[-1], Ended) and isinstance(got[-1].error, FrameError)
+            assert len(frames) == (8 if logged else 0)
+            outcomes.append([repr(e) for e in got])
+    assert all(o == outcomes[0] for o in outcomes)
+
+
 def test_only_requests_are_sent_as_requests() -> None:
     with pytest.raises(LocalProtocolError):
         Link().send_request(JointPosition(0))
@@ -167,7 +230,8 @@ def test_the_dialects_are_registered_data_and_a_new_one_is_one_value() -> None:
     with pytest.raises(KeyError, match="known: abb, fanuc, generic, motoros"):
         dialect("kuka")
     with pytest.raises(ValueError, match="already registered"):
-        register(GENERIC)
+        register(Dialect(**{**vars(GENERIC), "description": "another generic"}))
+    assert register(GENERIC) is GENERIC  # the same value again is harmless (a module imported twice)
     acme = Dialect(
         name="acme",
         description="a made-up vendor whose motion server answers points with a STATUS reply",

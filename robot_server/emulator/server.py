@@ -20,6 +20,8 @@ import asyncio
 import contextlib
 import dataclasses
 import logging
+import threading
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -149,6 +151,61 @@ class PeriodStats:
         self.max_lateness = max(self.max_lateness, lateness)
 
 
+class _Ticker:
+    """Wakes a task at absolute ``time.monotonic()`` deadlines within tens of microseconds.
+
+    The event loop's own timers are not that precise: asyncio waits in epoll, whose timeout is in
+    whole milliseconds (rounded up), and uvloop's libuv timers count milliseconds too, so a 250 Hz
+    topic timed by ``asyncio.sleep`` comes up to a millisecond late, differently each period. Here a
+    helper thread sleeps until the deadline (the OS's own precise sleep) and hands the wake-up to the
+    loop (``call_soon_threadsafe``): one thread wake-up per period, portable, on any event loop.
+    """
+
+    def __init__(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._cond = threading.Condition()
+        self._next: tuple[float, asyncio.Future[None]] | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="state-topics ticker", daemon=True)
+        self._thread.start()
+
+    async def sleep_until(self, deadline: float) -> None:
+        if deadline <= time.monotonic():
+            await asyncio.sleep(0)  # late: still let the others run
+            return
+        future: asyncio.Future[None] = self._loop.create_future()
+        with self._cond:
+            self._next = (deadline, future)
+            self._cond.notify()
+        await future
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while self._next is None and not self._stop.is_set():
+                    self._cond.wait()
+                pending, self._next = self._next, None
+                if pending is None:
+                    return  # stopped
+                deadline, future = pending
+                while not self._stop.is_set() and (left := deadline - time.monotonic()) > 0.0:
+                    self._cond.wait(left)  # a precise timed wait, cut short by close()
+                if self._stop.is_set():
+                    return
+            self._loop.call_soon_threadsafe(_wake, future)
+
+    def close(self) -> None:
+        with self._cond:
+            self._stop.set()
+            self._cond.notify()
+        self._thread.join(1.0)
+
+
+def _wake(future: asyncio.Future[None]) -> None:
+    if not future.done():  # not cancelled meanwhile
+        future.set_result(None)
+
+
 class Emulator:
     """A robot controller emulator serving simple_message (see the module doc)."""
 
@@ -247,27 +304,27 @@ class Emulator:
             raise
 
     async def _run_state(self) -> None:
-        loop = asyncio.get_running_loop()
         period = self.state_stats.period
-        origin = loop.time()
+        ticker = _Ticker()
+        origin = time.monotonic()
         k = 0
-        while True:
-            k += 1
-            deadline = origin + k * period
-            delay = deadline - loop.time()
-            if delay > 0.0:
-                await asyncio.sleep(delay)
-            now = loop.time()
-            late = now - deadline
-            if late > period:  # fell behind (a stalled machine): skip, never burst
-                missed = int(late // period)
-                self.state_stats.skipped += missed
-                k += missed
-            self.state_stats.add(late - (late // period) * period if late > period else late)
-            try:
-                self.publish_state()
-            except Exception:  # pragma: no cover - a bug must not end the topics
-                log.exception("publishing state failed")
+        try:
+            while True:
+                k += 1
+                deadline = origin + k * period
+                await ticker.sleep_until(deadline)
+                late = time.monotonic() - deadline
+                if late > period:  # fell behind (a stalled machine): skip, never burst
+                    missed = int(late // period)
+                    self.state_stats.skipped += missed
+                    k += missed
+                self.state_stats.add(late - (late // period) * period if late > period else late)
+                try:
+                    self.publish_state()
+                except Exception:  # pragma: no cover - a bug must not end the topics
+                    log.exception("publishing state failed")
+        finally:
+            ticker.close()
 
     def state_sessions(self) -> list[Session]:
         """Everyone who gets state topics: state-port clients and serial links."""
