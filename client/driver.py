@@ -498,8 +498,17 @@ class RobotDriver:
 
     async def _wait_goal(self, trajectory: Trajectory, confirmed: int) -> JointState:
         goal = trajectory.positions[-1]
-        deadline = time.monotonic() + trajectory.duration + self.goal_timeout
+        sent = time.monotonic()
+        deadline = sent + trajectory.duration + self.goal_timeout
         stalled_since: float | None = None
+        # "at the goal and not moving" means done only once the robot has run the trajectory: a path
+        # that ends where it starts is "at the goal" before it begins, and the STATUS that comes with
+        # a joint state may be older than the last point. So the robot must have been seen moving
+        # (in_motion TRUE, or away from the start), unless the trajectory does not move it, or it has
+        # stood at the goal for stall_timeout s since everything was sent.
+        start = trajectory.positions[0]
+        moves = bool(np.max(np.abs(trajectory.positions - start)) > self.goal_tolerance)
+        seen_moving = False
         while True:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
@@ -521,7 +530,13 @@ class RobotDriver:
             if status is not None and status.in_error == TriState.TRUE:
                 raise ExecutionAborted(f"the controller is in error {status.error_code}", confirmed)
             at_goal = error <= self.goal_tolerance
-            if at_goal and status is not None and status.in_motion != TriState.TRUE:
+            here = state.positions[: goal.size]
+            if (status is not None and status.in_motion == TriState.TRUE) or bool(
+                np.max(np.abs(here - start)) > self.goal_tolerance
+            ):
+                seen_moving = True
+            ran = seen_moving or not moves or time.monotonic() - sent > self.stall_timeout
+            if at_goal and ran and status is not None and status.in_motion != TriState.TRUE:
                 if status.in_motion == TriState.UNKNOWN:
                     log.warning("goal reached, but the controller reports in_motion UNKNOWN")
                 return state

@@ -135,3 +135,22 @@ async def test_one_serial_link_carries_motion_and_state() -> None:
         os.close(slave)
         with contextlib.suppress(OSError):
             os.close(master)
+
+
+@pytest.mark.parametrize("mode", ["stream", "download"])
+async def test_a_path_back_to_its_start_is_done_only_once_it_has_run(mode: str) -> None:
+    """At the goal before it starts: "done" must wait until the robot has been seen moving."""
+    config = EmulatorConfig(motion_port=0, state_port=0, state_rate=100.0, simulated=True)
+    async with Emulator(config) as emu:
+        driver = RobotDriver(motion_port=emu.ports["motion"], state_port=emu.ports["state"], model=MODEL)
+        async with driver:
+            start = (await driver.wait_state()).positions[:6]
+            away = start + np.array([0.3, -0.2, 0.2, 0.1, 0.0, 0.1])
+            [record] = emu.record(60.0)
+            trajectory = Trajectory(np.array([0.0, 1.0, 2.0]), np.stack([start, away, start]))
+            final = await driver.execute(trajectory, mode)
+            emu.stop_recording()
+        assert np.max(np.abs(final.positions - start)) <= driver.goal_tolerance
+        travelled = np.max(np.abs(record.get("command_position") - start))
+        assert travelled > 0.25  # the robot went out to `away` before "done"
+        assert emu.cell.groups[0].trajectories == 1 and not emu.in_motion

@@ -305,14 +305,20 @@ class Emulator:
 
     async def _run_state(self) -> None:
         period = self.state_stats.period
-        ticker = _Ticker()
+        # The precise ticker wants an idle loop to hand its wake-ups to: on a simulated or stepped
+        # clock the control loop keeps the event loop (and the GIL) busy, and the ticker's thread
+        # would starve the topics; the loop's own timers serve those clocks.
+        ticker = _Ticker() if self.clock.realtime else None
         origin = time.monotonic()
         k = 0
         try:
             while True:
                 k += 1
                 deadline = origin + k * period
-                await ticker.sleep_until(deadline)
+                if ticker is not None:
+                    await ticker.sleep_until(deadline)
+                else:
+                    await asyncio.sleep(max(0.0, deadline - time.monotonic()))
                 late = time.monotonic() - deadline
                 if late > period:  # fell behind (a stalled machine): skip, never burst
                     missed = int(late // period)
@@ -324,7 +330,8 @@ class Emulator:
                 except Exception:  # pragma: no cover - a bug must not end the topics
                     log.exception("publishing state failed")
         finally:
-            ticker.close()
+            if ticker is not None:
+                ticker.close()
 
     def state_sessions(self) -> list[Session]:
         """Everyone who gets state topics: state-port clients and serial links."""
