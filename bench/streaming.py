@@ -265,9 +265,10 @@ def server_option(dest: str) -> argparse.Action:
 
 
 def available_policies() -> list[str]:
-    """The ``--interpolation`` choices of robot-server, ``blend`` first when it exists."""
-    choices = [str(c) for c in server_option("interpolation").choices or ()]
-    return sorted(choices, key=lambda name: name != "blend")
+    """The interpolation policies robot-server knows, ``blend`` first when it exists."""
+    from robot_server.control import POLICIES
+
+    return sorted(POLICIES, key=lambda name: name != "blend")
 
 
 # -- the server --------------------------------------------------------------------------------------
