@@ -124,6 +124,11 @@ class EmulatorConfig:
         return WireFormat(order, 8 if self.float64 else 4)
 
     @property
+    def replies(self) -> ReplyStyle:
+        """The reply style resolved (the option's, else the dialect's; set once built)."""
+        return reply_style_of(self.reply_style or self.emulated.dialect.reply_style)
+
+    @property
     def emulated(self) -> EmulatorProfile:
         """The profile played."""
         return profile_named(self.profile)
@@ -243,7 +248,7 @@ class Emulator:
                 config.wire,
                 name=role,
                 autodetect=config.byte_order == "auto",
-                reply_style=reply_style_of(config.reply_style or profile.dialect.reply_style),
+                reply_style=config.replies,
                 max_connections=config.max_connections if rules.max_connections is None else rules.max_connections,
                 answer_topics=rules.answer_topics,
             )
@@ -422,6 +427,6 @@ class Emulator:
         models = " + ".join(g.model.name for g in self.cell.groups)
         return (
             f"robot-server ready: {cfg.profile} profile, {models}, {ports}, {order} float{64 if cfg.float64 else 32}, "
-            f"{reply_style_of(cfg.reply_style or ReplyStyle.ECHO).value} replies, "
+            f"{cfg.replies.value} replies, "
             f"{cfg.interpolation} interpolation, {timing}"
         )
