@@ -80,8 +80,10 @@ async def test_a_stream_over_tcp_on_a_stepped_clock_runs_as_planned_and_repeats_
 
 
 async def test_a_stream_over_real_tcp_in_real_time() -> None:
-    """The same stream with the controller on the wall clock: every point accepted, the path
-    followed within the limits to the last point (nothing here depends on how fast the machine is)."""
+    """The same stream with the controller on the wall clock: every point accepted and the last one
+    reached, within the limits all the way. How closely the path is followed depends on when the
+    points arrive, so that is measured on the stepped clock above and in ``bench/streaming.py``,
+    not here: nothing asserted here depends on how fast or loaded the machine is."""
     plan = Plan.make(1.0, 101)
     config = EmulatorConfig(motion_port=0, state_port=0)
     async with Emulator(config) as emu:
@@ -95,7 +97,6 @@ async def test_a_stream_over_real_tcp_in_real_time() -> None:
     assert np.allclose(command[-1], plan.position[-1], atol=1e-7)  # float32 on the wire
     assert np.all(np.abs(record.get("command_acceleration")) <= AMAX * (1 + 1e-9))
     assert np.all(np.abs(np.diff(command, axis=0)) <= VMAX * 0.001 * (1 + 1e-9))
-    assert measure(record, MODEL, plan, 4).deviation_command <= 0.05e-3
 
 
 # -- MotoROS -------------------------------------------------------------------------------------
