@@ -3,7 +3,8 @@
 Commands: ``ping``, ``status``, ``monitor``, ``move``, ``run FILE``, ``stop``, ``record FILE`` and
 ``demo`` (the paper's experiment; it starts an embedded emulator when no controller answers).
 Angles in radians, lengths in metres. Exit status 0 on success, 1 when the robot or controller
-failed (with one line saying why on stderr), 2 for bad arguments.
+failed (with one line saying why on stderr), 2 for bad arguments. SIGINT and SIGTERM stop a motion
+under way (STOP sent and acknowledged) before the command exits (130 and 143).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import contextlib
 import json
 import logging
 import math
+import signal
 import sys
 import time
 from collections.abc import Awaitable, Callable, Sequence
@@ -45,6 +47,41 @@ log = logging.getLogger("client.cli")
 
 class CommandError(Exception):
     """A failure to report in one line (exit status 1)."""
+
+
+class Terminated(Exception):
+    """SIGTERM arrived: the command was cancelled as for SIGINT (the robot stopped), exit 143."""
+
+
+def _run_main(main: Awaitable[None]) -> None:
+    """``asyncio.run(main)``, with SIGTERM handled as asyncio handles SIGINT: the command is
+    cancelled, so a motion under way is stopped (the driver sends STOP on cancellation), and then
+    :class:`Terminated` is raised instead of the process dying with the robot moving."""
+
+    async def guarded() -> None:
+        task = asyncio.current_task()
+        assert task is not None
+        loop = asyncio.get_running_loop()
+        terminated = False
+
+        def on_term() -> None:
+            nonlocal terminated
+            terminated = True
+            task.cancel()
+
+        with contextlib.suppress(NotImplementedError, RuntimeError):  # no signals here (Windows, a thread)
+            loop.add_signal_handler(signal.SIGTERM, on_term)
+        try:
+            await main
+        except asyncio.CancelledError:
+            if terminated:
+                raise Terminated from None
+            raise
+        finally:
+            with contextlib.suppress(NotImplementedError, RuntimeError):
+                loop.remove_signal_handler(signal.SIGTERM)
+
+    asyncio.run(guarded())
 
 
 def _positive(text: str) -> float:
@@ -410,12 +447,15 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
         return 2
     try:
         if args.command == "demo":
-            asyncio.run(_demo(args, stream))
+            _run_main(_demo(args, stream))
         else:
-            asyncio.run(_with_driver(args, model, stream))
+            _run_main(_with_driver(args, model, stream))
     except KeyboardInterrupt:
         print("robot-client: interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        print("robot-client: terminated", file=sys.stderr)
+        return 143
     except (CommandError, DriverError, PlanningError, SimpleMessageError, OSError) as exc:
         print(f"robot-client: {exc}", file=sys.stderr)
         return 1

@@ -28,6 +28,7 @@ from simple_message.endpoints import run
 
 from .control import DEFAULT_POLICY, POLICIES, Recorder
 from .emulator import FAULT_COMMANDS, PROFILES, Emulator, EmulatorConfig, FaultError, apply_fault_command
+from .emulator.owner import OnDisconnect
 from .emulator.server import MAX_STATE_RATE
 from .loader import load_model, shipped_models
 from .model import ModelError
@@ -115,6 +116,28 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--speedup", type=_positive, default=1.0, metavar="FACTOR", help="run the controller faster")
     p.add_argument("--serial", metavar="URL", help="also serve one link on this serial port (pyserial URL)")
     p.add_argument(
+        "--on-disconnect",
+        choices=[o.value for o in OnDisconnect],
+        default=OnDisconnect.STOP.value,
+        help="when the motion client goes away while the robot is busy: stop it (controlled, the default, as "
+        "MotoROS does) or let the queued motion run to its end",
+    )
+    p.add_argument(
+        "--max-connections",
+        type=int,
+        default=128,
+        metavar="N",
+        help="connections per port where the profile has no limit of its own (default 128); a full port closes "
+        "an idle connection (an incomplete frame, a peer that does not read, the longest silent) for a newcomer",
+    )
+    p.add_argument(
+        "--frame-timeout",
+        type=_positive,
+        default=5.0,
+        metavar="SECONDS",
+        help="close a connection that began a frame and sent nothing more for SECONDS (default 5)",
+    )
+    p.add_argument(
         "--record",
         metavar="FILE.csv",
         help="record every servo tick (command, actual, following error, points received) and write it as CSV "
@@ -172,6 +195,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             speedup=args.speedup,
             queue_capacity=args.queue_size,
             serial=args.serial,
+            on_disconnect=args.on_disconnect,
+            max_connections=args.max_connections,
+            frame_timeout=args.frame_timeout,
         )
         models = [load_model(m) for m in config.models]
         emulator = Emulator(config, models)

@@ -38,6 +38,9 @@ import contextlib
 import enum
 import inspect
 import logging
+import struct
+import sys
+import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
 from typing import cast
@@ -46,6 +49,7 @@ from .constants import ReplyCode
 from .dialects import any_dialect_answers
 from .errors import (
     ConnectionClosed,
+    IncompleteFrame,
     MalformedMessage,
     RequestFailed,
     RequestTimeout,
@@ -65,11 +69,21 @@ from .link import (
     StrayReply,
     Unanswerable,
 )
+from .lograte import LogBudget
 from .messages import Message, type_name
 from .transport import StreamPair, set_nodelay, take_over
 from .wire import DEFAULT_FORMAT, WireFormat
 
 __all__ = ["Connection", "ConnectionState", "Subscription", "MessageHandler"]
+
+if sys.platform != "win32":
+    import fcntl
+    import termios
+
+    #: the ioctl that reads a socket's unacknowledged send queue (Linux's SIOCOUTQ is TIOCOUTQ)
+    _OUTQ: int | None = getattr(termios, "TIOCOUTQ", None) if sys.platform.startswith("linux") else None
+else:  # pragma: no cover
+    _OUTQ = None
 
 log = logging.getLogger(__name__)
 frames_log = logging.getLogger(__name__ + ".frames")
@@ -162,8 +176,10 @@ class Connection(asyncio.Protocol):
     socket). ``autodetect`` detects the byte order from the peer's first frame (servers); until
     then, and for everything sent, ``wire`` applies. ``answers``: which replies may answer which
     requests (the peer's dialect, :meth:`.dialects.Dialect.answers`; default: what any dialect may
-    send). Call :meth:`start` (or use ``async with``) to begin acting on what arrives; what arrives
-    before is kept.
+    send). ``frame_timeout``: a peer that begins a frame and sends nothing more for that long (s)
+    is closed with :class:`~.errors.IncompleteFrame` (servers; ``None``: wait for ever). Call
+    :meth:`start` (or use ``async with``) to begin acting on what arrives; what arrives before is
+    kept.
     """
 
     def __init__(
@@ -179,12 +195,18 @@ class Connection(asyncio.Protocol):
         drain_timeout: float = 5.0,
         max_write_buffer: int = 256 * 1024,
         answers: ReplyRule = any_dialect_answers,
+        frame_timeout: float | None = None,
     ) -> None:
         #: the protocol state (sans-I/O): frames, byte order, requests and replies
         self.link = Link(wire, autodetect=autodetect, max_length=max_length, answers=answers)
         self._autodetect = autodetect
         self.drain_timeout = drain_timeout
         self.max_write_buffer = max_write_buffer
+        #: close the connection when a frame was begun and nothing more came for this long (s)
+        self.frame_timeout = frame_timeout
+        self._partial_timer: asyncio.TimerHandle | None = None
+        #: ``time.monotonic()`` of the last bytes received (or of the connection)
+        self.last_input = time.monotonic()
         self.on_message = on_message
         #: Shared with a reconnecting client, so subscriptions outlive one connection.
         self.subscriptions: list[Subscription] = subscriptions if subscriptions is not None else []
@@ -231,6 +253,8 @@ class Connection(asyncio.Protocol):
         self.transport = cast(asyncio.Transport, transport)
         set_nodelay(transport)
         self.name = name or str(transport.get_extra_info("peername") or "link")
+        #: the log lines this peer may cause (:mod:`.lograte`)
+        self.log_budget = LogBudget(self.name)
 
     @property
     def wire(self) -> WireFormat:
@@ -296,10 +320,14 @@ class Connection(asyncio.Protocol):
             return
         self.state = ConnectionState.CLOSED
         self.close_reason = reason
+        if self._partial_timer is not None:
+            self._partial_timer.cancel()
+            self._partial_timer = None
+        self.log_budget.flush()
         if reason is None or _hang_up(reason):
             # the peer hung up (cleanly or not): normal life of a connection, not a warning
             log.info("%s: disconnected%s", self.name, f" ({reason})" if reason else "")
-            if self._queued:  # what was queued goes out before the close, like what was written
+            if self._queued and not self.transport.is_closing():  # queued goes out before the close
                 self.transport.write(b"".join(self._queued))
                 self._queued.clear()
             self.transport.close()
@@ -345,8 +373,28 @@ class Connection(asyncio.Protocol):
                 log.info("%s: detected %s byte order", self.name, link.wire.byte_order.value)
         else:
             link.receive_data(data)
+        if self.frame_timeout is not None:
+            self.last_input = time.monotonic()
+            if link.buffered or self._partial_timer is not None:
+                self._watch_partial()
         if not self._blocked:
             self._process()
+
+    def _watch_partial(self) -> None:
+        """(Re)start the incomplete-frame timer while a frame is incomplete; stop it between frames."""
+        timer = self._partial_timer
+        if timer is not None:
+            timer.cancel()
+            self._partial_timer = None
+        if self.link.buffered and self.frame_timeout is not None and self.state is not ConnectionState.CLOSED:
+            loop = asyncio.get_running_loop()
+            self._partial_timer = loop.call_later(self.frame_timeout, self._partial_expired)
+
+    def _partial_expired(self) -> None:
+        self._partial_timer = None
+        buffered = self.link.buffered
+        if buffered and self.frame_timeout is not None and self.state is not ConnectionState.CLOSED:
+            self.abort(IncompleteFrame(buffered, self.frame_timeout))
 
     def eof_received(self) -> bool:
         self._input_ended(None)
@@ -539,7 +587,8 @@ class Connection(asyncio.Protocol):
             self._queued.append(frame)
             frame = b"".join(self._queued)
             self._queued.clear()
-        self.transport.write(frame)
+        if not self.transport.is_closing():  # lost under us: connection_lost is on its way
+            self.transport.write(frame)
 
     def queue_frame(self, frame: bytes) -> bool:
         """Queue a frame in this connection's :attr:`wire` format, to be written with the others
@@ -563,6 +612,8 @@ class Connection(asyncio.Protocol):
         data = queued[0] if len(queued) == 1 else b"".join(queued)
         queued.clear()
         transport = self.transport
+        if transport.is_closing():  # lost under us: connection_lost is on its way
+            return False
         transport.write(data)
         if transport.get_write_buffer_size() > self.max_write_buffer:
             self.abort(ConnectionClosed(f"peer fell {transport.get_write_buffer_size()} bytes behind"))
@@ -572,6 +623,21 @@ class Connection(asyncio.Protocol):
     def write_buffer_size(self) -> int:
         """Bytes queued in the transport, not yet taken by the peer (or the kernel)."""
         return self.transport.get_write_buffer_size()
+
+    @property
+    def is_socket(self) -> bool:
+        """The link is a network socket (not a serial port or a pipe)."""
+        return self.transport.get_extra_info("socket") is not None
+
+    def unread_bytes(self) -> int:
+        """Bytes sent that the peer has not taken yet: our buffer plus, where the OS says, the
+        socket's send queue (Linux ``SIOCOUTQ``: sent or queued, not yet acknowledged)."""
+        unread = self.transport.get_write_buffer_size()
+        sock = self.transport.get_extra_info("socket")
+        if sock is not None and _OUTQ is not None:
+            with contextlib.suppress(OSError, ValueError):
+                unread += struct.unpack("i", fcntl.ioctl(sock.fileno(), _OUTQ, b"\0\0\0\0"))[0]
+        return unread
 
     async def send(self, msg: Message) -> None:
         """Send ``msg``; if the peer lets ``max_write_buffer`` bytes pile up, wait at most
@@ -621,6 +687,9 @@ class Connection(asyncio.Protocol):
         if frames_log.isEnabledFor(logging.DEBUG):
             frames_log.debug("%s -> %s", self.name, frame.hex())
         transport = self.transport
+        if transport.is_closing():  # lost under us (a reset): writing on would only log warnings
+            self._queued.clear()
+            return False
         if self._queued:
             self._queued.append(frame)
             data = b"".join(self._queued)

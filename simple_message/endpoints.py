@@ -17,7 +17,9 @@ arrival order and answers every SERVICE_REQUEST exactly once, in order (simple-m
   read the request (a PING behind a slow request still waits its turn);
 * an unknown SERVICE_REQUEST gets a header-only FAILURE (or what ``unknown_request`` returns, e.g.
   the MotoROS 2002 INVALID/3003 reply); unknown TOPICs and stray SERVICE_REPLYs are ignored (debug);
-* a request with a malformed body or an invalid header (§1.2) is answered FAILURE;
+* a request with a malformed body (or none where its type has one) or an invalid header (§1.2) is
+  answered FAILURE, or what ``malformed_request`` returns (MotoROS's INVALID/3001); with
+  ``answer_topics``, malformed TOPICs go to ``malformed_request`` too;
 * a handler that raises is answered FAILURE and logged; the server goes on;
 * a handler may raise :class:`CloseConnection` to close the connection without a reply (MotoROS
   does so for DISCONNECT and for message types its motion port refuses, §8.1);
@@ -53,6 +55,7 @@ import logging
 import os
 import random
 import socket
+import time
 from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine, Iterable
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
@@ -63,17 +66,28 @@ from .dialects import Dialect, ReplyStyle, any_dialect_answers, reply_style_of
 from .errors import ConnectionClosed, MalformedMessage, NotConnected
 from .framing import DEFAULT_MAX_LENGTH
 from .header import header_error
+from .lograte import LogBudget
 from .messages import HeaderOnly, Message, Ping
 from .transport import StreamPair, open_fd, open_serial, open_tcp
 from .wire import DEFAULT_FORMAT, WireFormat
 
-__all__ = ["Server", "Session", "Handler", "Client", "CloseConnection", "ReconnectPolicy", "run"]
+__all__ = ["Server", "Session", "Handler", "MalformedHandler", "Client", "CloseConnection", "ReconnectPolicy", "run"]
 
 log = logging.getLogger(__name__)
+
+#: a server closes a connection that began a frame and sent nothing more for this long (s)
+DEFAULT_FRAME_TIMEOUT = 5.0
+#: a full server may close a connection silent this long (s) to serve a newcomer
+DEFAULT_IDLE_AFTER = 10.0
+#: unread bytes that mark a peer that does not read (far above a state round in flight)
+_DEAF_BYTES = 64 * 1024
 
 HandlerResult = Message | ReplyCode | int | None
 #: ``handler(message, session)``: returns the reply (see the module docstring); may be async.
 Handler = Callable[[Message, "Session"], HandlerResult | Awaitable[HandlerResult]]
+#: ``handler(error, session)``: the reply to a request whose body does not decode, or ``None`` for
+#: none; may raise :class:`CloseConnection`.
+MalformedHandler = Callable[[MalformedMessage, "Session"], Message | None]
 #: ``hook(message, session)``: runs synchronously as soon as a request arrives.
 ArrivalHook = Callable[[Message, "Session"], None]
 
@@ -111,6 +125,12 @@ class Session:
     @property
     def name(self) -> str:
         return self.connection.name
+
+    def log(self, logger: logging.Logger, level: int, msg: str, *args: object, exc_info: bool = False) -> bool:
+        """Log ``"<session name>: " + msg % args`` within this peer's log budget (at most a few lines
+        per second per connection, the rest counted and summarised: :mod:`.lograte`). Use it for
+        every line a peer's input causes; returns whether the line was written."""
+        return self.connection.log_budget.log(logger, level, msg, *args, exc_info=exc_info)
 
     @property
     def wire(self) -> WireFormat:
@@ -155,10 +175,17 @@ class Server:
         drain_timeout: float = 2.0,
         max_write_buffer: int = 256 * 1024,
         unknown_request: Handler | None = None,
+        malformed_request: MalformedHandler | None = None,
         answer_topics: bool = False,
         socket_send_buffer: int | None = None,
+        frame_timeout: float | None = DEFAULT_FRAME_TIMEOUT,
+        idle_after: float = DEFAULT_IDLE_AFTER,
     ) -> None:
         self.wire = wire
+        #: a connection that begins a frame and sends nothing more for this long (s) is closed
+        self.frame_timeout = frame_timeout
+        #: a full server may close a connection silent this long (s) to serve a newcomer
+        self.idle_after = idle_after
         #: SO_SNDBUF for accepted sockets (``None``: the kernel's autotuning, up to megabytes).
         #: A small value makes a stalled peer show up in our own bounded buffer sooner.
         self.socket_send_buffer = socket_send_buffer
@@ -171,6 +198,7 @@ class Server:
         self.drain_timeout = drain_timeout
         self.max_write_buffer = max_write_buffer
         self.unknown_request = unknown_request
+        self.malformed_request = malformed_request
         self.answer_topics = answer_topics
         self.sessions: set[Session] = set()
         self._handlers: dict[int, Handler] = {}
@@ -187,6 +215,10 @@ class Server:
         self.on_connect: Callable[[Session], None] | None = None
         self.on_disconnect: Callable[[Session], None] | None = None
         self.refused = 0
+        #: connections closed to make room for newcomers
+        self.evicted = 0
+        #: the lines refused and evicted connections cause (one budget for the port)
+        self._log_budget = LogBudget(name)
         #: PING is answered by the server itself (no handler, no arrival hook): the fast path
         self._ping_auto = True
 
@@ -219,9 +251,11 @@ class Server:
         if self.socket_send_buffer is not None and sock is not None:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.socket_send_buffer)
         peer = transport.get_extra_info("peername")
-        if self._closing or len(self.sessions) >= self.max_connections:
+        if self._closing or (len(self.sessions) >= self.max_connections and not self._make_room(peer)):
             self.refused += 1
-            log.warning("%s: refused %s: %d connections is the limit", self.name, peer, self.max_connections)
+            self._log_budget.log(
+                log, logging.WARNING, "refused %s: %d connections is the limit", peer, self.max_connections
+            )
             transport.close()
             return
         # The session is counted at once: connections accepted in the same loop iteration see it.
@@ -229,6 +263,47 @@ class Server:
         task = asyncio.get_running_loop().create_task(self._until_closed(session), name=f"sm-serve {session.name}")
         self._accepted.add(task)
         task.add_done_callback(self._accepted.discard)
+
+    def _make_room(self, newcomer: object) -> bool:
+        """The server is full and ``newcomer`` knocks: close the connection least likely to be a
+        live client, if there is one, so idle sockets can never lock real clients out. In order:
+        one holding an incomplete frame; one whose peer does not read what it is sent; one that
+        has sent nothing for ``idle_after`` s (the longest silent). A state-port client that only
+        listens is silent too: it is closed only when the port is full and no worse candidate
+        exists. Returns whether room was made."""
+        now = time.monotonic()
+        candidates = [s for s in self.sessions if not s.connection.closed and s.connection.is_socket]
+        victim: Session | None = None
+        reason = ""
+        partial = [s for s in candidates if s.connection.link.buffered]
+        if partial:
+            victim = min(partial, key=lambda s: s.connection.last_input)
+            reason = "holds an incomplete frame"
+        if victim is None:
+            deaf = [(s.connection.unread_bytes(), s) for s in candidates]
+            deaf = [(n, s) for n, s in deaf if n >= _DEAF_BYTES]
+            if deaf:
+                unread, victim = max(deaf, key=lambda pair: pair[0])
+                reason = f"does not read ({unread} bytes unread)"
+        if victim is None:
+            silent = [s for s in candidates if now - s.connection.last_input >= self.idle_after]
+            if silent:
+                victim = min(silent, key=lambda s: s.connection.last_input)
+                reason = f"silent for {now - victim.connection.last_input:.0f} s"
+        if victim is None:
+            return False
+        self.evicted += 1
+        self._log_budget.log(
+            log,
+            logging.WARNING,
+            "full (%d connections): closed %s (%s) for %s",
+            len(self.sessions),
+            victim.name,
+            reason,
+            newcomer,
+        )
+        victim.connection.abort(ConnectionClosed(f"closed to make room for a new connection: it {reason}"))
+        return True
 
     async def serve_link(
         self, streams: StreamPair, name: str | None = None, data: dict[str, Any] | None = None
@@ -250,6 +325,7 @@ class Server:
             name=name,
             drain_timeout=self.drain_timeout,
             max_write_buffer=self.max_write_buffer,
+            frame_timeout=self.frame_timeout,
         )
 
     def _open(self, connection: Connection, data: dict[str, Any] | None) -> Session:
@@ -382,7 +458,7 @@ class Server:
                 try:
                     hook(msg, session)
                 except Exception:
-                    log.exception("%s: on_arrival hook for %s failed", session.name, msg.name)
+                    session.log(log, logging.ERROR, "on_arrival hook for %s failed", msg.name, exc_info=True)
         item: _Item = msg
         if not session.busy and session.queue.empty():
             # Nothing is ahead of this message: handle it now, without a hop through the worker.
@@ -449,22 +525,29 @@ class Server:
         """Everything up to the handler's result: the reply, nothing, or an awaitable to finish."""
         is_request = msg.comm_type == _SERVICE_REQUEST
         if isinstance(msg, MalformedMessage):
-            log.warning("%s: malformed message: %s", session.name, msg)
+            session.log(log, logging.WARNING, "malformed message: %s", msg)
+            if self.malformed_request is not None and (is_request or self.answer_topics):
+                try:
+                    return self.malformed_request(msg, session)
+                except CloseConnection:
+                    return _Marker.CLOSE
+                except Exception:
+                    session.log(log, logging.ERROR, "the malformed-request handler failed; FAILURE", exc_info=True)
             return HeaderOnly(msg.msg_type or 0, reply_code=ReplyCode.FAILURE) if is_request else None
         msg_type = msg.msg_type
         problem = _header_error(msg_type, msg.comm_type, msg.reply_code)
         if problem is not None:
-            log.warning("%s: %s", session.name, problem)
+            session.log(log, logging.WARNING, "%s", problem)
             return HeaderOnly(msg_type, reply_code=ReplyCode.FAILURE) if is_request else None
         handler = self._handlers.get(msg_type)
         if handler is None:
             if msg_type == _PING:
                 return _PING_REPLY if is_request else None
             if not is_request and not (self.answer_topics and self.unknown_request is not None):
-                log.debug("%s: ignored %s comm_type %s", session.name, msg.name, msg.comm_type)
+                session.log(log, logging.DEBUG, "ignored %s comm_type %s", msg.name, msg.comm_type)
                 return None
             if self.unknown_request is None:
-                log.info("%s: no handler for request type %s; FAILURE", session.name, msg.msg_type)
+                session.log(log, logging.INFO, "no handler for request type %s; FAILURE", msg.msg_type)
                 return HeaderOnly(msg.msg_type, reply_code=ReplyCode.FAILURE)
             handler = self.unknown_request
         try:
@@ -478,7 +561,7 @@ class Server:
         return self._finish(msg, result)
 
     def _handler_failed(self, session: Session, msg: Message) -> Message | None:
-        log.exception("%s: handler for %s failed; answering FAILURE", session.name, msg.name)
+        session.log(log, logging.ERROR, "handler for %s failed; answering FAILURE", msg.name, exc_info=True)
         if msg.comm_type == CommType.SERVICE_REQUEST:
             return HeaderOnly(msg.msg_type, reply_code=ReplyCode.FAILURE)
         return None

@@ -11,6 +11,8 @@ As in h11, every error says whose fault it is:
   - :class:`FrameError`: the byte stream itself is broken (a length prefix below 12, negative or
     above the maximum). Framing is by byte count only (simple-message.md §1.1), so the stream
     cannot be resynchronised: the connection must be closed. :attr:`FrameError.fatal` is ``True``.
+  - :class:`IncompleteFrame`: a frame was begun and its remaining bytes never came (a server's
+    ``frame_timeout``); the connection is closed.
   - :class:`MalformedMessage`: one frame was delimited correctly but its body does not fit the
     layout of its message type. The frame's bytes are consumed and the stream stays aligned, so the
     connection can go on; a server answers a SERVICE_REQUEST with FAILURE.
@@ -26,6 +28,7 @@ __all__ = [
     "LocalProtocolError",
     "RemoteProtocolError",
     "FrameError",
+    "IncompleteFrame",
     "MalformedMessage",
     "HeaderError",
     "ConnectionClosed",
@@ -88,6 +91,17 @@ class FrameError(RemoteProtocolError):
         )
         #: The offending length prefix, if one was read.
         self.length = length
+
+
+class IncompleteFrame(FrameError):
+    """The peer began a frame and sent nothing more for the allowed time: a half-sent message
+    would otherwise hold its connection (and a server's place) for ever. The connection is closed."""
+
+    def __init__(self, buffered: int, timeout: float) -> None:
+        super().__init__(f"an incomplete frame ({buffered} bytes) and nothing more for {timeout:g} s")
+        #: Bytes of the incomplete frame that had arrived.
+        self.buffered = buffered
+        self.timeout = timeout
 
 
 class MalformedMessage(RemoteProtocolError):

@@ -15,6 +15,10 @@ answer which request is the peer's dialect (:mod:`.dialects`): the ``answers`` r
 link. A reply that cannot answer the oldest live request (another type, or a body that does not
 decode) ends that request with :class:`Unanswerable`: the reference client takes whatever
 arrives next as "the reply"; we check. A reply with nothing pending is a :class:`StrayReply`.
+
+A request or topic whose body does not decode is :class:`Malformed`, and so is one of a known type
+that comes without the body its type has: a header-only frame is the shape of a reply (ABB's
+acknowledgement), never of a JOINT_TRAJ_PT request.
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ from .constants import CommType
 from .dialects import any_dialect_answers
 from .errors import FrameError, LocalProtocolError, MalformedMessage
 from .framing import DEFAULT_MAX_LENGTH, FrameDecoder
-from .messages import Message, decode, encode
+from .messages import MESSAGE_CLASSES, HeaderOnly, Message, decode, encode, type_name
 from .wire import DEFAULT_FORMAT, WireFormat
 
 __all__ = [
@@ -51,6 +55,7 @@ __all__ = [
 ReplyRule = Callable[[int, Message], bool]
 
 _SERVICE_REPLY = int(CommType.SERVICE_REPLY)
+_COMM_TYPES = frozenset(int(c) for c in CommType)
 
 
 class NeedData(enum.Enum):
@@ -182,6 +187,11 @@ class Link:
         return self._ended
 
     @property
+    def buffered(self) -> int:
+        """Bytes of an incomplete frame received so far (0 between frames)."""
+        return self._decoder.buffered
+
+    @property
     def pending_requests(self) -> int:
         """Requests waiting for a reply, abandoned ones not counted."""
         return sum(1 for r in self._pending if not r.abandoned)
@@ -270,6 +280,8 @@ class Link:
                 self._events.append(Malformed(msg))
         elif msg.comm_type == _SERVICE_REPLY:
             self._reply(msg, None)
+        elif msg.__class__ is HeaderOnly and msg.msg_type in MESSAGE_CLASSES:
+            self._events.append(Malformed(_bodiless(msg, self.wire)))
         else:
             self._events.append(Received(msg))
 
@@ -285,6 +297,19 @@ class Link:
             self._events.append(Unanswerable(head, reply, error))
             return
         self._events.append(StrayReply(reply, error))
+
+
+def _bodiless(msg: Message, wire: WireFormat) -> MalformedMessage:
+    """A request or topic of a known type without the body its type has (a header-only frame is
+    a reply's shape, §3: ABB's acknowledgement; the types whose requests are empty, such as PING,
+    decode as themselves and never come here)."""
+    comm = CommType(msg.comm_type).name if msg.comm_type in _COMM_TYPES else str(msg.comm_type)
+    return MalformedMessage(
+        f"{type_name(msg.msg_type)} {comm} without a body (its type has one)",
+        msg_type=msg.msg_type,
+        comm_type=msg.comm_type,
+        frame=encode(msg, wire),
+    )
 
 
 def _decode(frame: bytes, wire: WireFormat) -> Message | MalformedMessage:

@@ -5,8 +5,9 @@ simple-message.md §2.2 and §8.1, in snake_case), followed by the keyword-only 
 ``comm_type`` and ``reply_code``. The class knows its ``MSG_TYPE``; the length prefix is computed.
 
 Decoding is exact: for every accepted frame, :func:`encode` of the decoded message gives back the
-same bytes (data in fields that ``valid_fields`` marks invalid is kept, not zeroed). Shapes that real
-peers send and that do not fit a type's layout are still decoded (§3):
+same bytes (data in fields that ``valid_fields`` marks invalid is kept, not zeroed; the one exception,
+float32 signalling NaNs before CPython 3.14, is below). Shapes that real peers send and that do not
+fit a type's layout are still decoded (§3):
 
 * :class:`HeaderOnly`: a SERVICE_REPLY (or anything) with an empty body, as ABB and the C++
   ``MessageManager`` send for acks and FAILURE replies;
@@ -22,9 +23,14 @@ enum fields into enum members; a vendor message set is one module of classes plu
 calls (see ``CONTRIBUTING.md`` and ``tests/test_sm_registry.py``). Encoding, decoding, the JSON
 form (:mod:`.jsonio`) and the ``simple-message`` command all consult the registry.
 
-One bit pattern cannot survive: a float32 *signalling* NaN comes back quieted (bit 22 set), because
-every conversion of a float32 to a Python float (a C double) quiets it. Quiet NaNs with any payload,
-infinities, subnormals and -0.0 re-encode exactly. A NaN is never a valid joint value anyway.
+One bit pattern does not survive before CPython 3.14: a float32 *signalling* NaN (exponent all ones,
+bit 22 clear, nonzero payload, e.g. ``0x7FA00000``) comes back quieted, with bit 22 set and every
+other bit kept (``0x7FE00000``), because :mod:`struct` converts a float32 to a Python float (a C
+double) with a C cast, which quiets it; CPython 3.14's :mod:`struct` keeps it signalling on 64-bit
+builds (gh-130317). Keeping it on older versions would take a NaN check of every message decoded and
+encoded (about a fifth of the time decoding one takes), for a value that is never a valid joint
+value, so it is not done. float64 reals (every NaN included) and float32 quiet NaNs with any sign and
+payload, infinities, subnormals and -0.0 re-encode exactly.
 
 Joint arrays are 10 wide on the wire (§1.4); constructors accept any shorter sequence (list, tuple,
 numpy array) and pad it with zeros.
@@ -41,7 +47,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field, fields, is_dataclass
 from enum import IntEnum, IntFlag
 from types import MappingProxyType
-from typing import Any, ClassVar, TypeAlias
+from typing import Any, ClassVar, TypeAlias, cast
 
 from .constants import (
     HEADER_SIZE,
@@ -947,16 +953,23 @@ def _ex_groups(groups: Iterable[ExGroup | dict[str, Any]]) -> tuple[ExGroup, ...
     return tuple(g if isinstance(g, ExGroup) else ExGroup(**g) for g in groups)
 
 
+#: The default ``number_of_valid_groups`` of the EX messages: "not given", which the constructor
+#: replaces with ``len(groups)``. It is ``None``, not an int, so that every int (-1 included) is a
+#: count as given or decoded and re-encodes as itself; typed ``int`` because no instance keeps it.
+_COUNT_OF_GROUPS = cast(int, None)
+
+
 @dataclass(frozen=True, slots=True)
 class JointTrajPtFullEx(Message):
     """JOINT_TRAJ_PT_FULL_EX (2016): one point for up to 4 motion groups, no per-group sequence.
 
     MotoROS accepts the short form (``8 + n x 132`` bytes, ``len(groups) == number_of_valid_groups``)
     and the full form (always 4 groups, 536 bytes). ``groups`` holds what is on the wire, so both
-    forms re-encode exactly; ``number_of_valid_groups`` defaults to ``len(groups)``.
+    forms re-encode exactly; ``number_of_valid_groups`` defaults to ``len(groups)`` when omitted, and
+    any int given or decoded (-1 and other counts MotoROS refuses included) is kept as it is.
     """
 
-    number_of_valid_groups: int = -1
+    number_of_valid_groups: int = _COUNT_OF_GROUPS
     sequence: int = 0
     groups: tuple[ExGroup, ...] = ()
     MSG_TYPE: ClassVar[int] = MsgType.JOINT_TRAJ_PT_FULL_EX
@@ -966,7 +979,7 @@ class JointTrajPtFullEx(Message):
         if len(groups) > MOTO_MAX_GROUPS:
             raise LocalProtocolError(f"at most {MOTO_MAX_GROUPS} groups, not {len(groups)}")
         object.__setattr__(self, "groups", groups)
-        if self.number_of_valid_groups == -1:
+        if self.number_of_valid_groups is _COUNT_OF_GROUPS:
             object.__setattr__(self, "number_of_valid_groups", len(groups))
 
     @property
@@ -993,9 +1006,11 @@ class JointTrajPtFullEx(Message):
 @dataclass(frozen=True, slots=True)
 class JointFeedbackEx(Message):
     """JOINT_FEEDBACK_EX (2017): ``number_of_valid_groups`` then always 4 JOINT_FEEDBACK bodies
-    (532 bytes in float32). Fewer groups given to the constructor are padded with zero groups."""
+    (532 bytes in float32). Fewer groups given to the constructor are padded with zero groups;
+    ``number_of_valid_groups`` defaults to the number of groups given (before padding) when omitted,
+    and any int given or decoded (-1 included) is kept as it is."""
 
-    number_of_valid_groups: int = -1
+    number_of_valid_groups: int = _COUNT_OF_GROUPS
     groups: tuple[ExGroup, ...] = ()
     comm_type: int = field(default=CommType.TOPIC, kw_only=True)
     MSG_TYPE: ClassVar[int] = MsgType.JOINT_FEEDBACK_EX
@@ -1004,7 +1019,7 @@ class JointFeedbackEx(Message):
         groups = _ex_groups(self.groups)
         if len(groups) > MOTO_MAX_GROUPS:
             raise LocalProtocolError(f"at most {MOTO_MAX_GROUPS} groups, not {len(groups)}")
-        if self.number_of_valid_groups == -1:
+        if self.number_of_valid_groups is _COUNT_OF_GROUPS:
             object.__setattr__(self, "number_of_valid_groups", len(groups))
         object.__setattr__(self, "groups", groups + (ExGroup(),) * (MOTO_MAX_GROUPS - len(groups)))
 

@@ -67,7 +67,7 @@ async def test_full_queue_delays_the_reply_and_a_stop_still_gets_through() -> No
     async with emulator(queue_capacity=3) as (emu, clock):
         ctl = emu.cell.groups[0]
         motion = await RawPeer.connect(emu.ports["motion"])
-        other = await RawPeer.connect(emu.ports["motion"])
+        other = await RawPeer.connect(emu.ports["state"])  # the motion port takes one client
         points = [[0.1 * k] * 6 for k in range(6)]
         assert (await motion.request(joint_traj_pt(JTP, 0, points[0]))).reply_code == 1
         for seq in (1, 2, 3):  # 1 s each: three fill the queue
@@ -87,7 +87,7 @@ async def test_full_queue_delays_the_reply_and_a_stop_still_gets_through() -> No
         assert (struct.unpack_from("<i", waiting.raw, 16)[0], waiting.reply_code) == (5, 2)
         assert (struct.unpack_from("<i", stopped.raw, 16)[0], stopped.reply_code) == (-4, 1)
         assert ctl.time == t_stop
-        assert (await other.request(LE["PING_REQUEST"])).raw == PING_REPLY  # the other client was never blocked
+        assert (await other.reply_to(LE["PING_REQUEST"])).raw == PING_REPLY  # the other client was never blocked
         await settle(emu, clock)
         assert ctl.queue_fill == 0
         assert np.all(np.array(ctl.command.actual_position) < points[4][0])  # stopped short of the queued points
@@ -198,12 +198,14 @@ async def test_fifty_state_clients_all_get_every_topic() -> None:
 )
 async def test_malformed_frames_close_only_that_client_and_move_nothing(garbage: bytes) -> None:
     async with emulator() as (emu, clock):
-        good = await RawPeer.connect(emu.ports["motion"])
+        watcher = await RawPeer.connect(emu.ports["state"])
         bad = await RawPeer.connect(emu.ports["motion"])
         before = list(emu.cell.groups[0].command.actual_position)
         await bad.send(garbage)
         bad.writer.write_eof()
         assert await bad.closed()
+        assert (await watcher.reply_to(LE["PING_REQUEST"])).raw == PING_REPLY  # still served
+        good = await RawPeer.connect(emu.ports["motion"])
         assert (await good.request(LE["PING_REQUEST"])).raw == PING_REPLY
         assert (await good.request(joint_traj_pt(JTP, 0, [0.0] * 6))).reply_code == 1
         await step(clock, 0.1)
@@ -281,7 +283,7 @@ async def test_float64_end_to_end() -> None:
 
 async def test_byte_order_autodetection_per_client() -> None:
     async with emulator(byte_order="auto") as (emu, clock):
-        little = await RawPeer.connect(emu.ports["motion"], "<")
+        little = await RawPeer.connect(emu.ports["state"], "<")  # the motion port takes one client
         big = await RawPeer.connect(emu.ports["motion"], ">")
         assert (await little.request(LE["PING_REQUEST"])).raw == LE["PING_REPLY_SUCCESS"]
         assert (await big.request(BE["PING_REQUEST"])).raw == BE["PING_REPLY_SUCCESS"]

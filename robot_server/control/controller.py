@@ -307,8 +307,13 @@ class Controller:
         log.info("downloaded trajectory of %d points queued", len(points))
 
     def _drop_download(self, exc: PointRejected) -> None:
-        self._download = None
-        log.warning("download abandoned: %s", exc)
+        self.abandon_download(str(exc))
+
+    def abandon_download(self, reason: str) -> None:
+        """Drop the download being received, if any (its end never came); queued motion runs on."""
+        if self._download is not None:
+            self._download = None
+            log.warning("download abandoned: %s", reason)
 
     def _check_ready(self) -> None:
         if not self._powered:

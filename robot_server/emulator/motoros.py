@@ -28,12 +28,16 @@ MOTO_MOTION_REPLY (2002), header SUCCESS, the outcome in ``result``/``subcode`` 
 * JOINT_TRAJ_PT_FULL_EX (2016): one point per group, all accepted or none; BUSY if any group is.
 * SELECT_TOOL (tool 0-63, else 3017), GET_DH_PARAMETERS (the model's D-H table, always 4 groups
   of 8 axes as MotoROS sends it; FAILURE for a model without one or with more than 8 joints),
-  PING (header-only SUCCESS), the IO messages (as on the IO port).
-* Unknown types: INVALID/3003 with group and sequence -1. STATUS, JOINT_FEEDBACK, MOTO_MOTION_REPLY
-  and JOINT_FEEDBACK_EX close the connection without a reply, as in MotoROS.
-* One motion client at a time: a new connection replaces the old one unless the robot is moving,
-  in which case the new one is closed. When the last motion client leaves, the robot stops and
-  trajectory mode ends.
+  PING (header-only SUCCESS), the IO bits and groups (as on the IO port; the M registers only there,
+  as in MotoROS, whose motion port does not know their types: INVALID/3003).
+* Unknown types: INVALID/3003 with group and sequence -1. A message of a known type whose size is
+  not its type's (a header-only JOINT_TRAJ_PT_FULL, a short MOTO_MOTION_CTRL): INVALID/3001
+  (:func:`malformed_motion_reply`); on the IO port, the IO error reply with 3001. STATUS,
+  JOINT_FEEDBACK, MOTO_MOTION_REPLY and JOINT_FEEDBACK_EX close the connection without a reply, as
+  in MotoROS.
+* One motion client at a time: a new connection replaces the old one unless the robot is busy,
+  in which case the new one is closed (:mod:`.owner`, MotoROS's rule, on every profile). When the
+  motion client leaves, the robot stops (``--on-disconnect``) and trajectory mode ends.
 
 **State port** (50241): every state period (25 ms at the default 40 Hz) JOINT_FEEDBACK per group
 (valid_fields POSITION | VELOCITY; time 0 with the TIME bit clear, as MotoROS), JOINT_FEEDBACK_EX
@@ -67,6 +71,7 @@ from simple_message.constants import (
 )
 from simple_message.dialects import MOTOROS
 from simple_message.endpoints import CloseConnection, Server, Session
+from simple_message.errors import MalformedMessage
 from simple_message.messages import (
     DH_AXES,
     DhLink,
@@ -175,10 +180,8 @@ class MotorosMotion:
         period = cell.config.interpolation_period
         #: a group is BUSY while this much motion (s) is queued
         self.buffer_time = MOTOROS_QUEUE_INCREMENTS * period
-        self._server: Server | None = None
 
     def install(self, server: Server) -> None:
-        self._server = server
         server.handle(MsgType.MOTO_MOTION_CTRL, self.on_ctrl)
         server.handle(MsgType.JOINT_TRAJ_PT_FULL, self.on_point)
         server.handle(MsgType.JOINT_TRAJ_PT_FULL_EX, self.on_point_ex)
@@ -189,30 +192,16 @@ class MotorosMotion:
             server.handle(msg_type, _close)
         self.io.install(server)
         server.unknown_request = self.on_unknown
-        server.on_connect = self._connected
-        server.on_disconnect = self._disconnected
+        server.malformed_request = self.on_malformed
 
     # -- connections -------------------------------------------------------------------------------
 
-    def _connected(self, session: Session) -> None:
-        assert self._server is not None
-        others = [s for s in self._server.sessions if s is not session]
-        if not others:
-            return
-        if self.cell.in_motion:
-            log.warning("%s: refused: the robot is moving under another motion client", session.name)
-            session.connection.abort()
-            return
-        for old in others:
-            log.info("%s: replaced by a new motion client", old.name)
-            old.connection.abort()
-
-    def _disconnected(self, session: Session) -> None:
-        assert self._server is not None
-        if not self._server.sessions and (self.traj_mode or self.cell.in_motion):
-            log.info("%s: the motion client left: stopping, trajectory mode off", session.name)
-            self.cell.stop()
-            self.traj_mode = False
+    def owner_gone(self, session: Session) -> None:
+        """The motion client went away (:class:`~.owner.MotionOwner` stopped the robot): MotoROS
+        ends trajectory mode with the connection."""
+        if self.traj_mode:
+            log.info("%s: the motion client left: trajectory mode off", session.name)
+        self.traj_mode = False
 
     # -- readiness ---------------------------------------------------------------------------------
 
@@ -428,6 +417,65 @@ class MotorosMotion:
         log.info("%s: unknown message type %d: INVALID/3003", session.name, msg.msg_type)
         return MotoMotionReply(-1, -1, msg.msg_type, MotoResult.INVALID, InvalidSubcode.MSGTYPE)
 
+    def on_malformed(self, error: MalformedMessage, session: Session) -> Message:
+        """A message shorter (or longer) than its type: INVALID/3001, filled as
+        ``Ros_SimpleMsg_MotionReply`` fills it (module doc)."""
+        return malformed_motion_reply(error, session)
+
+
+#: where ``Ros_SimpleMsg_MotionReply`` reads the sequence (and the command) of the message it
+#: answers: (sequence offset, command offset or None for the type itself), by type
+_ECHOED = {
+    MsgType.MOTO_MOTION_CTRL: (4, 8),
+    MsgType.JOINT_TRAJ_PT_FULL: (4, None),
+    MsgType.JOINT_TRAJ_PT_FULL_EX: (4, None),
+    MsgType.SELECT_TOOL: (8, None),
+}
+#: the types whose size MotoROS's motion port knows (``Ros_MotionServer_GetExpectedByteSizeForMessageType``);
+#: any other type is unknown there (INVALID/3003), whatever its size
+_SIZED = frozenset(
+    {
+        MsgType.PING,
+        MsgType.STATUS,
+        MsgType.JOINT_TRAJ_PT_FULL,
+        MsgType.JOINT_FEEDBACK,
+        MsgType.MOTO_MOTION_CTRL,
+        MsgType.MOTO_MOTION_REPLY,
+        MsgType.JOINT_TRAJ_PT_FULL_EX,
+        MsgType.JOINT_FEEDBACK_EX,
+        MsgType.READ_SINGLE_IO,
+        MsgType.WRITE_SINGLE_IO,
+        MsgType.READ_GROUP_IO,
+        MsgType.WRITE_GROUP_IO,
+        MsgType.GET_DH_PARAMETERS,
+        MsgType.SELECT_TOOL,
+    }
+)
+
+
+def malformed_motion_reply(error: MalformedMessage, session: Session) -> MotoMotionReply:
+    """MOTO_MOTION_REPLY INVALID/3001 to a message whose size is not its type's. MotoROS reads a
+    message by the size of its type, not by the prefix, and answers a short one at once, with
+    the sequence (and command) from where they would be in the body: the bytes that came, zeros
+    beyond them (its buffer is cleared before each read), group 0; any other type gets group and
+    sequence -1. A type MotoROS's motion port does not know is INVALID/3003 whatever its size. A
+    frame longer than its type is answered 3001 here too, where MotoROS would read the surplus as
+    the start of the next message: this emulator frames by the prefix."""
+    msg_type = error.msg_type or 0
+    if msg_type not in _SIZED:
+        log.info("%s: unknown message type %d: INVALID/3003", session.name, msg_type)
+        return MotoMotionReply(-1, -1, msg_type, MotoResult.INVALID, InvalidSubcode.MSGTYPE)
+    log.info("%s: %s: INVALID/3001", session.name, error)
+    echoed = _ECHOED.get(msg_type)  # type: ignore[call-overload]
+    if echoed is None:
+        return MotoMotionReply(-1, -1, msg_type, MotoResult.INVALID, InvalidSubcode.MSGSIZE)
+    body = error.frame[16:].ljust(12, b"\0")
+    ints = session.wire.struct("iii").unpack_from(body, 0)
+    sequence_at, command_at = echoed
+    sequence = ints[sequence_at // 4]
+    command = msg_type if command_at is None else ints[command_at // 4]
+    return MotoMotionReply(0, sequence, command, MotoResult.INVALID, InvalidSubcode.MSGSIZE)
+
 
 def _refusal(exc: PointRejected) -> _Refused:
     if exc.reason is Reason.QUEUE_FULL:
@@ -452,18 +500,22 @@ class MotorosIo:
     def __init__(self, table: IoTable) -> None:
         self.table = table
 
-    def install(self, server: Server) -> None:
+    def install(self, server: Server, *, registers: bool = False) -> None:
+        """The IO bits and groups (MotoROS's motion port serves those too); ``registers``: the M
+        registers as well (the IO port only)."""
         server.handle(MsgType.READ_SINGLE_IO, self.on_io)
         server.handle(MsgType.WRITE_SINGLE_IO, self.on_io)
         server.handle(MsgType.READ_GROUP_IO, self.on_io)
         server.handle(MsgType.WRITE_GROUP_IO, self.on_io)
-        server.handle(MsgType.READ_MREGISTER, self.on_io)
-        server.handle(MsgType.WRITE_MREGISTER, self.on_io)
+        if registers:
+            server.handle(MsgType.READ_MREGISTER, self.on_io)
+            server.handle(MsgType.WRITE_MREGISTER, self.on_io)
 
     def install_port(self, server: Server) -> None:
         """The IO port itself: these handlers plus MotoROS's error reply for anything else."""
-        self.install(server)
+        self.install(server, registers=True)
         server.unknown_request = self.on_unknown
+        server.malformed_request = self.on_malformed
 
     def on_io(self, msg: Message, session: Session) -> Message:
         table = self.table
@@ -495,10 +547,17 @@ class MotorosIo:
     def on_unknown(self, msg: Message, session: Session) -> Message:
         """``Ros_SimpleMsg_IoReply``: type 2002, but result and subcode at the start of the body."""
         log.info("%s: unknown message type %d on the IO port: INVALID/3003", session.name, msg.msg_type)
-        body = session.wire.struct("ii").pack(MotoResult.INVALID, InvalidSubcode.MSGTYPE) + bytes(52)
-        return RawMessage(
-            MsgType.MOTO_MOTION_REPLY, body, comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS
-        )
+        return _io_error(session, InvalidSubcode.MSGTYPE)
+
+    def on_malformed(self, error: MalformedMessage, session: Session) -> Message:
+        """A message whose size is not its type's: the same error reply, INVALID/3001."""
+        log.info("%s: %s on the IO port: INVALID/3001", session.name, error)
+        return _io_error(session, InvalidSubcode.MSGSIZE)
+
+
+def _io_error(session: Session, subcode: InvalidSubcode) -> Message:
+    body = session.wire.struct("ii").pack(MotoResult.INVALID, subcode) + bytes(52)
+    return RawMessage(MsgType.MOTO_MOTION_REPLY, body, comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS)
 
 
 def _code(result: IoResult) -> ReplyCode:
@@ -534,6 +593,8 @@ class MotorosBehaviour:
         self.motion = MotorosMotion(context.cell, context.io_table)
         self.state = MotorosState(context.cell, self.motion)
         self.io = self.motion.io
+        if context.owner is not None:
+            context.owner.when_gone(self.motion.owner_gone)
 
     def install(self, servers: Mapping[str, Server]) -> None:
         self.motion.install(servers["motion"])

@@ -26,6 +26,7 @@ from simple_message.registry import Registry
 
 from .cell import RobotCell
 from .io_table import IoTable
+from .owner import MotionOwner
 
 __all__ = [
     "PROFILES",
@@ -61,6 +62,8 @@ class ProfileContext:
     io_table: IoTable
     #: JOINT_FEEDBACK to every state client (the generic profile's ``--feedback``)
     feedback: bool = False
+    #: the motion port's one client (listen with ``owner.when_gone``); ``None`` outside an emulator
+    owner: MotionOwner | None = None
 
 
 class Behaviour(Protocol):

@@ -48,6 +48,7 @@ from .cell import RobotCell
 from .generic import GENERIC_PROFILE
 from .io_table import IoTable
 from .motoros import MOTOROS_PROFILE
+from .owner import MotionOwner, OnDisconnect
 from .profiles import ROLES, Behaviour, EmulatorProfile, ProfileContext, profile_named
 
 __all__ = ["Emulator", "EmulatorConfig", "PeriodStats"]
@@ -95,8 +96,13 @@ class EmulatorConfig:
     queue_capacity: int = 64
     #: serve one link over this serial port (pyserial URL) as well
     serial: str | None = None
-    #: generic profile: connections per port (the MotoROS profile has its own limits)
-    max_connections: int = 64
+    #: connections per port where the profile sets no limit of its own (the state port: a hundred
+    #: monitoring clients is normal in a lab)
+    max_connections: int = 128
+    #: what the robot does when its motion client goes away while it is busy (:mod:`.owner`)
+    on_disconnect: OnDisconnect | str = OnDisconnect.STOP
+    #: close a connection that began a frame and sent nothing more for this long (s)
+    frame_timeout: float = 5.0
 
     def __post_init__(self) -> None:
         dialect = profile_named(self.profile).dialect
@@ -117,6 +123,15 @@ class EmulatorConfig:
         if not self.models:
             raise ValueError("at least one model is needed")
         object.__setattr__(self, "interpolation", policy(self.interpolation).name)
+        try:
+            object.__setattr__(self, "on_disconnect", OnDisconnect(self.on_disconnect))
+        except ValueError:
+            choices = ", ".join(o.value for o in OnDisconnect)
+            raise ValueError(f"on_disconnect must be one of {choices}, not {self.on_disconnect!r}") from None
+        if self.max_connections < 1:
+            raise ValueError(f"max_connections must be at least 1, not {self.max_connections}")
+        if not self.frame_timeout > 0.0:
+            raise ValueError(f"the frame timeout must be > 0 s, not {self.frame_timeout}")
 
     @property
     def wire(self) -> WireFormat:
@@ -251,13 +266,19 @@ class Emulator:
                 reply_style=config.replies,
                 max_connections=config.max_connections if rules.max_connections is None else rules.max_connections,
                 answer_topics=rules.answer_topics,
+                frame_timeout=config.frame_timeout,
             )
         self.motion_server = self.servers["motion"]
         # a profile without a state port still has one server for the serial link's state topics
         self.state_server = self.servers.get("state") or Server(config.wire, name="state", max_connections=0)
         self.io_server: Server | None = self.servers.get("io")
+        #: one motion client at a time, and what a lost one leaves behind (:mod:`.owner`)
+        self.owner = MotionOwner(self.cell, config.on_disconnect)
+        self.owner.install(self.motion_server)
         #: the profile's handlers and state topics
-        self.behaviour: Behaviour = profile.build(ProfileContext(self.cell, self.io_table, config.feedback))
+        self.behaviour: Behaviour = profile.build(
+            ProfileContext(self.cell, self.io_table, config.feedback, owner=self.owner)
+        )
         self.behaviour.install(self.servers)
         if clock is None:
             clock = SimulatedClock() if config.simulated else RealTimeClock(config.speedup)
