@@ -102,8 +102,8 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import importlib
 import math
-import os
 import random
 import re
 import shlex
@@ -155,18 +155,18 @@ LAYOUTS: dict[int, tuple[str, str]] = {
     2020: ("", "128r"),
 }
 KNOWN_TYPES = tuple(sorted(set(LAYOUTS) | MOTION_TYPES))
-UNKNOWN_TYPES = (0, -1, 3, 9, 16, 17, 19, 20, 21, 22, 999, 1000, 1300, 1400, 2000, 2014, 2015, 2019, 2021, 3000)
-UNKNOWN_TYPES += (65000, 65535, 65536, 2**31 - 1, -(2**31))
+UNKNOWN_TYPES: tuple[int, ...] = (0, -1, 3, 9, 16, 17, 19, 20, 21, 22, 999, 1000, 1300, 1400, 2000, 2014, 2015)
+UNKNOWN_TYPES += (2019, 2021, 3000, 65000, 65535, 65536, 2**31 - 1, -(2**31))
 MOTO_COMMANDS = range(200100, 200200)  # every MOTO_MOTION_CTRL command MotoROS has, and spares
 #: a position is plausible when finite and at most this far from zero (rad or m)
 PLAUSIBLE = 1e3
 POISON_BYTES = b"\x7f\xff"
 
-INTS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 10, 15, 63, 64, 100, 1000, -1, -2, -3, -4, -5, -7, 200101, 200121, 200130)
-INTS += (2001, 3001, 3003, 5008, 2**31 - 1, -(2**31), 0x7F7F7F7F)
+INTS: tuple[int, ...] = (0, 1, 2, 3, 4, 5, 6, 7, 8, 10, 15, 63, 64, 100, 1000, -1, -2, -3, -4, -5, -7, 200101)
+INTS += (200121, 200130, 2001, 3001, 3003, 5008, 2**31 - 1, -(2**31), 0x7F7F7F7F)
 NAN, INF = math.nan, math.inf
-REALS = (0.0, -0.0, 1.0, -1.0, 0.5, 0.1, 1e-45, 1e-38, 3.14159, 6.3, 1e3, 1e6, -1e6, 3.4e38, -3.4e38, INF, -INF)
-REALS += (NAN, 14400.0, 1e9, 0.004, 1e-6)
+REALS: tuple[float, ...] = (0.0, -0.0, 1.0, -1.0, 0.5, 0.1, 1e-45, 1e-38, 3.14159, 6.3, 1e3, 1e6, -1e6, 3.4e38)
+REALS += (-3.4e38, INF, -INF, NAN, 14400.0, 1e9, 0.004, 1e-6)
 POISON_REALS = (NAN, INF, -INF, 1e6, -1e6, 1e30, -3.0e38, 1234.5, 4.0e3)
 COMM_TYPES = (1, 2, 2, 2, 2, 2, 2, 3, 0, 4, 5, -1, 255, 2**31 - 1)
 REPLY_CODES = (0, 0, 0, 0, 1, 2, 3, -1, 7)
@@ -574,7 +574,8 @@ class Generator:
         frame = rng.choice(frames)
         msg_type = _INT[self.order].unpack_from(frame, 4)[0]
         if msg_type == PING and self.server:
-            frame = frame_of(self.order, 13, 1, 0, struct.pack(self.order + "7i", *(rng.choice(INTS) for _ in "1234567")))
+            status = struct.pack(self.order + "7i", *(rng.choice(INTS) for _ in range(7)))
+            frame = frame_of(self.order, 13, 1, 0, status)
         if unsafe_reason(frame) is not None:
             frame = self._poison_frame(frame)
             if unsafe_reason(frame) is not None:  # a STOP: sequence -4 stays
@@ -979,6 +980,8 @@ class ProfileReport:
     log_lines: int = 0
     dumps: list[Path] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    #: the last batches of each connection by port role and client port (for ``_read_log``)
+    rings: dict[str, dict[int, deque[list[bytes]]]] = field(default_factory=dict, repr=False)
 
     @property
     def frames(self) -> int:
@@ -1061,20 +1064,23 @@ class _Sink(asyncio.Protocol):
             pos += 4 + length
         self.rbuf = buf[pos:]
         if woke:
-            self._notify()
+            self.notify()
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.closed = True
-        self._notify()
+        self.notify()
+
+    def alive(self) -> bool:
+        return not self.closed
 
     def pause_writing(self) -> None:
         self.paused = True
 
     def resume_writing(self) -> None:
         self.paused = False
-        self._notify()
+        self.notify()
 
-    def _notify(self) -> None:
+    def notify(self) -> None:
         if self._wake is not None and not self._wake.done():
             self._wake.set_result(None)
 
@@ -1088,6 +1094,11 @@ class _Sink(asyncio.Protocol):
         finally:
             self._wake = None
         return True
+
+
+async def _connect(loop: asyncio.AbstractEventLoop, sink: _Sink, host: str, port: int) -> asyncio.Transport:
+    transport, _ = await asyncio.wait_for(loop.create_connection(lambda: sink, host, port), CONNECT_TIMEOUT)
+    return transport
 
 
 @dataclass
@@ -1110,9 +1121,11 @@ class _Run:
         self.report = report
         self.corpus = load_corpus()
         self.stopping = asyncio.Event()
+        self.state_tick = asyncio.Event()  # set by the monitor at each state message
         self.total = 0
         self.gate = asyncio.Lock()  # MotoROS: the motion probe and the motion fuzzers take turns
-        self.rings: dict[str, dict[int, deque[list[bytes]]]] = {}
+        self.rings = report.rings
+        self.sinks: set[_Sink] = set()
         self.closed_order: dict[str, deque[int]] = {}
         self.seed = random.Random(f"{options.seed}:{profile}")
         self.deadline = 0.0
@@ -1120,6 +1133,8 @@ class _Run:
 
     def stop(self) -> None:
         self.stopping.set()
+        for sink in self.sinks:
+            sink.notify()
 
     # the fuzz connections
 
@@ -1139,13 +1154,9 @@ class _Run:
             try:
                 if use_gate:
                     async with self.gate:
-                        transport, _ = await asyncio.wait_for(
-                            loop.create_connection(lambda: sink, self.target.host, port), CONNECT_TIMEOUT
-                        )
+                        transport = await _connect(loop, sink, self.target.host, port)
                 else:
-                    transport, _ = await asyncio.wait_for(
-                        loop.create_connection(lambda: sink, self.target.host, port), CONNECT_TIMEOUT
-                    )
+                    transport = await _connect(loop, sink, self.target.host, port)
             except (OSError, TimeoutError):
                 stats.connect_failures += 1
                 if self.crashed():
@@ -1157,10 +1168,19 @@ class _Run:
             local = transport.get_extra_info("sockname")[1]
             ring: deque[list[bytes]] = deque(maxlen=KEEP_BATCHES)
             rings[local] = ring
+            self.sinks.add(sink)
             try:
                 await self._drive(role, rng, order, sink, transport, stats, ring)
             finally:
-                transport.abort() if self.stopping.is_set() else transport.close()
+                self.sinks.discard(sink)
+                stats.confirmed += sink.confirmed
+                if sink.bad:
+                    stats.bad_replies += 1
+                    self.report.notes.append(f"{role}: a reply could not be framed: {sink.rbuf[:64].hex()}")
+                if self.stopping.is_set():
+                    transport.abort()
+                else:
+                    transport.close()
                 closed.append(local)
                 while len(closed) > KEEP_CLOSED:
                     rings.pop(closed.popleft(), None)
@@ -1223,26 +1243,24 @@ class _Run:
             if rng.random() < 0.05 and len(data) > 1:  # split across writes
                 cuts = sorted(rng.sample(range(1, len(data)), min(len(data) - 1, rng.randint(1, 3))))
                 pieces = [data[a:b] for a, b in zip([0, *cuts], [*cuts, len(data)], strict=True)]
-                for piece in pieces[:-1]:
-                    transport.write(piece)
-                    await asyncio.sleep(0 if rng.random() < 0.8 else 0.002)
-                    if sink.closed:
+                for piece in pieces:
+                    if not sink.alive():
                         break
-                if not sink.closed:
-                    transport.write(pieces[-1])
+                    transport.write(piece)
+                    if piece is not pieces[-1]:  # let it go out alone
+                        await asyncio.sleep(0 if rng.random() < 0.8 else 0.002)
             else:
                 transport.write(data)
             sent += frames
             stats.frames += frames
             stats.bytes += len(data)
-            stats.confirmed += 0
             self.total += frames
             if self.total >= options.frames or time.monotonic() >= self.deadline:
                 self.stop()
             if shadow.fatal:
                 stats.fatal += 1
                 deadline = time.monotonic() + CLOSE_TIMEOUT
-                while not sink.closed and time.monotonic() < deadline:
+                while not sink.closed and not self.stopping.is_set() and time.monotonic() < deadline:
                     await sink.wait(deadline - time.monotonic())
                 if not sink.closed and not self.stopping.is_set():
                     stats.unclosed += 1
@@ -1250,17 +1268,12 @@ class _Run:
                         f"{role}: the server did not close the connection within {CLOSE_TIMEOUT:g} s of a bad "
                         f"length prefix; last units: {' '.join(u.hex() for u in units[-2:])}"
                     )
-                break
-        stats.confirmed += sink.confirmed
-        if sink.bad:
-            stats.bad_replies += 1
-            self.report.notes.append(f"{role}: a reply could not be framed: {sink.rbuf[:64].hex()}")
+                return
 
     # the probe, the monitor, the RSS sampler
 
     async def probe(self) -> None:
         interval = self.options.probe_interval
-        report = self.report
         gated = self.profile == "motoros"
         while not self.stopping.is_set():
             if gated:
@@ -1272,7 +1285,6 @@ class _Run:
                 return
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self.stopping.wait(), interval)
-        del report
 
     async def _probe_once(self) -> bool:
         report = self.report
@@ -1339,6 +1351,7 @@ class _Run:
                         report.state_gaps += 1
                         report.hangs += 1
                         report.notes.append(f"state port silent for {gap:.2f} s")
+                    self.state_tick.set()
                     msg_type = _INT[order].unpack_from(rest, 0)[0]
                     body = rest[12:]
                     key: tuple[int, int] | None = None
@@ -1371,6 +1384,13 @@ class _Run:
                 return
             report.notes.append("monitor: the state connection was closed by the server; reconnecting")
 
+    async def state_rounds(self, count: int) -> None:
+        """Until the monitor has read ``count`` more state messages."""
+        target = self.report.state_messages + count
+        while self.report.state_messages < target:
+            self.state_tick.clear()
+            await self.state_tick.wait()
+
     def _motion(self, what: str) -> None:
         report = self.report
         report.motion += 1
@@ -1396,8 +1416,9 @@ class _Run:
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self.stopping.wait(), 10.0)
             elapsed = time.monotonic() - start
+            rate = self.total / max(elapsed, 1e-9)
             print(
-                f"  {self.profile}: {self.total:,} frames in {elapsed:.0f} s ({self.total / max(elapsed, 1e-9):,.0f}/s), "
+                f"  {self.profile}: {self.total:,} frames in {elapsed:.0f} s ({rate:,.0f}/s), "
                 f"{self.report.connections:,} connections, {self.report.hangs} hangs, {self.report.motion} motion",
                 file=sys.stderr,
                 flush=True,
@@ -1424,11 +1445,25 @@ async def _start_server(profile: str, options: Options, log_path: Path) -> tuple
         with contextlib.suppress(ProcessLookupError):
             proc.kill()
         await asyncio.wait_for(proc.wait(), 20.0)
-        raise RuntimeError(f"robot-server did not start: {line!r} {log_path.read_text(errors='replace')[-2000:]}")
+        raise RuntimeError(f"robot-server did not start: {line!r} {_tail(log_path)}")
     ports = {name: int(port) for name, port in re.findall(r"(motion|state|io) 127\.0\.0\.1:(\d+)", line)}
     order = "auto" if "auto-detected" in line else ">" if "big-endian" in line else "<"
     real = 8 if "float64" in line else 4
     return proc, _Target("127.0.0.1", ports, order, real, proc.pid, log_path)
+
+
+def _tail(path: Path, size: int = 2000) -> str:
+    return path.read_text(errors="replace")[-size:]
+
+
+def _keep(report: ProfileReport, folder: Path) -> None:
+    """Move the server log and the dumps out of a temporary ``folder`` that is about to go."""
+    kept = Path(tempfile.mkdtemp(prefix="fuzz-kept-"))
+    for item in folder.iterdir():
+        item.rename(kept / item.name)
+    report.dumps = [kept / d.name for d in report.dumps]
+    if report.log_path is not None:
+        report.log_path = kept / report.log_path.name
 
 
 async def fuzz_server(profile: str, options: Options) -> ProfileReport:
@@ -1477,12 +1512,10 @@ async def fuzz_server(profile: str, options: Options) -> ProfileReport:
             _read_log(report, target.log, log_offset)
         keep = options.keep_logs or report.failures > 0
         if tmp is not None:
-            if keep and report.log_path is not None:
-                kept = Path(tempfile.mkdtemp(prefix="fuzz-kept-"))
-                for item in Path(tmp.name).iterdir():
-                    item.rename(kept / item.name)
-                report.dumps = [kept / d.name for d in report.dumps]
-                report.log_path = kept / report.log_path.name
+            if keep:
+                _keep(report, Path(tmp.name))
+            else:
+                report.log_path = None
             tmp.cleanup()
     return report
 
@@ -1547,16 +1580,11 @@ async def _fuzz(
         stopper.cancel()
     if not is_crashed():
         # every fuzz connection is closed: one more probe (the server has caught up), then RSS
-        for _ in range(10):
-            if await run._probe_once():
-                break
-        else:
+        if not await run._probe_once():
             report.notes.append("the server did not answer a PING after the run")
         # a few more state rounds, for motion that would come late
-        seen = report.state_messages
-        deadline = time.monotonic() + 2.0
-        while report.state_messages < seen + 6 and time.monotonic() < deadline and not monitor.done():
-            await asyncio.sleep(0.05)
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(run.state_rounds(6), 2.0)
         if target.pid is not None:
             report.rss_after = rss_mb(target.pid)
             if report.rss_after is not None:
@@ -1566,12 +1594,6 @@ async def _fuzz(
     if waiter is not None and not waiter.done():
         waiter.cancel()
         await asyncio.gather(waiter, return_exceptions=True)
-    run_dumps(run, report)
-
-
-def run_dumps(run: _Run, report: ProfileReport) -> None:
-    """Keep the last batches of every connection for the log reader (``_read_log``)."""
-    report._rings = run.rings  # type: ignore[attr-defined]
 
 
 _PEER = re.compile(r"\('127\.0\.0\.1', (\d+)\)")
@@ -1579,11 +1601,12 @@ _PEER = re.compile(r"\('127\.0\.0\.1', (\d+)\)")
 
 def _read_log(report: ProfileReport, path: Path, offset: int) -> None:
     """Tracebacks, size and lines of the server's log (from ``offset``), and reproduction dumps."""
-    rings: dict[str, dict[int, deque[list[bytes]]]] = getattr(report, "_rings", {})
+    rings = report.rings
     tracebacks = 0
     lines = 0
     previous = ""
     excerpt: list[str] = []
+    collecting = False
     ports: list[int] = []
     with path.open("rb") as f:
         f.seek(offset)
@@ -1597,17 +1620,17 @@ def _read_log(report: ProfileReport, path: Path, offset: int) -> None:
                     ports.append(int(match.group(1)))
                 if not excerpt:
                     excerpt = [previous.rstrip(), line.rstrip()]
-            elif excerpt and len(excerpt) < 40 and not line[:4].isdigit():
-                excerpt.append(line.rstrip())
-            elif excerpt and len(excerpt) < 40:
-                excerpt.append(line.rstrip())
-                excerpt.append("...")
-                excerpt += [""] * (40 - len(excerpt))
+                    collecting = True
+            elif excerpt and collecting:
+                if line[:4].isdigit() or len(excerpt) >= 40:  # the next log record
+                    collecting = False
+                else:
+                    excerpt.append(line.rstrip())
             previous = line
     report.tracebacks = tracebacks
     report.log_lines = lines
     report.log_bytes = path.stat().st_size - offset
-    report.traceback_excerpt = "\n".join(x for x in excerpt if x)
+    report.traceback_excerpt = "\n".join(excerpt)
     for port in ports[:5]:
         for role, by_port in rings.items():
             batches = by_port.get(port)
@@ -1782,6 +1805,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if options.external and options.state_port is None:
         parser().error("a running server needs --state-port too (the motion monitor)")
     sys.path.insert(0, str(ROOT))
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
     try:
         from simple_message.endpoints import run
 
@@ -1789,8 +1813,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
-    from codec import machine  # type: ignore[import-not-found]  # the benchmarks' machine line
-
+    machine = importlib.import_module("codec").machine  # the benchmarks' machine line (bench/codec.py)
     print(f"# {machine()}; seed {options.seed}")
     print()
     print(table(reports, decoder))
@@ -1811,5 +1834,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
     sys.exit(main())

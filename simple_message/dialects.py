@@ -7,7 +7,10 @@ in its reply, ABB's RAPID server replies header-only, Fanuc's KAREL server ackno
 JOINT_TRAJ_PT with a JOINT_POSITION reply and speaks big-endian, MotoROS answers every request but
 PING with a MOTO_MOTION_REPLY (type 2002) on its own ports. A link that knows its peer's dialect
 matches replies by that dialect's rule (:meth:`Dialect.answers`); one that does not accepts what
-any registered dialect would send (:func:`any_dialect_answers`).
+any registered dialect would send (:func:`any_dialect_answers`), so registering a dialect widens
+that rule for every such link in the process. (Before the dialects, a link took a
+MOTO_MOTION_REPLY as the answer to any request, PING included; no dialect answers a PING so, and
+neither does a link that does not know its peer.)
 
 Adding a dialect is one :class:`Dialect` value passed to :func:`register` (in its own module or
 here, with its tests); ``robot_server.emulator.profiles`` says how the emulator plays it.
@@ -18,6 +21,7 @@ from __future__ import annotations
 import enum
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 from .constants import MsgType, Port
 from .messages import Message
@@ -89,6 +93,14 @@ class Dialect:
     #: motion is checked, started and stopped with MOTO_MOTION_CTRL commands (MotoROS's
     #: trajectory mode) rather than by the points themselves and a STOP point
     motion_control: bool = False
+
+    def __post_init__(self) -> None:
+        # read-only: a built-in dialect's rules cannot be changed behind every link's back
+        frozen = {int(k): frozenset(v) for k, v in self.replies.items()}
+        object.__setattr__(self, "replies", MappingProxyType(frozen))
+
+    def __hash__(self) -> int:
+        return hash(self.name)
 
     def answers(self, request_type: int, reply: Message) -> bool:
         """Whether ``reply`` can be this dialect's answer to a request of ``request_type``."""

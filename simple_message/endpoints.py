@@ -71,7 +71,19 @@ from .messages import HeaderOnly, Message, Ping
 from .transport import StreamPair, open_fd, open_serial, open_tcp
 from .wire import DEFAULT_FORMAT, WireFormat
 
-__all__ = ["Server", "Session", "Handler", "MalformedHandler", "Client", "CloseConnection", "ReconnectPolicy", "run"]
+__all__ = [
+    "Server",
+    "Session",
+    "Handler",
+    "MalformedHandler",
+    "Client",
+    "CloseConnection",
+    "ReconnectPolicy",
+    "run",
+    "LOOP_VARIABLE",
+    "DEFAULT_FRAME_TIMEOUT",
+    "DEFAULT_IDLE_AFTER",
+]
 
 log = logging.getLogger(__name__)
 

@@ -35,6 +35,7 @@ from simple_message import (
     HeaderOnly,
     JointPosition,
     JointTrajPt,
+    Message,
     MsgType,
     Port,
     ReplyCode,
@@ -139,6 +140,28 @@ def test_built_in_profiles_follow_their_dialects(name: str) -> None:
         expected = dialect.ports.get(role) if role in profile.ports else None
         assert config.port(role) == expected
     assert GENERIC.reply_style is ReplyStyle.ECHO and FANUC.replies[MsgType.JOINT_TRAJ_PT] == {MsgType.JOINT_POSITION}
+    with pytest.raises(TypeError):  # a dialect's rules are read-only, and a dialect is hashable
+        FANUC.replies[MsgType.PING] = frozenset()  # type: ignore[index]
+    assert len({GENERIC, FANUC, GENERIC}) == 2
+
+
+class _Recorded:
+    """A stand-in state server that notes the type of every topic broadcast."""
+
+    def __init__(self) -> None:
+        self.types: list[int] = []
+
+    def broadcast(self, msg: Message, sessions: object = None) -> int:
+        self.types.append(msg.msg_type)
+        return 1
+
+
+@pytest.mark.parametrize("name", ["generic", "motoros"])
+def test_built_in_profiles_publish_their_dialects_state_topics(name: str) -> None:
+    emulator = Emulator(EmulatorConfig(profile=name, motion_port=0, state_port=0, io_port=0))
+    recorded = _Recorded()
+    emulator.behaviour.publish(recorded, [])  # type: ignore[arg-type]
+    assert tuple(recorded.types) == DIALECTS[name].state_topics
 
 
 @pytest.mark.slow

@@ -347,12 +347,9 @@ async def test_peer_that_disconnects_mid_request_fails_the_request_fast(link_kin
     server.handle(MsgType.JOINT_TRAJ_PT, hang_up)
     async with LINKS[link_kind](server) as link:
         conn = await link.connection()
-        loop = asyncio.get_running_loop()
-        start = loop.time()
-        with pytest.raises(ConnectionClosed):
+        with pytest.raises(ConnectionClosed):  # not RequestTimeout: it fails on the hang-up
             await conn.request(JointTrajPt(0), timeout=T)
         assert arrived.is_set()
-        assert loop.time() - start < 2.0  # fails on the hang-up, not on the request timeout
         assert conn.closed
         with pytest.raises(ConnectionClosed):
             await conn.request(Ping(), timeout=T)

@@ -87,12 +87,14 @@ def test_a_reply_of_another_type_ends_the_request_as_unanswerable_by_the_dialect
         client.receive_data(moto.encode(LE32))
         (event,) = events(client)
         assert isinstance(event, Answered if answers else Unanswerable) and event.request is request
-    # MotoROS echoes a PING: its MOTO_MOTION_REPLY cannot answer one
-    client = Link(LE32, answers=MOTOROS.answers)
-    client.send_request(Ping())
-    client.receive_data(moto.encode(LE32))
-    (event,) = events(client)
-    assert isinstance(event, Unanswerable) and "MOTO_MOTION_REPLY" in event.describe()
+    # MotoROS echoes a PING (MotionServer.c): its MOTO_MOTION_REPLY cannot answer one, neither on a
+    # MotoROS link nor on a link that does not know its peer (before the dialects, such a link took a
+    # 2002 as the answer to any request, PING included: a deliberate change)
+    for client in (Link(LE32, answers=MOTOROS.answers), Link(LE32)):
+        client.send_request(Ping())
+        client.receive_data(moto.encode(LE32))
+        (event,) = events(client)
+        assert isinstance(event, Unanswerable) and "MOTO_MOTION_REPLY" in event.describe()
 
 
 def test_fanuc_acknowledges_a_point_with_a_joint_position_reply_and_abb_does_not() -> None:

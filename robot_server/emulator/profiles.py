@@ -30,6 +30,7 @@ from .owner import MotionOwner
 
 __all__ = [
     "PROFILES",
+    "ROLES",
     "Behaviour",
     "EmulatorProfile",
     "PortRules",

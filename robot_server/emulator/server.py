@@ -44,10 +44,10 @@ from ..control import (
 )
 from ..loader import load_model
 from ..model import ModelError, RobotModel
+from . import motoros  # noqa: F401 - registers the MotoROS profile
 from .cell import RobotCell
 from .generic import GENERIC_PROFILE
 from .io_table import IoTable
-from .motoros import MOTOROS_PROFILE
 from .owner import MotionOwner, OnDisconnect
 from .profiles import ROLES, Behaviour, EmulatorProfile, ProfileContext, profile_named
 
@@ -58,8 +58,6 @@ log = logging.getLogger(__name__)
 ByteOrderChoice = Literal["little", "big", "auto"]
 _STATE_LINK = "carries_state"
 MAX_STATE_RATE = 1000.0
-#: the profiles every emulator knows (others are registered by their modules)
-BUILTIN_PROFILES = (GENERIC_PROFILE.name, MOTOROS_PROFILE.name)
 
 
 @dataclass(frozen=True)

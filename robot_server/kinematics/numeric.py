@@ -45,7 +45,7 @@ from ._ops import SCALAR_OPS, Ops
 from ._trace import TRACE_OPS, Generated, Real, Var
 from .fk import _compile, link_frames
 
-__all__ = ["NumericIKResult", "ik_numeric", "rotation_error"]
+__all__ = ["NumericIKResult", "ik_numeric", "rotation_error", "Step", "Errors"]
 
 V = TypeVar("V")
 
