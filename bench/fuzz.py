@@ -316,6 +316,14 @@ class Shadow:
         self.pending = buf[pos:] if pos < end else b""
         return unit
 
+    def filler(self, rng: random.Random) -> bytes | None:
+        """Bytes 0x7F/0xFF that complete the incomplete frame the server holds (``None`` if there is
+        none, or its length prefix is not complete): a way out when no generated unit may follow."""
+        if len(self.pending) < 4 or self.prefix is None:
+            return None
+        missing = 4 + self.prefix.unpack_from(self.pending, 0)[0] - len(self.pending)
+        return bytes(rng.choice(POISON_BYTES) for _ in range(missing))
+
 
 def _detect(buf: bytes) -> struct.Struct | None:
     """The server's byte-order detection from a first length prefix (simple_message.framing)."""
@@ -892,8 +900,11 @@ def _chunks(rng: random.Random, data: bytes) -> list[bytes]:
 
 # -- the server run ------------------------------------------------------------------------------
 
-#: fuzz connections per port where a profile allows fewer than asked (the monitor has one state place)
-PORT_CAPS = {"motoros": {"motion": 1, "state": 3, "io": 1}}
+#: fuzz connections per port where the server allows fewer than asked: one motion client at a time on
+#: every profile (a newcomer replaces it while the robot is at rest), MotoROS's one IO client and
+#: four state clients (the monitor takes one place)
+PORT_CAPS = {"motion": 1}
+PROFILE_CAPS = {"motoros": {"state": 3, "io": 1}}
 CONNECT_TIMEOUT = 5.0
 STALL_TIMEOUT = 10.0  # s without an answer to an outstanding marker: the connection is stalled
 CLOSE_TIMEOUT = 5.0  # s for the server to close a connection after a fatal length prefix
@@ -947,6 +958,7 @@ class PortStats:
     unclosed: int = 0  # ... that the server did not close within CLOSE_TIMEOUT
     server_closed: int = 0  # connections the server closed otherwise (MotoROS rules, limits)
     stalls: int = 0
+    abandoned: int = 0  # connections ended because no safe unit could follow
     bad_replies: int = 0  # replies that could not be framed
     markers: int = 0
 
@@ -1141,7 +1153,7 @@ class _Run:
     async def worker(self, role: str, index: int) -> None:
         port = self.target.ports[role]
         stats = self.report.ports[role]
-        use_gate = self.profile == "motoros" and role == "motion"
+        use_gate = role == "motion"
         loop = asyncio.get_running_loop()
         rings = self.rings.setdefault(role, {})
         closed = self.closed_order.setdefault(role, deque())
@@ -1197,6 +1209,8 @@ class _Run:
     ) -> None:
         options = self.options
         rare = MOTOROS_CLOSING if self.profile == "motoros" and role == "motion" else frozenset()
+        # the motion port has one client: it gets more batches in flight, for its share of the frames
+        window = options.window * (options.connections if role == "motion" else 1)
         gen = Generator(rng, order, self.target.real, self.corpus, fatal_rate=options.fatal_rate, rare_types=rare)
         shadow = Shadow(self.target.order if self.target.order == "auto" else order)
         if self.target.order == "auto":  # the first frame decides the connection's order: an honest one
@@ -1206,7 +1220,7 @@ class _Run:
         sent = 0
         marker = ping_request(order)
         while not self.stopping.is_set():
-            while (len(sink.outstanding) >= options.window or sink.paused) and not sink.closed:
+            while (len(sink.outstanding) >= window or sink.paused) and not sink.closed:
                 if not await sink.wait(STALL_TIMEOUT) and not self.stopping.is_set():
                     stats.stalls += 1
                     self.report.notes.append(
@@ -1220,14 +1234,19 @@ class _Run:
                 stats.server_closed += 1
                 return
             units: list[bytes] = []
+            stuck = False
             for _ in range(options.batch):
                 for _attempt in range(8):
                     unit = shadow.add(gen.unit())
                     if unit is not None:
                         break
                     stats.rejected += 1
-                else:
-                    continue
+                else:  # nothing may follow what the server holds: complete it with poison, or give up
+                    filler = shadow.filler(rng)
+                    unit = None if filler is None else shadow.add(filler)
+                    if unit is None:
+                        stuck = True
+                        break
                 units.append(unit)
                 if shadow.fatal:
                     break
@@ -1257,6 +1276,9 @@ class _Run:
             self.total += frames
             if self.total >= options.frames or time.monotonic() >= self.deadline:
                 self.stop()
+            if stuck:  # the server holds part of a frame that nothing safe completes: this connection ends
+                stats.abandoned += 1
+                return
             if shadow.fatal:
                 stats.fatal += 1
                 deadline = time.monotonic() + CLOSE_TIMEOUT
@@ -1274,12 +1296,8 @@ class _Run:
 
     async def probe(self) -> None:
         interval = self.options.probe_interval
-        gated = self.profile == "motoros"
         while not self.stopping.is_set():
-            if gated:
-                async with self.gate:
-                    await self._probe_once()
-            else:
+            async with self.gate:  # the motion fuzzer does not take the port back meanwhile
                 await self._probe_once()
             if self.crashed():
                 return
@@ -1525,7 +1543,7 @@ async def _fuzz(
 ) -> None:
     run = _Run(options, profile, target, report)
     roles = [r for r in ("motion", "state", "io") if r in target.ports]
-    caps = PORT_CAPS.get(profile, {})
+    caps = {**PORT_CAPS, **PROFILE_CAPS.get(profile, {})}
     for role in roles:
         report.ports[role] = PortStats()
 
@@ -1685,7 +1703,8 @@ def details(r: ProfileReport) -> str:
             f"  {role}: {p.frames:,} frames ({p.bytes / 1e6:.1f} MB), {p.confirmed:,} confirmed processed, "
             f"{p.connections:,} connections ({p.fatal:,} ended by a bad length prefix, {p.unclosed} of them not "
             f"closed by the server; {p.server_closed:,} closed by the server otherwise; {p.connect_failures} "
-            f"connect failures), {p.rejected:,} units refused by the safety check, {p.stalls} stalls, "
+            f"connect failures, {p.abandoned} abandoned), {p.rejected:,} units refused by the safety check, "
+            f"{p.stalls} stalls, "
             f"{p.bad_replies} unframeable replies"
         )
     out.append(
