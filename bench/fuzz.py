@@ -179,6 +179,15 @@ _REAL = {(o, r): struct.Struct(o + ("f" if r == 4 else "d")) for o in "<>" for r
 _F32_MAX = 3.4028234663852886e38
 
 
+#: any byte -> 0x7F or 0xFF (by its high bit): random bytes made poison
+_TO_POISON = bytes(0x7F if b < 0x80 else 0xFF for b in range(256))
+
+
+def poison_bytes(rng: random.Random, n: int) -> bytes:
+    """``n`` random bytes among 0x7F and 0xFF (every real read from them is NaN or huge)."""
+    return rng.randbytes(n).translate(_TO_POISON)
+
+
 def _plausible(value: float) -> bool:
     return abs(value) <= PLAUSIBLE  # False for NaN and infinities
 
@@ -322,7 +331,7 @@ class Shadow:
         if len(self.pending) < 4 or self.prefix is None:
             return None
         missing = 4 + self.prefix.unpack_from(self.pending, 0)[0] - len(self.pending)
-        return bytes(rng.choice(POISON_BYTES) for _ in range(missing))
+        return poison_bytes(rng, missing)
 
 
 def _detect(buf: bytes) -> struct.Struct | None:
@@ -369,26 +378,46 @@ def load_corpus() -> dict[str, list[bytes]]:
     return corpus
 
 
-_STRUCTS: dict[tuple[str, str, int], struct.Struct] = {}
-_CODES: dict[str, list[str]] = {}
+_SEGMENTS: dict[str, list[tuple[str, int]]] = {}
 
 
-def _layout_codes(layout: str) -> list[str]:
-    """``"i10r"`` -> ``["i", "r", "r", ...]``: one code per value."""
-    codes = _CODES.get(layout)
-    if codes is None:
-        codes = _CODES[layout] = [c for n, c in re.findall(r"(\d*)([iIr])", layout) for _ in range(int(n or 1))]
-    return codes
+def _segments(layout: str) -> list[tuple[str, int]]:
+    """``"i10r"`` -> ``[("i", 1), ("r", 10)]``."""
+    segments = _SEGMENTS.get(layout)
+    if segments is None:
+        segments = _SEGMENTS[layout] = [(c, int(n or 1)) for n, c in re.findall(r"(\d*)([iIr])", layout)]
+    return segments
 
 
-def _layout_struct(layout: str, order: str, real: int) -> struct.Struct:
-    key = (layout, order, real)
-    s = _STRUCTS.get(key)
-    if s is None:
-        fmt = re.sub(r"(\d+)r", lambda m: m.group(1) + ("f" if real == 4 else "d"), layout)
-        fmt = fmt.replace("r", "f" if real == 4 else "d")
-        s = _STRUCTS[key] = struct.Struct(order + fmt)
-    return s
+#: values per pool of packed random fields
+POOL_VALUES = 1 << 16
+_POOLS: dict[tuple[str, int], bytes] = {}
+
+
+def _pool(order: str, real: int) -> bytes:
+    """``POOL_VALUES`` random fields packed in ``order``: reals of ``real`` bytes (half interesting
+    values, half uniform in [-4, 4]), int32 for ``real`` 0 (70 % interesting values), reals of
+    ``-real`` bytes that are no plausible position for ``real`` < 0 (:data:`POISON_REALS`)."""
+    pool = _POOLS.get((order, real))
+    if pool is None:
+        rng = random.Random(f"pool {order} {real}")
+        if real < 0:
+            bad = [rng.choice(POISON_REALS) for _ in range(POOL_VALUES)]
+            if real == -4:
+                bad = [math.inf if math.isfinite(x) and abs(x) > _F32_MAX else x for x in bad]
+            pool = struct.pack(f"{order}{POOL_VALUES}{'f' if real == -4 else 'd'}", *bad)
+        elif real == 0:
+            ints = [
+                rng.choice(INTS) if rng.random() < 0.7 else rng.randint(-(2**31), 2**31 - 1) for _ in range(POOL_VALUES)
+            ]
+            pool = struct.pack(f"{order}{POOL_VALUES}i", *ints)
+        else:
+            reals = [rng.choice(REALS) if rng.random() < 0.5 else rng.uniform(-4.0, 4.0) for _ in range(POOL_VALUES)]
+            if real == 4:
+                reals = [math.copysign(_F32_MAX, x) if math.isfinite(x) and abs(x) > _F32_MAX else x for x in reals]
+            pool = struct.pack(f"{order}{POOL_VALUES}{'f' if real == 4 else 'd'}", *reals)
+        _POOLS[order, real] = pool
+    return pool
 
 
 class Generator:
@@ -438,27 +467,22 @@ class Generator:
 
     # values
 
-    def _int(self) -> int:
-        rng = self.rng
-        return rng.choice(INTS) if rng.random() < 0.7 else rng.randint(-(2**31), 2**31 - 1)
+    def _reals(self, count: int, order: str, real: int) -> bytes:
+        """``count`` random reals, packed (a slice of a pool: :func:`_pool`)."""
+        pool = _pool(order, real)
+        k = self.rng.randrange(POOL_VALUES - count) * real
+        return pool[k : k + count * real]
 
-    def _real(self, real: int) -> float:
-        rng = self.rng
-        value = rng.choice(REALS) if rng.random() < 0.5 else rng.uniform(-4.0, 4.0)
-        if real == 4 and math.isfinite(value) and abs(value) > _F32_MAX:
-            value = math.copysign(_F32_MAX, value)
-        return value
+    def _ints(self, count: int, order: str) -> bytes:
+        pool = _pool(order, 0)
+        k = self.rng.randrange(POOL_VALUES - count) * 4
+        return pool[k : k + count * 4]
 
-    def _values(self, layout: str, real: int) -> list[Any]:
-        out: list[Any] = []
-        for code in _layout_codes(layout):
-            if code == "r":
-                out.append(self._real(real))
-            elif code == "I":
-                out.append(self._int() & 0xFFFFFFFF)
-            else:
-                out.append(self._int())
-        return out
+    def _body(self, layout: str, order: str, real: int) -> bytes:
+        """A body of ``layout`` with random fields."""
+        return b"".join(
+            self._reals(n, order, real) if code == "r" else self._ints(n, order) for code, n in _segments(layout)
+        )
 
     def _type(self) -> int:
         rng = self.rng
@@ -493,7 +517,7 @@ class Generator:
                 return frame_of(order, PING, self._comm(), 0, struct.pack(order + "10i", *[0] * 10))
         comm = self._comm()
         layout = LAYOUTS[msg_type][1 if comm == 3 else 0]
-        body = _layout_struct(layout, order, real).pack(*self._values(layout, real)) if layout else b""
+        body = self._body(layout, order, real) if layout else b""
         return frame_of(order, msg_type, comm, self._reply(comm), body)
 
     def other_size(self) -> bytes:
@@ -503,14 +527,11 @@ class Generator:
             return self.poisoned_motion(self.order, other)
         return self.well_formed(self.order, other)
 
-    def _poison(self, real: int, how: str) -> bytes:
-        rng = self.rng
-        if how == "bytes":
-            return bytes(rng.choice(POISON_BYTES) for _ in range(real))
-        value = rng.choice(POISON_REALS)
-        if real == 4 and math.isfinite(value) and abs(value) > _F32_MAX:
-            value = math.inf
-        return _REAL[self.order, real].pack(value)
+    def _poison(self, count: int, order: str, real: int) -> bytes:
+        """``count`` packed reals none of which is a plausible position (NaN, infinities, 1e6...)."""
+        pool = _pool(order, -real)
+        k = self.rng.randrange(POOL_VALUES - count) * real
+        return pool[k : k + count * real]
 
     def poisoned_motion(self, order: str | None = None, real: int | None = None, msg_type: int | None = None) -> bytes:
         """A motion-type frame that is invalid for sure (the module doc): poisoned positions or an
@@ -527,7 +548,7 @@ class Generator:
             if unsafe_reason(frame) is None:
                 return frame
         # never reached in practice: the last form is made of 0x7F/0xFF bytes only
-        return frame_of(order, msg_type, comm, reply, bytes(rng.choice(POISON_BYTES) for _ in range(8)))
+        return frame_of(order, msg_type, comm, reply, poison_bytes(rng, 8))
 
     def _sequence(self) -> int:
         rng = self.rng
@@ -541,19 +562,19 @@ class Generator:
         if how == "all" or msg_type == 12:
             size = {11: 4 + 12 * real, 12: rng.choice((0, 4, 20, 56, 4 + 52, 108, 524)), 14: 12 + 31 * real}
             size |= {2001: 12 + 10 * real, 2016: 8 + rng.randint(1, 4) * (8 + 31 * real)}
-            return bytes(rng.choice(POISON_BYTES) for _ in range(size[msg_type]))
-        R = _REAL[order, real]
+            return poison_bytes(rng, size[msg_type])
 
         def reals(count: int) -> bytes:
             if how == "bytes":
-                return bytes(rng.choice(POISON_BYTES) for _ in range(count * real))
-            return b"".join(R.pack(self._real(real)) for _ in range(count))
+                return poison_bytes(rng, count * real)
+            return self._reals(count, order, real)
 
         def positions() -> bytes:
             if how == "slot0":
-                return self._poison(real, "value") + reals(9)
-            kind = "bytes" if how == "bytes" else "value"
-            return b"".join(self._poison(real, kind) for _ in range(10))
+                return self._poison(1, order, real) + reals(9)
+            if how == "bytes":
+                return poison_bytes(rng, 10 * real)
+            return self._poison(10, order, real)
 
         if msg_type == 11:
             return I4.pack(self._sequence()) + positions() + reals(2)
@@ -598,10 +619,8 @@ class Generator:
         order = self.order
         msg_type = _INT[order].unpack_from(frame, 4)[0]
         ints = {11: 4, 14: 12, 2001: 12, 2016: 8}.get(msg_type, 0)
-        body = bytearray(frame[HEADER:])
-        for k in range(ints, len(body)):
-            body[k] = self.rng.choice(POISON_BYTES)
-        return frame[:HEADER] + bytes(body)
+        body = frame[HEADER:]
+        return frame[:HEADER] + body[:ints] + poison_bytes(self.rng, len(body) - ints)
 
     def header_only(self) -> bytes:
         comm = self._comm()
@@ -616,7 +635,7 @@ class Generator:
         if msg_type == PING or msg_type in MOTION_TYPES:
             msg_type = 3
         n = rng.choice((0, 4, 8, 12, 40, 52, 64, rng.randint(0, 200)))
-        body = bytes(rng.getrandbits(8) for _ in range(n))
+        body = rng.randbytes(n)
         comm = self._comm()
         return frame_of(self.order, msg_type, comm, self._reply(comm), body)
 
@@ -645,12 +664,12 @@ class Generator:
             buf = buf[: rng.randint(HEADER, len(buf))]
         elif op == 3:  # extension
             n = rng.choice((1, 2, 3, 4, 8, 40, rng.randint(1, 64)))
-            tail = rng.choice((bytes(n), bytes(rng.getrandbits(8) for _ in range(n)), b"\x7f" * n))
+            tail = rng.choice((bytes(n), rng.randbytes(n), b"\x7f" * n))
             buf += tail
         elif op == 4 and len(buf) > HEADER:  # bytes inserted or deleted inside the body
             k = rng.randrange(HEADER, len(buf) + 1)
             if rng.random() < 0.5:
-                buf[k:k] = bytes(rng.getrandbits(8) for _ in range(rng.randint(1, 8)))
+                buf[k:k] = rng.randbytes(rng.randint(1, 8))
             else:
                 del buf[k : k + rng.randint(1, 8)]
         elif op == 5:  # another type
@@ -679,7 +698,7 @@ class Generator:
         if op == 1:  # fatal length prefix
             return _INT[self.order].pack(rng.choice(FATAL_LENGTHS)) + base[4:]
         if op == 2:  # garbage
-            return bytes(rng.getrandbits(8) for _ in range(rng.randint(1, 64)))
+            return rng.randbytes(rng.randint(1, 64))
         if op == 3:  # the other byte order, whole frame
             other = ">" if self.order == "<" else "<"
             return self.well_formed(other) if rng.random() < 0.5 else self.poisoned_motion(other)

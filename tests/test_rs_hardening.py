@@ -378,3 +378,23 @@ def test_the_log_budget_allows_a_burst_then_a_rate_and_summarises_per_cause() ->
         assert budget.suppressed == 0
     finally:
         logger.removeHandler(handler)
+
+
+# -- many monitoring clients -------------------------------------------------------------------------
+
+
+async def test_a_hundred_clients_each_pinging_a_hundred_times_are_all_answered() -> None:
+    async with stepped_emulator() as (emu, _clock):  # the default settings
+        peers = [await RawPeer.connect(emu.ports["state"]) for _ in range(100)]
+
+        async def pings(peer: RawPeer) -> list[bytes]:
+            return [(await peer.reply_to(PING, T)).raw for _ in range(100)]
+
+        try:
+            answers = await asyncio.gather(*(pings(p) for p in peers))
+        finally:
+            for peer in peers:
+                await peer.close()
+        assert all(raw == LE["PING_REPLY_SUCCESS"] for replies in answers for raw in replies)
+        assert sum(len(replies) for replies in answers) == 10_000
+        assert emu.state_server.refused == 0 and emu.state_server.evicted == 0
