@@ -43,8 +43,8 @@ extension, inserted and deleted bytes, another msg_type, comm_type (0, 4+, negat
 reply_code, header-only frames of every known type, unknown types, the other byte order, wrong
 length prefixes (slightly off: the stream goes out of step), huge, negative and below-12 length
 prefixes (fatal: the server must close), random garbage. Most frames keep an honest length prefix,
-so that the server goes on parsing bodies rather than reconnecting; about 1 in 300 ends its
-connection. PING frames (type 1) are the markers and are not fuzzed at the server (the decoder fuzz
+so that the server goes on parsing bodies rather than reconnecting; about 1 in 1000 ends its
+connection (``--fatal-rate``). PING frames (type 1) are the markers and are not fuzzed at the server (the decoder fuzz
 covers them): every type-1 reply is then a marker's.
 
 **Never a valid motion command.** The point is to show that invalid frames never move the robot, so
@@ -268,10 +268,21 @@ class Shadow:
     length prefix, little-endian if plausible, as the server detects it).
     """
 
-    __slots__ = ("fatal", "max_length", "order", "pending", "prefix", "type1")
+    __slots__ = ("fatal", "max_length", "order", "pending", "prefix", "rare", "rng", "type1")
 
-    def __init__(self, order: str, max_length: int = MAX_LENGTH) -> None:
+    def __init__(
+        self,
+        order: str,
+        max_length: int = MAX_LENGTH,
+        *,
+        rare: frozenset[int] = frozenset(),
+        rng: random.Random | None = None,
+    ) -> None:
         self.order = order
+        #: types the server would cut that are let through only 2 % of the time (MotoROS closes its
+        #: motion connection on them: each would cost a reconnection); not a safety matter
+        self.rare = rare
+        self.rng = rng or random.Random(0)
         self.prefix = _INT[order] if order in "<>" else None
         self.max_length = max_length
         #: bytes of an incomplete frame the server holds
@@ -308,10 +319,13 @@ class Shadow:
             if stop > end:
                 break
             frame = buf if pos == 0 and stop == end else buf[pos:stop]
-            if prefix.unpack_from(frame, 4)[0] == PING:
+            msg_type = prefix.unpack_from(frame, 4)[0]
+            if msg_type == PING:
                 if not marker:
                     return None
                 type1 += 1
+            elif msg_type in self.rare and self.rng.random() >= 0.02:
+                return None
             if unsafe_reason(frame) is not None:
                 return None
             pos = stop
@@ -433,7 +447,7 @@ class Generator:
         corpus: dict[str, list[bytes]],
         *,
         server: bool = True,
-        fatal_rate: float = 1 / 300,
+        fatal_rate: float = 1 / 1000,
         rare_types: frozenset[int] = frozenset(),
     ) -> None:
         self.rng = rng
@@ -957,7 +971,7 @@ class Options:
     server_args: tuple[str, ...] = ()
     log_dir: Path | None = None
     keep_logs: bool = False
-    fatal_rate: float = 1 / 300
+    fatal_rate: float = 1 / 1000
     quiet: bool = False
 
     @property
@@ -1006,6 +1020,8 @@ class ProfileReport:
     rss_before: float | None = None
     rss_after: float | None = None
     rss_max: float | None = None
+    #: (frames sent, RSS MB) every probe interval
+    rss_samples: list[tuple[int, float]] = field(default_factory=list)
     log_path: Path | None = None
     log_bytes: int = 0
     log_lines: int = 0
@@ -1231,7 +1247,7 @@ class _Run:
         # the motion port has one client: it gets more batches in flight, for its share of the frames
         window = options.window * (options.connections if role == "motion" else 1)
         gen = Generator(rng, order, self.target.real, self.corpus, fatal_rate=options.fatal_rate, rare_types=rare)
-        shadow = Shadow(self.target.order if self.target.order == "auto" else order)
+        shadow = Shadow(self.target.order if self.target.order == "auto" else order, rare=rare, rng=rng)
         if self.target.order == "auto":  # the first frame decides the connection's order: an honest one
             first = shadow.add(gen.well_formed())
             if first is not None:
@@ -1254,7 +1270,9 @@ class _Run:
                 return
             units: list[bytes] = []
             stuck = False
+            frames = 0
             for _ in range(options.batch):
+                aligned = not shadow.pending
                 for _attempt in range(8):
                     unit = shadow.add(gen.unit())
                     if unit is not None:
@@ -1266,10 +1284,15 @@ class _Run:
                     if unit is None:
                         stuck = True
                         break
+                if shadow.fatal and aligned:  # a marker just before it: what came before is confirmed
+                    units.append(marker)
+                    shadow.type1 += 1
+                    sink.outstanding.append(sent + frames)
+                    stats.markers += 1
                 units.append(unit)
+                frames += 1
                 if shadow.fatal:
                     break
-            frames = len(units)
             if not shadow.fatal and not shadow.pending:
                 m = shadow.add(marker, marker=True)
                 if m is not None:
@@ -1443,6 +1466,7 @@ class _Run:
             rss = rss_mb(pid)
             if rss is not None:
                 self.report.rss_max = max(self.report.rss_max or 0.0, rss)
+                self.report.rss_samples.append((self.total, rss))
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self.stopping.wait(), self.options.probe_interval)
 
@@ -1731,6 +1755,10 @@ def details(r: ProfileReport) -> str:
         f"{r.state_messages:,} (longest silence {r.state_max_gap * 1000:.0f} ms, {r.state_gaps} over "
         f"{STATE_GAP:g} s); largest position change {r.max_deviation:g}"
     )
+    if r.rss_samples:
+        step = max(1, len(r.rss_samples) // 8)
+        timeline = ", ".join(f"{f / 1000:,.0f}k: {m:.1f}" for f, m in [*r.rss_samples[::step], r.rss_samples[-1]])
+        out.append(f"  RSS (MB) by frames sent: {timeline}")
     out.append(
         f"  RSS max {_mb(r.rss_max)} MB; log {r.log_bytes / 1e6:.1f} MB, {r.log_lines:,} lines"
         + (f" ({r.log_path})" if r.log_path else "")
@@ -1790,6 +1818,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--server-args", default="", help="more robot-server arguments, e.g. '--byte-order auto'")
     p.add_argument("--log-dir", type=Path, help="where the server logs go (default: a temporary directory)")
     p.add_argument("--keep-logs", action="store_true", help="keep the logs also when nothing failed")
+    p.add_argument("--fatal-rate", type=float, default=1 / 1000, help="units that end a connection (default 0.001)")
     p.add_argument("--max-rss-growth", type=float, help="MB; a larger growth counts as a failure")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     return p
@@ -1817,6 +1846,7 @@ def options_from(args: argparse.Namespace) -> Options:
         server_args=tuple(shlex.split(args.server_args)),
         log_dir=args.log_dir,
         keep_logs=args.keep_logs,
+        fatal_rate=args.fatal_rate,
         quiet=args.quiet,
     )
 

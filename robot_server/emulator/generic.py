@@ -61,7 +61,7 @@ class GenericMotion:
         """A STOP acts the moment it is read, before the requests queued ahead of it."""
         if getattr(msg, "sequence", None) == SpecialSeq.STOP_TRAJECTORY:
             stop = self.cell.stop()
-            log.info("%s: STOP: decelerating for %.3f s", session.name, stop)
+            session.log(log, logging.INFO, "STOP: decelerating for %.3f s", stop)
 
     def on_point(self, msg: Message, session: Session) -> ReplyCode | Awaitable[ReplyCode] | None:
         is_request = msg.comm_type == CommType.SERVICE_REQUEST
@@ -74,9 +74,10 @@ class GenericMotion:
             controller = self.cell.group(group)
             sequence, point = point_from_message(msg, controller.dof)
             if not is_request and not controller.downloading and sequence != SpecialSeq.START_TRAJECTORY_DOWNLOAD:
-                log.warning(
-                    "%s: %s TOPIC with sequence %d outside a download (-1 ... -3) ignored",
-                    session.name,
+                session.log(
+                    log,
+                    logging.WARNING,
+                    "%s TOPIC with sequence %d outside a download (-1 ... -3) ignored",
                     msg.name,
                     sequence,
                 )
@@ -93,7 +94,7 @@ class GenericMotion:
 
     @staticmethod
     def _refused(msg: Message, session: Session, exc: PointRejected) -> ReplyCode | None:
-        log.warning("%s: %s %d refused: %s", session.name, msg.name, getattr(msg, "sequence", 0), exc)
+        session.log(log, logging.WARNING, "%s %d refused: %s", msg.name, getattr(msg, "sequence", 0), exc)
         return ReplyCode.FAILURE if msg.comm_type == CommType.SERVICE_REQUEST else None
 
     async def _when_room(self, group: int, sequence: int, point: Point, session: Session) -> ReplyCode:
@@ -103,14 +104,14 @@ class GenericMotion:
         while True:
             await cell.changed()
             if cell.interruptions != epoch:
-                log.warning("%s: point %d waited for room across a stop or fault: not run", session.name, sequence)
+                session.log(log, logging.WARNING, "point %d waited for room across a stop or fault: not run", sequence)
                 return ReplyCode.FAILURE
             try:
                 cell.submit(group, sequence, point)
             except PointRejected as exc:
                 if exc.reason is Reason.QUEUE_FULL:
                     continue
-                log.warning("%s: point %d refused: %s", session.name, sequence, exc)
+                session.log(log, logging.WARNING, "point %d refused: %s", sequence, exc)
                 return ReplyCode.FAILURE
             return ReplyCode.SUCCESS
 
@@ -127,7 +128,7 @@ class GenericState:
 
     def _subscribe(self, msg: Message, session: Session) -> None:
         if not session.data.get(_WANTS_FEEDBACK):
-            log.info("%s: JOINT_FEEDBACK requested", session.name)
+            session.log(log, logging.INFO, "JOINT_FEEDBACK requested")
         session.data[_WANTS_FEEDBACK] = True
 
     def publish(self, server: Server, sessions: Iterable[Session]) -> None:

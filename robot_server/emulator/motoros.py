@@ -200,7 +200,7 @@ class MotorosMotion:
         """The motion client went away (:class:`~.owner.MotionOwner` stopped the robot): MotoROS
         ends trajectory mode with the connection."""
         if self.traj_mode:
-            log.info("%s: the motion client left: trajectory mode off", session.name)
+            session.log(log, logging.INFO, "the motion client left: trajectory mode off")
         self.traj_mode = False
 
     # -- readiness ---------------------------------------------------------------------------------
@@ -270,13 +270,13 @@ class MotorosMotion:
             if not cell.drives_powered:
                 cell.drives_on()
             if not self.traj_mode:
-                log.info("%s: trajectory mode on", session.name)
+                session.log(log, logging.INFO, "trajectory mode on")
             self.traj_mode = True
             return MotoResult.SUCCESS, 0
         if command == MotoCommand.STOP_TRAJ_MODE:
             cell.stop()
             if self.traj_mode:
-                log.info("%s: trajectory mode off", session.name)
+                session.log(log, logging.INFO, "trajectory mode off")
             self.traj_mode = False
             return MotoResult.SUCCESS, 0
         if command == MotoCommand.DISCONNECT:
@@ -389,7 +389,7 @@ class MotorosMotion:
             else:
                 self.cell.submit_together(sequence, points)
         except PointRejected as exc:
-            log.warning("%s: point %d refused: %s", session.name, sequence, exc)
+            session.log(log, logging.WARNING, "point %d refused: %s", sequence, exc)
             raise _refusal(exc) from None
 
     # -- other motion-port messages ----------------------------------------------------------------
@@ -408,13 +408,13 @@ class MotorosMotion:
         for model in self.cell.models:
             rows = [joint.dh for joint in model.joints]
             if any(row is None for row in rows) or len(rows) > DH_AXES:
-                log.info("%s: GET_DH_PARAMETERS: model %s has no D-H table", session.name, model.name)
+                session.log(log, logging.INFO, "GET_DH_PARAMETERS: model %s has no D-H table", model.name)
                 return GetDhParametersReply(reply_code=ReplyCode.FAILURE)
             groups.append(tuple(DhLink(*row) for row in rows if row is not None))
         return GetDhParametersReply(tuple(groups))
 
     def on_unknown(self, msg: Message, session: Session) -> Message:
-        log.info("%s: unknown message type %d: INVALID/3003", session.name, msg.msg_type)
+        session.log(log, logging.INFO, "unknown message type %d: INVALID/3003", msg.msg_type)
         return MotoMotionReply(-1, -1, msg.msg_type, MotoResult.INVALID, InvalidSubcode.MSGTYPE)
 
     def on_malformed(self, error: MalformedMessage, session: Session) -> Message:
@@ -463,9 +463,9 @@ def malformed_motion_reply(error: MalformedMessage, session: Session) -> MotoMot
     the start of the next message: this emulator frames by the prefix."""
     msg_type = error.msg_type or 0
     if msg_type not in _SIZED:
-        log.info("%s: unknown message type %d: INVALID/3003", session.name, msg_type)
+        session.log(log, logging.INFO, "unknown message type %d: INVALID/3003", msg_type)
         return MotoMotionReply(-1, -1, msg_type, MotoResult.INVALID, InvalidSubcode.MSGTYPE)
-    log.info("%s: %s: INVALID/3001", session.name, error)
+    session.log(log, logging.INFO, "%s: INVALID/3001", error)
     echoed = _ECHOED.get(msg_type)  # type: ignore[call-overload]
     if echoed is None:
         return MotoMotionReply(-1, -1, msg_type, MotoResult.INVALID, InvalidSubcode.MSGSIZE)
@@ -490,7 +490,7 @@ def _ping(msg: Message, session: Session) -> Message:
 
 
 def _close(msg: Message, session: Session) -> None:
-    log.warning("%s: %s is not accepted on the motion port: closing, as MotoROS does", session.name, msg.name)
+    session.log(log, logging.WARNING, "%s is not accepted on the motion port: closing, as MotoROS does", msg.name)
     raise CloseConnection
 
 
@@ -541,17 +541,17 @@ class MotorosIo:
         else:  # pragma: no cover - only registered for the types above
             raise TypeError(msg.name)
         if code != IoResult.OK:
-            log.info("%s: %s: %s", session.name, msg.name, code.name)
+            session.log(log, logging.INFO, "%s: %s", msg.name, code.name)
         return reply
 
     def on_unknown(self, msg: Message, session: Session) -> Message:
         """``Ros_SimpleMsg_IoReply``: type 2002, but result and subcode at the start of the body."""
-        log.info("%s: unknown message type %d on the IO port: INVALID/3003", session.name, msg.msg_type)
+        session.log(log, logging.INFO, "unknown message type %d on the IO port: INVALID/3003", msg.msg_type)
         return _io_error(session, InvalidSubcode.MSGTYPE)
 
     def on_malformed(self, error: MalformedMessage, session: Session) -> Message:
         """A message whose size is not its type's: the same error reply, INVALID/3001."""
-        log.info("%s: %s on the IO port: INVALID/3001", session.name, error)
+        session.log(log, logging.INFO, "%s on the IO port: INVALID/3001", error)
         return _io_error(session, InvalidSubcode.MSGSIZE)
 
 
