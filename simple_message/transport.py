@@ -85,16 +85,22 @@ def take_over(
     ``connection_lost``).
     """
     reader, writer = streams
+    # asyncio has no public way to take what a StreamReader holds without awaiting: its buffer,
+    # end-of-input and pause flags are read directly. Should a Python release rename them, fail
+    # here, loudly, rather than drop the buffered bytes.
+    missing = [name for name in ("_buffer", "_eof", "_paused") if not hasattr(reader, name)]
+    if missing:  # pragma: no cover - a future CPython
+        raise RuntimeError(f"asyncio.StreamReader has no {', '.join(missing)}: take_over needs updating")
     transport = cast(asyncio.Transport, writer.transport)
     transport.set_protocol(protocol)
-    buffer: bytearray = getattr(reader, "_buffer", bytearray())
+    buffer: bytearray = getattr(reader, "_buffer")  # noqa: B009 - private, checked above
     data = bytes(buffer)
     buffer.clear()
     error = reader.exception()
     end: tuple[BaseException | None] | None = None
-    if error is not None or getattr(reader, "_eof", False):
+    if error is not None or getattr(reader, "_eof"):  # noqa: B009
         end = (error,)
-    if getattr(reader, "_paused", False) and not transport.is_closing():
+    if getattr(reader, "_paused") and not transport.is_closing():  # noqa: B009
         transport.resume_reading()  # the reader had paused it (its buffer was full)
     return transport, data, end, transport.is_closing()
 
