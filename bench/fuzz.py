@@ -2,29 +2,36 @@
 
 Plain script; prints one table and exits 1 if any failure count is non-zero::
 
-    python bench/fuzz.py                                    # both profiles, then the decoder
-    python bench/fuzz.py --profile generic --frames 1000000 --seconds 1800 --decoder-frames 1000000
+    python bench/fuzz.py            # both profiles, 1,000,000 frames each, then 1,000,000 through the decoder
+    python bench/fuzz.py --profile generic --frames 20000 --decoder-frames 20000   # a quick look
+    python bench/fuzz.py --server-args='--byte-order auto'          # more robot-server arguments
     python bench/fuzz.py --profile motoros --host 127.0.0.1 --motion-port 50240 --state-port 50241 \\
         --io-port 50242 --server-log server.log --server-pid 1234      # a server that is already running
 
 **The server run** (once per ``--profile``): ``robot-server`` is started as a child process on free
 loopback ports (``--motion-port 0`` ...: the server picks them, no race), its log (``--log-level
 INFO``) going to a file; or a running server is targeted (``--motion-port`` given; tracebacks are
-then counted only with ``--server-log``, RSS only with ``--server-pid``). Every port of the profile
-(motion, state, and io for motoros) is driven over ``--connections`` concurrent connections each
-(fewer where the profile only allows fewer: MotoROS has one motion client at a time, which a new
-one replaces, one IO client, and four state clients, one of them ours), until ``--frames`` frames
-are sent or ``--seconds`` have passed. Each connection writes batches of ``--batch`` frames at once
-(coalesced frames), sometimes split over several writes at random byte offsets, and reads whatever
-comes back. Meanwhile:
+then counted only with ``--server-log``, RSS only with ``--server-pid``, and the server's byte order
+and real size must be given: ``--byte-order``, ``--float64``). Every port of the profile (motion,
+state, and io for motoros) is driven over ``--connections`` concurrent connections each, fewer where
+the server takes fewer: the motion port has one client at a time on every profile (a newcomer
+replaces it while the robot is at rest), so it gets one connection with ``--connections`` times
+the window instead; MotoROS takes one IO client and four state clients (the monitor has one
+place, one is left free for reconnections: two fuzz). Until ``--frames`` frames are sent or
+``--seconds`` have passed, each connection writes batches of ``--batch`` frames at once (coalesced
+frames), one in 20 split over several writes at random byte offsets, and reads whatever comes back
+(in either byte order where the server detects it: until a connection's first frame is read, it
+gets the topics in the order of the last motion client). Meanwhile:
 
 * a **monitor** on the state port reads JOINT_POSITION (10), JOINT_FEEDBACK (15) and STATUS (13)
   with :mod:`struct` (not the project's decoder) from start to end: any joint position more than
   1e-6 rad away from the first one seen, or ``in_motion`` TRUE, counts as **motion**; a state
-  silence of more than 1 s counts as a **hang**;
+  silence of more than 1 s counts as a **hang**. It sends a PING every 2 s: a full server closes a
+  client that has been silent for 10 s to make room for a newcomer;
 * a **probe** opens a fresh connection to the motion port every ``--probe-interval`` seconds and
-  sends a PING, which must be answered within 1 s, else a **hang** (on MotoROS, where a new motion
-  client replaces the old one, the motion-port fuzzers wait while the probe runs);
+  sends a PING, which must be answered within 1 s, else a **hang** (a connection closed without the
+  answer counts too; the motion fuzzer does not reconnect while the probe runs, since a newcomer
+  replaces the motion client);
 * every fuzz connection's batches end with a PING *marker* (when the stream is at a frame
   boundary), at most ``--window`` markers unanswered per connection: flow control, and the count of
   frames the server confirmably processed. A connection that gets no answer for 10 s is a
@@ -33,7 +40,9 @@ comes back. Meanwhile:
   process exited (a **crash**); and afterwards, ``Traceback`` lines in its log, its size and lines
   per second. The last batches of every connection are kept: a traceback's log line names the
   connection (the client port), whose last frames are written to ``fuzz-<profile>-<port>.txt``
-  (``NAME HEX`` lines, readable by ``simple-message decode``).
+  (``NAME HEX`` lines, readable by ``simple-message decode``). The table is followed by details per
+  profile: frames per port, how many the server confirmably processed (before an answered marker),
+  connections and how they ended, probes, state messages, RSS over the run.
 
 **Frames.** From a corpus of the reference C++ library's vectors (``tests/data/vectors_*.txt``, both
 byte orders) and the FS100 capture, and frames built here from each known type's layout with
@@ -52,7 +61,11 @@ no frame the server can cut from what is sent may be a valid motion command. A p
 of the server's framing (:class:`Shadow`: the length prefix in the server's byte order, 12 to 64 KiB
 or the connection ends) cuts every batch exactly as the server will, and every frame it cuts,
 whatever mutation made it, is checked by :func:`unsafe_reason` before a byte is written; a frame
-that fails is not sent (counted as *rejected*). The check reads the frame with :mod:`struct` only,
+that fails is not sent (counted as *rejected*). After a length prefix the server must refuse, at
+most 8 more bytes follow (never a whole frame), and the connection is closed once the server has;
+when no unit may follow an incomplete frame (wrong length prefixes), the frame is completed with
+0x7F/0xFF bytes if that passes the check, else the connection is closed (*abandoned*): what the
+server holds then is never completed. The check reads the frame with :mod:`struct` only,
 not with the project's decoder, so that a bug shared by our decoder and our server cannot hide. It
 reads msg_type in both byte orders; for the motion types below it reads the body in that order under
 every layout with both real sizes (float32 and float64), at the start of the body *and* aligned to
@@ -91,6 +104,12 @@ chunks to :meth:`~simple_message.framing.FrameDecoder.feed_messages` (the Link's
 exception is a failure, reported with the reproducing bytes (hex); so is a decoded message that
 does not re-encode to its frame (except a float32 signalling NaN, which comes back quieted, as
 documented) and a ``feed_messages`` result that differs from ``feed`` + ``decode``.
+
+**Failures** (exit status 1): crashes (the server exited, or did not exit 0 within 30 s of SIGTERM),
+hangs (probes unanswered within 1 s, stalled connections, state silences over 1 s), tracebacks,
+motion, a monitor that saw no state at all, decoder failures, and with ``--max-rss-growth MB`` an
+RSS growth above it. The RSS growth includes the server's warm-up (its first 10 % of the frames
+or so, reported apart).
 
 Targets: at least 1,000,000 frames per profile with 0 crashes, 0 hangs, 0 tracebacks, 0 motion and
 an RSS growth of at most 5 MB; at least 1,000,000 frames through the decoder with documented errors
@@ -741,15 +760,18 @@ class DecoderReport:
     seconds: float = 0.0
     #: exceptions by "api: type" (documented ones included)
     exceptions: Counter[str] = field(default_factory=Counter)
-    #: undocumented exceptions, re-encode and path mismatches: (what, hex of the reproducing bytes)
-    failures: list[tuple[str, str]] = field(default_factory=list)
+    #: undocumented exceptions, re-encode and path mismatches, by kind: [count, an example's
+    #: message, the shortest reproducing bytes]
+    failures: dict[str, list[Any]] = field(default_factory=dict)
     failure_count: int = 0
     quieted_nans: int = 0  # float32 signalling NaNs that came back quieted (documented)
 
-    def fail(self, what: str, data: bytes) -> None:
+    def fail(self, kind: str, what: str, data: bytes) -> None:
         self.failure_count += 1
-        if len(self.failures) < 20:
-            self.failures.append((what, data.hex()))
+        entry = self.failures.setdefault(kind, [0, what, data])
+        entry[0] += 1
+        if len(data) < len(entry[2]):
+            entry[1], entry[2] = what, data
 
 
 def fuzz_decoder(frames: int, seed: int = 0, *, seconds: float | None = None, batch: int = 64) -> DecoderReport:
@@ -789,8 +811,9 @@ def fuzz_decoder(frames: int, seed: int = 0, *, seconds: float | None = None, ba
             try:
                 decoder.feed(chunk)
             except Exception as exc:
-                report.exceptions[f"feed: {type(exc).__name__}"] += 1
-                report.fail(f"FrameDecoder.feed raised {type(exc).__name__}: {exc}", stream)
+                kind = f"feed: {type(exc).__name__}"
+                report.exceptions[kind] += 1
+                report.fail(kind, f"FrameDecoder.feed raised {type(exc).__name__}: {exc}", stream)
                 dead = True
                 break
             while True:
@@ -801,8 +824,9 @@ def fuzz_decoder(frames: int, seed: int = 0, *, seconds: float | None = None, ba
                     dead = True
                     break
                 except Exception as exc:
-                    report.exceptions[f"next_frame: {type(exc).__name__}"] += 1
-                    report.fail(f"FrameDecoder.next_frame raised {type(exc).__name__}: {exc}", stream)
+                    kind = f"next_frame: {type(exc).__name__}"
+                    report.exceptions[kind] += 1
+                    report.fail(kind, f"FrameDecoder.next_frame raised {type(exc).__name__}: {exc}", stream)
                     dead = True
                     break
                 if frame is None:
@@ -826,8 +850,9 @@ def fuzz_decoder(frames: int, seed: int = 0, *, seconds: float | None = None, ba
                         plain.append(("malformed", exc.frame))
                     continue
                 except Exception as exc:
-                    report.exceptions[f"decode: {type(exc).__name__}"] += 1
-                    report.fail(f"decode(frame, {w}) raised {type(exc).__name__}: {exc}", frame)
+                    kind = f"decode: {type(exc).__name__}"
+                    report.exceptions[kind] += 1
+                    report.fail(kind, f"decode(frame, {w}) raised {type(exc).__name__}: {exc}", frame)
                     if r == real:
                         plain.append(("raised", frame))
                     continue
@@ -841,8 +866,9 @@ def fuzz_decoder(frames: int, seed: int = 0, *, seconds: float | None = None, ba
             try:
                 items = fast.feed_messages(chunk, wire)
             except Exception as exc:
-                report.exceptions[f"feed_messages: {type(exc).__name__}"] += 1
-                report.fail(f"FrameDecoder.feed_messages raised {type(exc).__name__}: {exc}", stream)
+                kind = f"feed_messages: {type(exc).__name__}"
+                report.exceptions[kind] += 1
+                report.fail(kind, f"FrameDecoder.feed_messages raised {type(exc).__name__}: {exc}", stream)
                 got = plain  # not compared again
                 break
             for item in items:
@@ -850,16 +876,16 @@ def fuzz_decoder(frames: int, seed: int = 0, *, seconds: float | None = None, ba
                     got.append(("malformed", item.frame))
                 elif isinstance(item, Message):
                     try:
-                        got.append(item.encode(fast_wire(fast, wire, wires)))
+                        got.append(item.encode(_fast_wire(fast, wire, wires)))
                     except Exception:
                         got.append(("unencodable", b""))
         if got is not plain and not _same_results(got, plain):
-            report.fail("feed_messages disagrees with feed + decode on this stream", stream)
+            report.fail("feed_messages != feed + decode", "feed_messages disagrees with feed + decode", stream)
     report.seconds = time.perf_counter() - start
     return report
 
 
-def fast_wire(decoder: Any, wire: Any, wires: dict[tuple[str, int], Any]) -> Any:
+def _fast_wire(decoder: Any, wire: Any, wires: dict[tuple[str, int], Any]) -> Any:
     """The wire feed_messages decoded in: ``wire``, in the detected byte order once detected."""
     from simple_message.wire import ByteOrder
 
@@ -887,13 +913,15 @@ def _reencode(report: DecoderReport, msg: Any, wire: Any, frame: bytes) -> bytes
     try:
         again: bytes = msg.encode(wire)
     except Exception as exc:
-        report.exceptions[f"encode: {type(exc).__name__}"] += 1
-        report.fail(f"a decoded {type(msg).__name__} does not encode in {wire}: {type(exc).__name__}: {exc}", frame)
+        kind = f"encode: {type(exc).__name__}"
+        report.exceptions[kind] += 1
+        report.fail(kind, f"a decoded {type(msg).__name__} does not encode in {wire}: {exc}", frame)
         return None
     if again != frame:
         quieted = _snan_only(frame, again) if wire.real_size == 4 else None
         if quieted is None:
-            report.fail(f"{type(msg).__name__} decoded in {wire} re-encodes to {again.hex()}", frame)
+            what = f"decoded in {wire}, re-encodes to {len(again)} bytes: {again.hex()[:96]}..."
+            report.fail(f"re-encode: {type(msg).__name__} differs", what, frame)
         else:
             report.quieted_nans += quieted
     return again
@@ -935,9 +963,9 @@ def _chunks(rng: random.Random, data: bytes) -> list[bytes]:
 
 #: fuzz connections per port where the server allows fewer than asked: one motion client at a time on
 #: every profile (a newcomer replaces it while the robot is at rest), MotoROS's one IO client and
-#: four state clients (the monitor takes one place)
+#: four state clients (the monitor takes one place, and one is left free for reconnections)
 PORT_CAPS = {"motion": 1}
-PROFILE_CAPS = {"motoros": {"state": 3, "io": 1}}
+PROFILE_CAPS = {"motoros": {"state": 2, "io": 1}}
 CONNECT_TIMEOUT = 5.0
 STALL_TIMEOUT = 10.0  # s without an answer to an outstanding marker: the connection is stalled
 CLOSE_TIMEOUT = 5.0  # s for the server to close a connection after a fatal length prefix
@@ -952,14 +980,16 @@ class Options:
     """Everything the command line sets (``main`` has the help)."""
 
     profiles: tuple[str, ...] = ("generic", "motoros")
-    frames: int = 100_000
-    seconds: float = 60.0
+    frames: int = 1_000_000
+    seconds: float = 300.0
     connections: int = 8
+    #: the motion port takes one client at a time (a newcomer replaces it): more is churn on purpose
+    motion_connections: int = 1
     seed: int = 0
     batch: int = 128
     window: int = 4
     probe_interval: float = 0.5
-    decoder_frames: int = 100_000
+    decoder_frames: int = 1_000_000
     host: str = "127.0.0.1"
     motion_port: int | None = None
     state_port: int | None = None
@@ -1064,11 +1094,21 @@ def rss_mb(pid: int) -> float | None:
     return None
 
 
-class _Sink(asyncio.Protocol):
-    """One fuzz connection's receiving side: frames the replies (struct) and counts PING replies."""
+def _alive(pid: int) -> bool:
+    return Path(f"/proc/{pid}").exists()
 
-    def __init__(self, order: str) -> None:
+
+class _Sink(asyncio.Protocol):
+    """One fuzz connection's receiving side: frames the replies (struct) and counts PING replies.
+
+    ``either``: frames may come in either byte order (an autodetecting server sends topics in the
+    order of the last motion client until this connection's first frame is read): each frame's
+    length prefix is read in ``order``, else in the other order when only that one is plausible.
+    """
+
+    def __init__(self, order: str, *, either: bool = False) -> None:
         self.order = order
+        self.either = either
         self.transport: asyncio.Transport | None = None
         self.rbuf = b""
         self.type1 = 0
@@ -1091,14 +1131,14 @@ class _Sink(asyncio.Protocol):
             return
         buf = self.rbuf + data if self.rbuf else data
         pos, end = 0, len(buf)
-        head = _INT[self.order] if self.order in "<>" else None
+        head = _INT2[self.order]
+        other = _INT2[">" if self.order == "<" else "<"]
         woke = False
         while end - pos >= 8:
-            if head is None:  # auto: the server answers in the order it detected
-                head = _detect(buf[pos:]) or _INT["<"]
-                self.order = "<" if head is _INT["<"] else ">"
-            length, msg_type = head.unpack_from(buf, pos)[0], head.unpack_from(buf, pos + 4)[0]
-            if not 12 <= length <= 1 << 20:
+            length, msg_type = head.unpack_from(buf, pos)
+            if not 12 <= length <= MAX_LENGTH and self.either:
+                length, msg_type = other.unpack_from(buf, pos)
+            if not 12 <= length <= MAX_LENGTH:
                 self.bad = True
                 break
             if pos + 4 + length > end:
@@ -1143,13 +1183,22 @@ class _Sink(asyncio.Protocol):
         return True
 
 
+async def _keepalive(writer: asyncio.StreamWriter, frame: bytes, stop: asyncio.Event) -> None:
+    while not stop.is_set() and not writer.is_closing():
+        writer.write(frame)
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(stop.wait(), 2.0)
+
+
 async def _connect(loop: asyncio.AbstractEventLoop, sink: _Sink, host: str, port: int) -> asyncio.Transport:
     transport, _ = await asyncio.wait_for(loop.create_connection(lambda: sink, host, port), CONNECT_TIMEOUT)
     return transport
 
 
 @dataclass
-class _Target:
+class Target:
+    """The server fuzzed: where, its byte order and real size, its process and log if known."""
+
     host: str
     ports: dict[str, int]
     order: str  # "<", ">", "auto"
@@ -1158,10 +1207,10 @@ class _Target:
     log: Path | None
 
 
-class _Run:
+class FuzzRun:
     """One profile's server run in progress."""
 
-    def __init__(self, options: Options, profile: str, target: _Target, report: ProfileReport) -> None:
+    def __init__(self, options: Options, profile: str, target: Target, report: ProfileReport) -> None:
         self.options = options
         self.profile = profile
         self.target = target
@@ -1170,13 +1219,15 @@ class _Run:
         self.stopping = asyncio.Event()
         self.state_tick = asyncio.Event()  # set by the monitor at each state message
         self.total = 0
-        self.gate = asyncio.Lock()  # MotoROS: the motion probe and the motion fuzzers take turns
+        #: the motion probe and the motion fuzzers take turns connecting (a newcomer replaces the client)
+        self.gate = asyncio.Lock()
         self.rings = report.rings
         self.sinks: set[_Sink] = set()
         self.closed_order: dict[str, deque[int]] = {}
         self.seed = random.Random(f"{options.seed}:{profile}")
         self.deadline = 0.0
         self.crashed: Callable[[], bool] = lambda: False
+        self.gone = False  # a running server's process ended (``--server-pid``)
 
     def stop(self) -> None:
         self.stopping.set()
@@ -1197,7 +1248,7 @@ class _Run:
             order = self.target.order
             if order == "auto":
                 order = rng.choice("<<>")  # the connection's first frame decides
-            sink = _Sink(self.target.order if self.target.order != "auto" else order)
+            sink = _Sink(order, either=self.target.order == "auto")
             try:
                 if use_gate:
                     async with self.gate:
@@ -1245,14 +1296,19 @@ class _Run:
         options = self.options
         rare = MOTOROS_CLOSING if self.profile == "motoros" and role == "motion" else frozenset()
         # the motion port has one client: it gets more batches in flight, for its share of the frames
-        window = options.window * (options.connections if role == "motion" else 1)
+        window = options.window * (max(1, options.connections // options.motion_connections) if role == "motion" else 1)
         gen = Generator(rng, order, self.target.real, self.corpus, fatal_rate=options.fatal_rate, rare_types=rare)
         shadow = Shadow(self.target.order if self.target.order == "auto" else order, rare=rare, rng=rng)
+        sent = 0
         if self.target.order == "auto":  # the first frame decides the connection's order: an honest one
             first = shadow.add(gen.well_formed())
             if first is not None:
                 transport.write(first)
-        sent = 0
+                ring.append([first])
+                sent = 1
+                stats.frames += 1
+                stats.bytes += len(first)
+                self.total += 1
         marker = ping_request(order)
         while not self.stopping.is_set():
             while (len(sink.outstanding) >= window or sink.paused) and not sink.closed:
@@ -1391,9 +1447,11 @@ class _Run:
             except (OSError, TimeoutError) as exc:
                 report.notes.append(f"monitor: cannot connect to the state port: {exc}")
                 return
+            order = "<" if self.target.order == "auto" else self.target.order
             if self.profile == "generic":  # ask for JOINT_FEEDBACK too (any JOINT_FEEDBACK frame)
-                order = "<" if self.target.order == "auto" else self.target.order
                 writer.write(frame_of(order, 15, 1, 0, struct.pack(f"{order}2i31{rc}", 0, 0, *[0.0] * 31)))
+            # a PING now and then: a full server closes a client silent for 10 s to make room
+            keepalive = asyncio.create_task(_keepalive(writer, ping_request(order), self.stopping))
             try:
                 while True:
                     prefix = await reader.readexactly(4)
@@ -1403,6 +1461,9 @@ class _Run:
                         break
                     rest = await reader.readexactly(head.unpack(prefix)[0])
                     order = "<" if head is _INT["<"] else ">"
+                    msg_type = _INT[order].unpack_from(rest, 0)[0]
+                    if msg_type not in (10, 13, 15, 2017):  # the keepalive's answers
+                        continue
                     now = time.monotonic()
                     gap = now - last
                     last = now
@@ -1412,7 +1473,6 @@ class _Run:
                         report.hangs += 1
                         report.notes.append(f"state port silent for {gap:.2f} s")
                     self.state_tick.set()
-                    msg_type = _INT[order].unpack_from(rest, 0)[0]
                     body = rest[12:]
                     key: tuple[int, int] | None = None
                     values: tuple[float, ...] = ()
@@ -1439,6 +1499,7 @@ class _Run:
             except (OSError, asyncio.IncompleteReadError):
                 pass
             finally:
+                keepalive.cancel()
                 writer.close()
             if self.stopping.is_set() or self.crashed():
                 return
@@ -1467,6 +1528,12 @@ class _Run:
             if rss is not None:
                 self.report.rss_max = max(self.report.rss_max or 0.0, rss)
                 self.report.rss_samples.append((self.total, rss))
+            elif self.options.external and not _alive(pid):  # a running server's end
+                self.report.crashes += 1
+                self.report.notes.append(f"the server (pid {pid}) is gone")
+                self.gone = True
+                self.stop()
+                return
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self.stopping.wait(), self.options.probe_interval)
 
@@ -1486,7 +1553,9 @@ class _Run:
             )
 
 
-async def _start_server(profile: str, options: Options, log_path: Path) -> tuple[asyncio.subprocess.Process, _Target]:
+async def start_server(profile: str, options: Options, log_path: Path) -> tuple[asyncio.subprocess.Process, Target]:
+    """``robot-server`` for ``profile`` on free loopback ports, logging (INFO) to ``log_path``, and
+    ready (its ready line read: ports, byte order, real size); ``options.server_args`` appended."""
     exe = Path(sys.executable).with_name("robot-server")
     command = [str(exe)] if exe.exists() else [sys.executable, "-m", "robot_server"]
     command += ["--profile", profile, "--host", "127.0.0.1", "--motion-port", "0", "--state-port", "0"]
@@ -1506,11 +1575,11 @@ async def _start_server(profile: str, options: Options, log_path: Path) -> tuple
         with contextlib.suppress(ProcessLookupError):
             proc.kill()
         await asyncio.wait_for(proc.wait(), 20.0)
-        raise RuntimeError(f"robot-server did not start: {line!r} {_tail(log_path)}")
+        raise RuntimeError(f"robot-server did not start ({line.strip() or 'no ready line'}): {_tail(log_path).strip()}")
     ports = {name: int(port) for name, port in re.findall(r"(motion|state|io) 127\.0\.0\.1:(\d+)", line)}
     order = "auto" if "auto-detected" in line else ">" if "big-endian" in line else "<"
     real = 8 if "float64" in line else 4
-    return proc, _Target("127.0.0.1", ports, order, real, proc.pid, log_path)
+    return proc, Target("127.0.0.1", ports, order, real, proc.pid, log_path)
 
 
 def _tail(path: Path, size: int = 2000) -> str:
@@ -1536,7 +1605,7 @@ async def fuzz_server(profile: str, options: Options) -> ProfileReport:
     if options.external:
         ports = {"motion": options.motion_port, "state": options.state_port, "io": options.io_port}
         order = {"little": "<", "big": ">", "auto": "auto"}[options.byte_order]
-        target = _Target(
+        target = Target(
             options.host,
             {k: v for k, v in ports.items() if v is not None},
             order,
@@ -1551,7 +1620,12 @@ async def fuzz_server(profile: str, options: Options) -> ProfileReport:
         else:
             log_dir = options.log_dir
             log_dir.mkdir(parents=True, exist_ok=True)
-        proc, target = await _start_server(profile, options, log_dir / f"robot-server-{profile}.log")
+        try:
+            proc, target = await start_server(profile, options, log_dir / f"robot-server-{profile}.log")
+        except BaseException:
+            if tmp is not None:
+                tmp.cleanup()
+            raise
     report.log_path = target.log
     log_offset = target.log.stat().st_size if target.log is not None and options.external else 0
     try:
@@ -1582,18 +1656,18 @@ async def fuzz_server(profile: str, options: Options) -> ProfileReport:
 
 
 async def _fuzz(
-    profile: str, options: Options, target: _Target, report: ProfileReport, proc: asyncio.subprocess.Process | None
+    profile: str, options: Options, target: Target, report: ProfileReport, proc: asyncio.subprocess.Process | None
 ) -> None:
-    run = _Run(options, profile, target, report)
+    run = FuzzRun(options, profile, target, report)
     roles = [r for r in ("motion", "state", "io") if r in target.ports]
-    caps = {**PORT_CAPS, **PROFILE_CAPS.get(profile, {})}
+    caps = {**PORT_CAPS, **PROFILE_CAPS.get(profile, {}), "motion": options.motion_connections}
     for role in roles:
         report.ports[role] = PortStats()
 
     crashed = False
 
     def is_crashed() -> bool:
-        return crashed or (proc is not None and proc.returncode is not None)
+        return crashed or run.gone or (proc is not None and proc.returncode is not None)
 
     run.crashed = is_crashed
     tasks: list[asyncio.Task[None]] = []
@@ -1759,6 +1833,9 @@ def details(r: ProfileReport) -> str:
         step = max(1, len(r.rss_samples) // 8)
         timeline = ", ".join(f"{f / 1000:,.0f}k: {m:.1f}" for f, m in [*r.rss_samples[::step], r.rss_samples[-1]])
         out.append(f"  RSS (MB) by frames sent: {timeline}")
+        warm = next((m for f, m in r.rss_samples if f >= r.frames // 10), None)
+        if warm is not None and r.rss_after is not None:
+            out.append(f"  RSS growth after the first 10 % of the frames (warm-up): {r.rss_after - warm:+.1f} MB")
     out.append(
         f"  RSS max {_mb(r.rss_max)} MB; log {r.log_bytes / 1e6:.1f} MB, {r.log_lines:,} lines"
         + (f" ({r.log_path})" if r.log_path else "")
@@ -1782,8 +1859,8 @@ def decoder_details(d: DecoderReport) -> str:
         f"({d.frames / max(d.seconds, 1e-9):,.0f} frames/s); {d.quieted_nans:,} float32 signalling NaNs quieted "
         "(documented)"
     ]
-    for what, data in d.failures:
-        out.append(f"  FAILURE: {what}\n    bytes: {data}")
+    for kind, (count, what, data) in sorted(d.failures.items()):
+        out.append(f"  FAILURE {kind}: {count:,} times; the shortest: {what}\n    bytes ({len(data)}): {data.hex()}")
     return "\n".join(out)
 
 
@@ -1795,17 +1872,25 @@ def parser() -> argparse.ArgumentParser:
         prog="bench/fuzz.py",
         description="Fuzz robot-server (every port of each profile) and the sans-I/O decoder with random and "
         "mutated frames that are never valid motion commands; prints a table, exits 1 on any failure.",
-        epilog="See the module docstring (python -c 'import bench.fuzz' or the file) for the rules.",
+        epilog="What is sent (never a valid motion command), what is measured and what counts as a failure: "
+        "the docstring at the top of bench/fuzz.py.",
     )
     p.add_argument("--profile", nargs="+", default=["generic", "motoros"], help="default: generic motoros")
-    p.add_argument("--frames", type=int, default=100_000, help="frames per profile (default %(default)s)")
-    p.add_argument("--seconds", type=float, default=60.0, help="time limit per profile (default %(default)s)")
+    p.add_argument("--frames", type=int, default=1_000_000, help="frames per profile (default %(default)s)")
+    p.add_argument("--seconds", type=float, default=300.0, help="time limit per profile (default %(default)s)")
     p.add_argument("--connections", type=int, default=8, help="concurrent connections per port (default 8)")
+    p.add_argument(
+        "--motion-connections",
+        type=int,
+        default=1,
+        help="motion-port connections (default 1: the server takes one motion client at a time, a newcomer "
+        "replaces it; more fuzzes that churn)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--batch", type=int, default=128, help="frames per write (default %(default)s)")
     p.add_argument("--window", type=int, default=4, help="unanswered batches per connection (default 4)")
     p.add_argument("--probe-interval", type=float, default=0.5, metavar="S", help="PING probe period (default 0.5)")
-    p.add_argument("--decoder-frames", type=int, default=100_000, help="0: no decoder run (default %(default)s)")
+    p.add_argument("--decoder-frames", type=int, default=1_000_000, help="0: no decoder run (default %(default)s)")
     p.add_argument("--decoder-seconds", type=float, default=None, help="time limit of the decoder run")
     p.add_argument("--host", default="127.0.0.1", help="a running server's address (default 127.0.0.1)")
     p.add_argument("--motion-port", type=int, help="target a running server (one --profile)")
@@ -1815,7 +1900,12 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--server-pid", type=int, help="a running server's process id (for RSS and crashes)")
     p.add_argument("--byte-order", choices=("little", "big", "auto"), default="little", help="a running server's")
     p.add_argument("--float64", action="store_true", help="a running server's reals are float64")
-    p.add_argument("--server-args", default="", help="more robot-server arguments, e.g. '--byte-order auto'")
+    p.add_argument(
+        "--server-args",
+        default="",
+        metavar="ARGS",
+        help="more robot-server arguments, e.g. --server-args='--byte-order auto' or --server-args=--float64",
+    )
     p.add_argument("--log-dir", type=Path, help="where the server logs go (default: a temporary directory)")
     p.add_argument("--keep-logs", action="store_true", help="keep the logs also when nothing failed")
     p.add_argument("--fatal-rate", type=float, default=1 / 1000, help="units that end a connection (default 0.001)")
@@ -1830,6 +1920,7 @@ def options_from(args: argparse.Namespace) -> Options:
         frames=args.frames,
         seconds=args.seconds,
         connections=max(1, args.connections),
+        motion_connections=max(1, args.motion_connections),
         seed=args.seed,
         batch=max(1, args.batch),
         window=max(1, args.window),
@@ -1881,6 +1972,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except (RuntimeError, OSError) as exc:  # robot-server did not start, a port is not there...
+        print(f"bench/fuzz.py: {exc}", file=sys.stderr)
+        return 2
     machine = importlib.import_module("codec").machine  # the benchmarks' machine line (bench/codec.py)
     print(f"# {machine()}; seed {options.seed}")
     print()

@@ -193,8 +193,9 @@ class RobotDriver:
     async def connect(self, timeout: float = 10.0) -> RobotDriver:
         """Connect both ports and wait for the first joint state."""
         try:
-            # the dialect's state topics, and JOINT_FEEDBACK, which a generic peer may send as well
-            topics = {*self.dialect.state_topics, MsgType.JOINT_FEEDBACK}
+            # whatever joint-state topic the peer sends (its dialect's state_topics, or another: a
+            # generic peer may send JOINT_FEEDBACK, a MotoROS look-alike JOINT_POSITION)
+            topics = {*self.dialect.state_topics, MsgType.JOINT_POSITION, MsgType.JOINT_FEEDBACK, MsgType.STATUS}
             subscription = self.state.subscribe(64, topics)
             await self.motion.start(timeout)
             if self.state is not self.motion:

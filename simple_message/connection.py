@@ -392,6 +392,9 @@ class Connection(asyncio.Protocol):
 
     def _partial_expired(self) -> None:
         self._partial_timer = None
+        if self._blocked or not self._reading:  # we stopped reading it: the peer is not to blame
+            self._watch_partial()
+            return
         buffered = self.link.buffered
         if buffered and self.frame_timeout is not None and self.state is not ConnectionState.CLOSED:
             self.abort(IncompleteFrame(buffered, self.frame_timeout))

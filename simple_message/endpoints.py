@@ -191,12 +191,13 @@ class Server:
         answer_topics: bool = False,
         socket_send_buffer: int | None = None,
         frame_timeout: float | None = DEFAULT_FRAME_TIMEOUT,
-        idle_after: float = DEFAULT_IDLE_AFTER,
+        idle_after: float | None = DEFAULT_IDLE_AFTER,
     ) -> None:
         self.wire = wire
         #: a connection that begins a frame and sends nothing more for this long (s) is closed
         self.frame_timeout = frame_timeout
-        #: a full server may close a connection silent this long (s) to serve a newcomer
+        #: a full server may close a connection silent this long (s) to serve a newcomer (``None``:
+        #: never for silence: a state port, whose clients only listen)
         self.idle_after = idle_after
         #: SO_SNDBUF for accepted sockets (``None``: the kernel's autotuning, up to megabytes).
         #: A small value makes a stalled peer show up in our own bounded buffer sooner.
@@ -263,7 +264,8 @@ class Server:
         if self.socket_send_buffer is not None and sock is not None:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.socket_send_buffer)
         peer = transport.get_extra_info("peername")
-        if self._closing or (len(self.sessions) >= self.max_connections and not self._make_room(peer)):
+        live = sum(1 for s in self.sessions if not s.connection.closed)  # not those closing meanwhile
+        if self._closing or (live >= self.max_connections and not self._make_room(peer)):
             self.refused += 1
             self._log_budget.log(
                 log, logging.WARNING, "refused %s: %d connections is the limit", peer, self.max_connections
@@ -279,10 +281,9 @@ class Server:
     def _make_room(self, newcomer: object) -> bool:
         """The server is full and ``newcomer`` knocks: close the connection least likely to be a
         live client, if there is one, so idle sockets can never lock real clients out. In order:
-        one holding an incomplete frame; one whose peer does not read what it is sent; one that
-        has sent nothing for ``idle_after`` s (the longest silent). A state-port client that only
-        listens is silent too: it is closed only when the port is full and no worse candidate
-        exists. Returns whether room was made."""
+        one holding an incomplete frame; one whose peer does not read what it is sent; unless
+        ``idle_after`` is ``None`` (a port whose clients only listen, such as a state port), the
+        one silent longest, if for at least ``idle_after`` s. Returns whether room was made."""
         now = time.monotonic()
         candidates = [s for s in self.sessions if not s.connection.closed and s.connection.is_socket]
         victim: Session | None = None
@@ -290,18 +291,19 @@ class Server:
         partial = [s for s in candidates if s.connection.link.buffered]
         if partial:
             victim = min(partial, key=lambda s: s.connection.last_input)
-            reason = "holds an incomplete frame"
+            reason = "held an incomplete frame"
         if victim is None:
             deaf = [(s.connection.unread_bytes(), s) for s in candidates]
             deaf = [(n, s) for n, s in deaf if n >= _DEAF_BYTES]
             if deaf:
                 unread, victim = max(deaf, key=lambda pair: pair[0])
-                reason = f"does not read ({unread} bytes unread)"
-        if victim is None:
-            silent = [s for s in candidates if now - s.connection.last_input >= self.idle_after]
+                reason = f"did not read ({unread} bytes unread)"
+        idle_after = self.idle_after
+        if victim is None and idle_after is not None:
+            silent = [s for s in candidates if now - s.connection.last_input >= idle_after]
             if silent:
                 victim = min(silent, key=lambda s: s.connection.last_input)
-                reason = f"silent for {now - victim.connection.last_input:.0f} s"
+                reason = f"was silent for {now - victim.connection.last_input:.0f} s"
         if victim is None:
             return False
         self.evicted += 1

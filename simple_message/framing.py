@@ -34,7 +34,7 @@ from .errors import FrameError, MalformedMessage
 from .messages import Message, decode, fast_decoders
 from .wire import DEFAULT_FORMAT, ByteOrder, WireFormat
 
-__all__ = ["FrameDecoder", "DEFAULT_MAX_LENGTH", "detect_byte_order"]
+__all__ = ["FrameDecoder", "DEFAULT_MAX_LENGTH", "detect_byte_order", "decode_or_error"]
 
 #: Default largest accepted length prefix (header + body), in bytes.
 DEFAULT_MAX_LENGTH = 64 * 1024
@@ -228,7 +228,7 @@ class FrameDecoder:
                     frame = buf[pos:stop]
                     item: Message | MalformedMessage | None = small.get(frame)
                     if item is None:
-                        item = _decode(frame, wire)
+                        item = decode_or_error(frame, wire)
                         if isinstance(item, Message) and len(small) < _SMALL_FRAMES:
                             small[frame] = item
                     append(item)
@@ -239,7 +239,7 @@ class FrameDecoder:
                     # this frame and the ones after it with the same header, straight from buf
                     pos = codec.unpack_run(buf, pos, end, comm, reply, append)
                 else:  # any other shape of the type, an unknown type, a malformed body
-                    append(_decode(buf[pos:stop], wire))
+                    append(decode_or_error(buf[pos:stop], wire))
                     pos = stop
             if end - pos >= LENGTH_SIZE:
                 (length,) = prefix.unpack_from(buf, pos)
@@ -276,7 +276,7 @@ class FrameDecoder:
     def _take_frames(self, out: list[Message | MalformedMessage]) -> None:
         """Decode the frames queued by :meth:`feed` into ``out`` (for :meth:`feed_messages`)."""
         wire = self._wire
-        out.extend(_decode(frame, wire) for frame in self._frames)
+        out.extend(decode_or_error(frame, wire) for frame in self._frames)
         self.frames_decoded += len(self._frames)
         self._frames.clear()
 
@@ -304,11 +304,14 @@ class FrameDecoder:
             raise self._error
 
 
-def _decode(frame: bytes, wire: WireFormat) -> Message | MalformedMessage:
+def decode_or_error(frame: bytes, wire: WireFormat) -> Message | MalformedMessage:
+    """The message of one whole frame, or the :class:`~.errors.MalformedMessage` its body is
+    (returned, without the traceback: a peer's garbage is data here, and an error that keeps its
+    frames alive keeps a reference cycle alive until the garbage collector runs)."""
     try:
         return decode(frame, wire)
     except MalformedMessage as exc:
-        return exc
+        return exc.with_traceback(None)
 
 
 def _length_problem(length: int, max_length: int) -> str:

@@ -31,8 +31,8 @@ from dataclasses import dataclass
 from .constants import CommType
 from .dialects import any_dialect_answers
 from .errors import FrameError, LocalProtocolError, MalformedMessage
-from .framing import DEFAULT_MAX_LENGTH, FrameDecoder
-from .messages import MESSAGE_CLASSES, HeaderOnly, Message, decode, encode, type_name
+from .framing import DEFAULT_MAX_LENGTH, FrameDecoder, decode_or_error
+from .messages import MESSAGE_CLASSES, HeaderOnly, Message, encode, type_name
 from .wire import DEFAULT_FORMAT, WireFormat
 
 __all__ = [
@@ -53,6 +53,9 @@ __all__ = [
 
 #: Whether a reply (a decoded SERVICE_REPLY) can be the answer to a request of a message type.
 ReplyRule = Callable[[int, Message], bool]
+
+#: bytes decoded at a time (at most 1,024 messages: a link never holds more decoded at once)
+DECODE_SLICE = 16 * 1024
 
 _SERVICE_REPLY = int(CommType.SERVICE_REPLY)
 _COMM_TYPES = frozenset(int(c) for c in CommType)
@@ -171,6 +174,11 @@ class Link:
         self._pending: deque[Request] = deque()
         self._events: deque[Event] = deque()
         self._ended = False
+        #: bytes received and not decoded yet (decoded a slice at a time, as events are taken)
+        self._backlog = b""
+        self._backlog_pos = 0
+        #: the input ended behind the backlog
+        self._end_after = False
         #: Called with each complete frame received, before it is decoded (frame logs, captures).
         self.on_frame: Callable[[bytes], None] | None = None
 
@@ -188,8 +196,9 @@ class Link:
 
     @property
     def buffered(self) -> int:
-        """Bytes of an incomplete frame received so far (0 between frames)."""
-        return self._decoder.buffered
+        """Bytes of an incomplete frame received so far (0 between frames, and while received bytes
+        wait to be decoded: the peer is then ahead of us, not behind)."""
+        return 0 if self._backlog else self._decoder.buffered
 
     @property
     def pending_requests(self) -> int:
@@ -220,6 +229,7 @@ class Link:
     def close(self) -> list[Request]:
         """End the link: the requests that were still waiting (not abandoned), oldest first."""
         self._ended = True
+        self._backlog, self._backlog_pos = b"", 0
         waiting = [r for r in self._pending if not r.abandoned]
         self._pending.clear()
         return waiting
@@ -232,32 +242,69 @@ class Link:
             if data:
                 raise LocalProtocolError("data received after the link ended")
             return
+        if self._end_after:
+            if data:
+                raise LocalProtocolError("data received after the end of the stream")
+            return
         if not data:
-            self._end(None)
+            if self._backlog:
+                self._end_after = True  # once the backlog is decoded
+            else:
+                self._end(None)
+            return
+        if self.on_frame is None:
+            # Kept as bytes and decoded a slice at a time as the events are taken (next_event):
+            # what a link holds decoded is bounded by one slice, however much arrived at once.
+            if self._backlog:
+                self._backlog = self._backlog[self._backlog_pos :] + data
+            else:
+                self._backlog = bytes(data)
+            self._backlog_pos = 0
+            if not self._events:
+                self._decode_slice()
             return
         decoder = self._decoder
         on_frame = self.on_frame
-        if on_frame is None:
-            # Cut and decode in one pass (a frame of a fixed layout is decoded straight from the
-            # bytes), in the order detected from the peer's first frame if this link detects.
-            for msg in decoder.feed_messages(data, self.wire):
-                self._message(msg)
-            self._detected_order()
-            if decoder.failed:
-                self._end(decoder.error)
-            return
         decoder.feed(data)  # each frame is wanted as bytes too (logs, captures)
         self._detected_order()
         try:
             for frame in decoder:
                 on_frame(frame)
-                self._message(_decode(frame, self.wire))
+                self._message(decode_or_error(frame, self.wire))
         except FrameError as exc:
             self._end(exc)
 
     def next_event(self) -> Event | NeedData:
         """The next thing that happened, or :data:`NEED_DATA`."""
-        return self._events.popleft() if self._events else NEED_DATA
+        events = self._events
+        while not events:
+            if not self._decode_slice():
+                return NEED_DATA
+        return events.popleft()
+
+    def _decode_slice(self) -> bool:
+        """Cut and decode the next slice of the backlog (frames of a fixed layout straight from the
+        bytes, in the order detected from the peer's first frame if this link detects); returns
+        whether there was one."""
+        backlog, pos = self._backlog, self._backlog_pos
+        if not backlog:
+            return False
+        stop = pos + DECODE_SLICE
+        chunk = backlog if pos == 0 and stop >= len(backlog) else backlog[pos:stop]
+        if stop >= len(backlog):
+            self._backlog, self._backlog_pos = b"", 0
+        else:
+            self._backlog_pos = stop
+        decoder = self._decoder
+        for msg in decoder.feed_messages(chunk, self.wire):
+            self._message(msg)
+        self._detected_order()
+        if decoder.failed:
+            self._backlog, self._backlog_pos = b"", 0
+            self._end(decoder.error)
+        elif self._end_after and not self._backlog:
+            self._end(None)
+        return True
 
     def _detected_order(self) -> None:
         """Speak the byte order detected from the peer's first frame (a link that detects)."""
@@ -312,8 +359,3 @@ def _bodiless(msg: Message, wire: WireFormat) -> MalformedMessage:
     )
 
 
-def _decode(frame: bytes, wire: WireFormat) -> Message | MalformedMessage:
-    try:
-        return decode(frame, wire)
-    except MalformedMessage as exc:
-        return exc

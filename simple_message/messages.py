@@ -1078,9 +1078,13 @@ DH_AXES = 8
 @dataclass(frozen=True, slots=True)
 class GetDhParametersReply(Message):
     """GET_DH_PARAMETERS (2020) reply: 4 groups x 8 axes x (theta, d, a, alpha) reals (missing groups
-    and axes are zero; a group of more than :data:`DH_AXES` axes is an error)."""
+    and axes are zero; a group of more than ``axes`` axes is an error). MotoROS sends 8 axes per
+    group (``MAX_PULSE_AXES``, unverified); a reply with fewer per group decodes with ``axes`` set
+    to their number, so it re-encodes to the same bytes."""
 
     groups: tuple[tuple[DhLink, ...], ...] = ()
+    #: axes per group on the wire (1..8)
+    axes: int = field(default=DH_AXES, kw_only=True)
     comm_type: int = field(default=CommType.SERVICE_REPLY, kw_only=True)
     reply_code: int = field(default=ReplyCode.SUCCESS, kw_only=True)
     MSG_TYPE: ClassVar[int] = MsgType.GET_DH_PARAMETERS
@@ -1095,10 +1099,13 @@ class GetDhParametersReply(Message):
         )
         if len(groups) > MOTO_MAX_GROUPS:
             raise LocalProtocolError(f"at most {MOTO_MAX_GROUPS} groups, not {len(groups)}")
-        if any(len(g) > DH_AXES for g in groups):
-            raise LocalProtocolError(f"at most {DH_AXES} axes per group, not {max(len(g) for g in groups)}")
-        padded = tuple(g + (DhLink(),) * (DH_AXES - len(g)) for g in groups)
-        padded += ((DhLink(),) * DH_AXES,) * (MOTO_MAX_GROUPS - len(padded))
+        axes = self.axes
+        if not 1 <= axes <= DH_AXES:
+            raise LocalProtocolError(f"a GET_DH_PARAMETERS reply has 1 to {DH_AXES} axes per group, not {axes}")
+        if any(len(g) > axes for g in groups):
+            raise LocalProtocolError(f"at most {axes} axes per group, not {max(len(g) for g in groups)}")
+        padded = tuple(g + (DhLink(),) * (axes - len(g)) for g in groups)
+        padded += ((DhLink(),) * axes,) * (MOTO_MAX_GROUPS - len(padded))
         object.__setattr__(self, "groups", padded)
 
     def _encode_body(self, wire: WireFormat) -> bytes:
@@ -1115,7 +1122,7 @@ class GetDhParametersReply(Message):
             tuple(DhLink(*s.unpack_from(body, (g * axes + k) * s.size)) for k in range(axes))
             for g in range(MOTO_MAX_GROUPS)
         )
-        return cls(groups, comm_type=comm_type, reply_code=reply_code)
+        return cls(groups, axes=axes, comm_type=comm_type, reply_code=reply_code)
 
 
 # ---------------------------------------------------------------------------------------------

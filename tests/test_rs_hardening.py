@@ -398,3 +398,20 @@ async def test_a_hundred_clients_each_pinging_a_hundred_times_are_all_answered()
         assert all(raw == LE["PING_REPLY_SUCCESS"] for replies in answers for raw in replies)
         assert sum(len(replies) for replies in answers) == 10_000
         assert emu.state_server.refused == 0 and emu.state_server.evicted == 0
+
+
+async def test_state_clients_are_never_closed_for_listening_and_motoros_frees_a_closed_slot_at_once() -> None:
+    async with stepped_emulator(profile="motoros") as (emu, _clock):
+        assert emu.state_server.idle_after is None  # state clients only listen
+        assert emu.motion_server.idle_after is not None and emu.io_server is not None
+        assert emu.io_server.idle_after is not None
+        status_topic = bytes.fromhex("280000000d00000001000000" + "00" * 4 + "00" * 28)
+        for _ in range(50):  # a client closed by the server frees its place before the next connects
+            a = await RawPeer.connect(emu.ports["motion"])
+            await a.send(status_topic)  # not accepted on MotoROS's motion port: closed
+            assert await a.closed()
+            b = await RawPeer.connect(emu.ports["motion"])
+            assert (await b.request(PING)).raw == LE["PING_REPLY_SUCCESS"]
+            await a.close()
+            await b.close()
+        assert emu.motion_server.refused == 0

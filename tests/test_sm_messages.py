@@ -212,12 +212,18 @@ def test_select_tool_and_dh_parameters() -> None:
     assert len(dh.encode(LE32)) == 16 + 512
     assert len(dh.encode(LE64)) == 16 + 1024
     assert decode(dh.encode(LE32), LE32) == dh
-    # a shorter body from another peer decodes (padded); more than 8 axes is refused both ways
+    # a shorter body from another peer decodes with its axes per group, and re-encodes exactly;
+    # more than 8 axes is refused both ways
     body = b"".join(LE32.struct("rrrr").pack(1.0, 2.0, 3.0, 4.0) for _ in range(4 * 6))
     frame = LE32.struct("iiii").pack(12 + len(body), 2020, 3, 1) + body
     back = decode(frame, LE32)
     assert isinstance(back, GetDhParametersReply) and back.groups[3][5] == DhLink(1.0, 2.0, 3.0, 4.0)
-    assert back.groups[3][6] == DhLink()
+    assert back.axes == 6 and len(back.groups[3]) == 6 and back.encode(LE32) == frame
+    assert GetDhParametersReply([[DhLink()]], axes=6).encode(LE32) == LE32.struct("iiii").pack(396, 2020, 3, 1) + bytes(
+        384
+    )
+    with pytest.raises(LocalProtocolError):
+        GetDhParametersReply([[DhLink()] * 7], axes=6)
     with pytest.raises(LocalProtocolError):
         GetDhParametersReply([[DhLink()] * 9])
 

@@ -612,7 +612,7 @@ MOTOROS_PROFILE = register_profile(
         ports={
             # one motion client, plus the newcomer that replaces it
             "motion": PortRules(max_connections=2, answer_topics=True),
-            "state": PortRules(max_connections=4),
+            "state": PortRules(max_connections=4, listen_only=True),
             "io": PortRules(max_connections=1, answer_topics=True),
         },
         start_tolerance=MOTOROS_START_TOLERANCE,

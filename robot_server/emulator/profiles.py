@@ -53,6 +53,8 @@ class PortRules:
     #: TOPICs of a type it does not handle go to the unknown-request handler too (MotoROS answers
     #: every message that is not a reply)
     answer_topics: bool = False
+    #: its clients only listen (a state port): a full port never closes one for being silent
+    listen_only: bool = False
 
 
 @dataclass(frozen=True)
@@ -84,7 +86,9 @@ class EmulatorProfile:
     dialect: Dialect
     build: Callable[[ProfileContext], Behaviour]
     #: the ports served, by role (``motion``, ``state``, ``io``), with the controller's rules
-    ports: Mapping[str, PortRules] = field(default_factory=lambda: {"motion": PortRules(), "state": PortRules()})
+    ports: Mapping[str, PortRules] = field(
+        default_factory=lambda: {"motion": PortRules(), "state": PortRules(listen_only=True)}
+    )
     #: how far (rad) a trajectory's first point may be from where the robot is (``None``: the
     #: controller's default)
     start_tolerance: float | None = None

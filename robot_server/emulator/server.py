@@ -29,7 +29,7 @@ from typing import Literal
 
 from simple_message.constants import MAX_JOINTS
 from simple_message.dialects import ReplyStyle, reply_style_of
-from simple_message.endpoints import Server, Session
+from simple_message.endpoints import DEFAULT_IDLE_AFTER, Server, Session
 from simple_message.wire import ByteOrder, WireFormat
 
 from ..control import (
@@ -265,6 +265,7 @@ class Emulator:
                 max_connections=config.max_connections if rules.max_connections is None else rules.max_connections,
                 answer_topics=rules.answer_topics,
                 frame_timeout=config.frame_timeout,
+                idle_after=None if rules.listen_only else DEFAULT_IDLE_AFTER,
             )
         self.motion_server = self.servers["motion"]
         # a profile without a state port still has one server for the serial link's state topics
