@@ -26,8 +26,8 @@ gets the topics in the order of the last motion client). Meanwhile:
 * a **monitor** on the state port reads JOINT_POSITION (10), JOINT_FEEDBACK (15) and STATUS (13)
   with :mod:`struct` (not the project's decoder) from start to end: any joint position more than
   1e-6 rad away from the first one seen, or ``in_motion`` TRUE, counts as **motion**; a state
-  silence of more than 1 s counts as a **hang**. It sends a PING every 2 s: a full server closes a
-  client that has been silent for 10 s to make room for a newcomer;
+  silence of more than 1 s counts as a **hang**. It sends a PING every 2 s (harmless: a state port
+  never closes a client for being silent, but a server with other rules may);
 * a **probe** opens a fresh connection to the motion port every ``--probe-interval`` seconds and
   sends a PING, which must be answered within 1 s, else a **hang** (a connection closed without the
   answer counts too; the motion fuzzer does not reconnect while the probe runs, since a newcomer

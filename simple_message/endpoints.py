@@ -63,7 +63,7 @@ from typing import Any, Literal, TypeVar
 from .connection import Connection, ConnectionState, Subscription
 from .constants import CommType, MsgType, ReplyCode
 from .dialects import Dialect, ReplyStyle, any_dialect_answers, reply_style_of
-from .errors import ConnectionClosed, MalformedMessage, NotConnected
+from .errors import ConnectionClosed, HeaderError, MalformedMessage, NotConnected
 from .framing import DEFAULT_MAX_LENGTH
 from .header import header_error
 from .lograte import LogBudget
@@ -597,8 +597,22 @@ _SERVICE_REQUEST = int(CommType.SERVICE_REQUEST)
 _INVALID = int(ReplyCode.INVALID)
 _SUCCESS = ReplyCode.SUCCESS
 _ECHO = ReplyStyle.ECHO
-#: header_error (the C++ validation rules) for the few headers a peer sends, looked up, not recomputed
-_header_error = functools.lru_cache(maxsize=1024)(header_error)
+#: headers known to pass the C++ validation rules (the few a peer sends), looked up, not recomputed
+_VALID_HEADERS: set[tuple[int, int, int]] = set()
+_VALID_HEADERS_MAX = 1024
+
+
+def _header_error(msg_type: int, comm_type: int, reply_code: int) -> HeaderError | None:
+    """:func:`~.header.header_error`, remembered for valid headers only: a peer's invalid ones are
+    garbage, computed again each time rather than kept (kept, a flood of random headers would pin
+    a thousand exceptions in memory for the life of the server)."""
+    key = (msg_type, comm_type, reply_code)
+    if key in _VALID_HEADERS:
+        return None
+    problem = header_error(msg_type, comm_type, reply_code)
+    if problem is None and len(_VALID_HEADERS) < _VALID_HEADERS_MAX:
+        _VALID_HEADERS.add(key)
+    return problem
 #: the server's own answer to a PING (messages are immutable: one instance serves every reply)
 _PING_REPLY = Ping(comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS)
 
