@@ -631,10 +631,10 @@ async def test_robot_client_signalled_during_motion_stops_the_robot(
             if client.returncode is None:
                 client.kill()
                 await client.wait()
-        assert client.returncode == code, err
-        assert err.decode().splitlines() == [f"robot-client: {word}"]
+        said = err.decode()
+        assert (client.returncode, said.splitlines()) == (code, [f"robot-client: {word}"]), said
         await watch.until(lambda: watch.state("in_motion") == 0, what="at rest")
         first, second = await watch.rounds_from_now(2)
-        assert dist(first, second) < 1e-3 and dist(first, FAR) > 0.5, first
+        assert dist(first, second) < 1e-3 and dist(first, FAR) > 0.5, (first, second, proc.log.read_text()[-3000:])
         await watch.close()
         assert await proc.terminate() == 0
