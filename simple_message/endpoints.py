@@ -613,6 +613,8 @@ def _header_error(msg_type: int, comm_type: int, reply_code: int) -> HeaderError
     if problem is None and len(_VALID_HEADERS) < _VALID_HEADERS_MAX:
         _VALID_HEADERS.add(key)
     return problem
+
+
 #: the server's own answer to a PING (messages are immutable: one instance serves every reply)
 _PING_REPLY = Ping(comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS)
 

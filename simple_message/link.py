@@ -357,5 +357,3 @@ def _bodiless(msg: Message, wire: WireFormat) -> MalformedMessage:
         comm_type=msg.comm_type,
         frame=encode(msg, wire),
     )
-
-

@@ -77,7 +77,11 @@ class MotionOwner:
 
     def _connected(self, session: Session) -> None:
         owner = self.owner
-        if owner is None or owner.connection.closed:
+        if owner is not None and owner.connection.closed:
+            # gone, but its session has not ended yet: what its departure does happens first
+            self._disconnected(owner)
+            owner = None
+        if owner is None:
             self.owner = session
             return
         if self.busy:
