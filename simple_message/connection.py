@@ -375,10 +375,10 @@ class Connection(asyncio.Protocol):
             link.receive_data(data)
         if self.frame_timeout is not None:
             self.last_input = time.monotonic()
-            if link.buffered or self._partial_timer is not None:
-                self._watch_partial()
         if not self._blocked:
             self._process()
+        if self.frame_timeout is not None and (link.buffered or self._partial_timer is not None):
+            self._watch_partial()  # new bytes: the peer gets a fresh frame_timeout for its frame
 
     def _watch_partial(self) -> None:
         """(Re)start the incomplete-frame timer while a frame is incomplete; stop it between frames."""
@@ -542,6 +542,8 @@ class Connection(asyncio.Protocol):
         if msg is not None:
             self._deliver(msg)
         self._process()
+        if self.frame_timeout is not None and (self.link.buffered > 0) != (self._partial_timer is not None):
+            self._watch_partial()  # the backlog is decoded down to a frame begun: its clock starts now
         if not (self._blocked or self._read_done or self.closed):
             self._set_reading(True)
 

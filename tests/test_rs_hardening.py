@@ -236,6 +236,18 @@ async def test_a_half_sent_frame_is_timed_out_and_the_port_stays_served() -> Non
         await other.close()
 
 
+async def test_a_half_frame_behind_a_long_backlog_is_timed_out() -> None:
+    # more than one decoding slice (16 KiB) of whole frames, then half a frame, in one write: the
+    # timer must start when the backlog is decoded down to the half frame, not only on new bytes
+    async with stepped_emulator(frame_timeout=0.2) as (emu, _clock):
+        peer = await RawPeer.connect(emu.ports["state"])
+        await peer.send(PING * 1100 + PING[:6])
+        assert await peer.closed(T)
+        other = await RawPeer.connect(emu.ports["state"])
+        assert (await other.reply_to(PING)).raw == LE["PING_REPLY_SUCCESS"]
+        await other.close()
+
+
 def _ping_server(**options: object) -> Server:
     return Server(name="test", **options)  # type: ignore[arg-type]
 
