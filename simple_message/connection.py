@@ -38,8 +38,6 @@ import contextlib
 import enum
 import inspect
 import logging
-import struct
-import sys
 import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
@@ -71,19 +69,10 @@ from .link import (
 )
 from .lograte import LogBudget
 from .messages import Message, type_name
-from .transport import StreamPair, set_nodelay, take_over
+from .transport import StreamPair, set_nodelay, take_over, unread_by_peers
 from .wire import DEFAULT_FORMAT, WireFormat
 
 __all__ = ["Connection", "ConnectionState", "Subscription", "MessageHandler"]
-
-if sys.platform != "win32":
-    import fcntl
-    import termios
-
-    #: the ioctl that reads a socket's unacknowledged send queue (Linux's SIOCOUTQ is TIOCOUTQ)
-    _OUTQ: int | None = getattr(termios, "TIOCOUTQ", None) if sys.platform.startswith("linux") else None
-else:  # pragma: no cover
-    _OUTQ = None
 
 log = logging.getLogger(__name__)
 frames_log = logging.getLogger(__name__ + ".frames")
@@ -635,13 +624,12 @@ class Connection(asyncio.Protocol):
         return self.transport.get_extra_info("socket") is not None
 
     def unread_bytes(self) -> int:
-        """Bytes sent that the peer has not taken yet: our buffer plus, where the OS says, the
-        socket's send queue (Linux ``SIOCOUTQ``: sent or queued, not yet acknowledged)."""
+        """Bytes sent that the peer has not taken yet: our buffer plus, where the OS says, what its
+        sockets hold for the peer (:func:`.transport.unread_by_peers`)."""
         unread = self.transport.get_write_buffer_size()
         sock = self.transport.get_extra_info("socket")
-        if sock is not None and _OUTQ is not None:
-            with contextlib.suppress(OSError, ValueError):
-                unread += struct.unpack("i", fcntl.ioctl(sock.fileno(), _OUTQ, b"\0\0\0\0"))[0]
+        if sock is not None:
+            unread += unread_by_peers([sock])[0]
         return unread
 
     async def send(self, msg: Message) -> None:

@@ -68,7 +68,7 @@ from .framing import DEFAULT_MAX_LENGTH
 from .header import header_error
 from .lograte import LogBudget
 from .messages import HeaderOnly, Message, Ping
-from .transport import StreamPair, open_fd, open_serial, open_tcp
+from .transport import StreamPair, open_fd, open_serial, open_tcp, unread_by_peers
 from .wire import DEFAULT_FORMAT, WireFormat
 
 __all__ = [
@@ -91,8 +91,9 @@ log = logging.getLogger(__name__)
 DEFAULT_FRAME_TIMEOUT = 5.0
 #: a full server may close a connection silent this long (s) to serve a newcomer
 DEFAULT_IDLE_AFTER = 10.0
-#: unread bytes that mark a peer that does not read (far above a state round in flight)
-_DEAF_BYTES = 64 * 1024
+#: unread bytes that mark a peer that does not read (far above a state round in flight: 4 s of the
+#: emulator's default state stream)
+_DEAF_BYTES = 16 * 1024
 
 HandlerResult = Message | ReplyCode | int | None
 #: ``handler(message, session)``: returns the reply (see the module docstring); may be async.
@@ -293,11 +294,13 @@ class Server:
             victim = min(partial, key=lambda s: s.connection.last_input)
             reason = "held an incomplete frame"
         if victim is None:
-            deaf = [(s.connection.unread_bytes(), s) for s in candidates]
-            deaf = [(n, s) for n, s in deaf if n >= _DEAF_BYTES]
+            socks = [s.connection.transport.get_extra_info("socket") for s in candidates]
+            in_socket = unread_by_peers(socks)  # one look at the kernel's table for all of them
+            unread = [s.connection.write_buffer_size() + n for s, n in zip(candidates, in_socket, strict=True)]
+            deaf = [(n, s) for n, s in zip(unread, candidates, strict=True) if n >= _DEAF_BYTES]
             if deaf:
-                unread, victim = max(deaf, key=lambda pair: pair[0])
-                reason = f"did not read ({unread} bytes unread)"
+                most, victim = max(deaf, key=lambda pair: pair[0])
+                reason = f"did not read ({most} bytes unread)"
         idle_after = self.idle_after
         if victim is None and idle_after is not None:
             silent = [s for s in candidates if now - s.connection.last_input >= idle_after]

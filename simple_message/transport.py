@@ -34,14 +34,17 @@ import logging
 import os
 import queue
 import socket
+import struct
+import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, cast
 
 __all__ = [
     "StreamPair",
     "open_tcp",
     "set_nodelay",
+    "unread_by_peers",
     "take_over",
     "open_serial",
     "open_fd",
@@ -65,6 +68,63 @@ def set_nodelay(writer: asyncio.StreamWriter | asyncio.BaseTransport) -> None:
     if sock is not None and sock.family in (socket.AF_INET, socket.AF_INET6):
         with contextlib.suppress(OSError):
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+
+if sys.platform.startswith("linux"):
+    import fcntl
+    import termios
+
+    #: the ioctl that reads a socket's unacknowledged send queue (Linux's SIOCOUTQ is TIOCOUTQ)
+    _OUTQ: int | None = getattr(termios, "TIOCOUTQ", None)
+else:  # pragma: no cover
+    _OUTQ = None
+
+#: the kernel's table of TCP sockets, by address family (Linux)
+_PROC_TCP: dict[int, str] = {socket.AF_INET: "/proc/net/tcp", socket.AF_INET6: "/proc/net/tcp6"}
+
+
+def unread_by_peers(socks: Sequence[Any]) -> list[int]:
+    """For each TCP socket (a ``socket.socket`` or a transport's ``get_extra_info("socket")``), the
+    bytes sent on it that its peer's program has not read, as far as the OS tells (0 where it tells
+    nothing): the send queue not yet acknowledged (Linux ``SIOCOUTQ``) and, for a peer on this
+    machine, what waits unread in the peer's own receive queue (``/proc/net/tcp``). The second
+    matters: a peer on loopback that never reads acknowledges megabytes into its receive buffer
+    while our side of the socket looks drained."""
+    unread = [0] * len(socks)
+    wanted: dict[tuple[int, str, str], int] = {}  # (family, peer's address, ours) -> index
+    for i, sock in enumerate(socks):
+        if _OUTQ is None:
+            break
+        with contextlib.suppress(OSError, ValueError):
+            unread[i] = struct.unpack("i", fcntl.ioctl(sock.fileno(), _OUTQ, b"\0\0\0\0"))[0]
+            if sock.family in _PROC_TCP:
+                ours, peer = sock.getsockname(), sock.getpeername()
+                wanted[(sock.family, _proc_address(sock.family, peer), _proc_address(sock.family, ours))] = i
+    for family in {key[0] for key in wanted}:
+        try:
+            with open(_PROC_TCP[family], "rb") as table:
+                lines = table.read().split(b"\n")[1:]
+        except OSError:
+            continue
+        for line in lines:
+            # sl local_address rem_address st tx_queue:rx_queue ...; the peer's socket has the
+            # peer's address as its local one
+            fields = line.split(None, 5)
+            if len(fields) < 5:
+                continue
+            i = wanted.get((family, fields[1].decode(), fields[2].decode()), -1)
+            if i >= 0:
+                with contextlib.suppress(ValueError, IndexError):
+                    unread[i] += int(fields[4].split(b":")[1], 16)
+    return unread
+
+
+def _proc_address(family: int, address: tuple[Any, ...]) -> str:
+    """``address`` as /proc/net/tcp prints it: each 32-bit word of the IP in host order, in hex,
+    then the port."""
+    packed = socket.inet_pton(family, address[0])
+    words = struct.unpack(f"={len(packed) // 4}I", packed)
+    return "".join(f"{word:08X}" for word in words) + f":{address[1]:04X}"
 
 
 async def open_tcp(host: str, port: int, *, timeout: float | None = 10.0) -> StreamPair:

@@ -323,6 +323,37 @@ async def test_a_full_port_closes_a_peer_that_does_not_read_first() -> None:
         await server.close()
 
 
+async def test_a_full_state_port_closes_a_subscriber_that_never_reads() -> None:
+    # sockets that connect and never read: on loopback their receive buffers take megabytes, so our
+    # side of the socket looks drained; what the peer left unread is counted in its own socket
+    async with stepped_emulator(max_connections=3) as (emu, _clock):
+        port = emu.ports["state"]
+        loop = asyncio.get_running_loop()
+        deaf = [socket.socket() for _ in range(2)]
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        reading = loop.create_task(reader.read(-1))  # a subscriber that keeps up
+        try:
+            for sock in deaf:
+                sock.setblocking(False)
+                await loop.sock_connect(sock, ("127.0.0.1", port))
+            state = emu.servers["state"]
+            await poll(lambda: len(state.sessions) == 3, T)
+            for _ in range(400):  # about 40 kB of state topics each
+                emu.publish_state()
+                await asyncio.sleep(0)
+            assert all(s.connection.write_buffer_size() == 0 for s in state.sessions)  # the kernel took it all
+            newcomer = await RawPeer.connect(port)
+            assert (await newcomer.reply_to(PING)).raw == LE["PING_REPLY_SUCCESS"]
+            assert state.evicted == 1 and state.refused == 0
+            assert not reading.done()  # the subscriber that reads stays
+            await newcomer.close()
+        finally:
+            for sock in deaf:
+                sock.close()
+            writer.close()
+            reading.cancel()
+
+
 # -- 7. log floods ---------------------------------------------------------------------------------
 
 

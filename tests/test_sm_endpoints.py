@@ -31,7 +31,7 @@ from simple_message import (
 from simple_message.connection import Connection
 from simple_message.endpoints import Client, Server, Session
 from simple_message.errors import ConnectionClosed, RequestFailed
-from simple_message.transport import StreamPair, open_fd, open_serial, open_tcp
+from simple_message.transport import StreamPair, open_fd, open_serial, open_tcp, unread_by_peers
 
 T = 10.0  # every wait in these tests is bounded by this many seconds
 
@@ -617,3 +617,20 @@ async def test_pyserial_socket_url_reaches_a_tcp_server() -> None:
         async with client:
             assert (await client.request(Ping(), timeout=T)).reply_code == ReplyCode.SUCCESS
             assert (await client.request(JointTrajPt(2), timeout=T)).sequence == 2  # type: ignore[attr-defined]
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/net/tcp"), reason="the kernel's socket table is Linux's")
+@pytest.mark.parametrize("family, host", [(socket.AF_INET, "127.0.0.1"), (socket.AF_INET6, "::1")])
+def test_unread_by_peers_counts_what_a_local_peer_left_in_its_receive_queue(family: int, host: str) -> None:
+    if family == socket.AF_INET6 and not socket.has_ipv6:
+        pytest.skip("no IPv6")
+    listener = socket.create_server((host, 0), family=family)
+    with listener, socket.create_connection((host, listener.getsockname()[1]), timeout=10) as peer:
+        ours, _ = listener.accept()
+        with ours, socket.socket() as unconnected:
+            ours.sendall(b"x" * 5000)
+            assert peer.recv(3000, socket.MSG_PEEK | socket.MSG_WAITALL) == b"x" * 3000  # it arrived
+            assert unread_by_peers([ours, unconnected]) == [5000, 0]
+            assert len(peer.recv(3000)) == 3000
+            assert unread_by_peers([ours]) == [2000]
+            assert unread_by_peers([peer]) == [0]  # nothing sent the other way
