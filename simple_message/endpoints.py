@@ -445,6 +445,7 @@ class Server:
         if self._tasks:
             await asyncio.gather(*self._tasks, return_exceptions=True)
         self._servers.clear()
+        self._log_budget.flush()  # what refused and evicted connections left unsaid
 
     async def __aenter__(self) -> Server:
         return self

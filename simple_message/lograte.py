@@ -10,7 +10,9 @@ budget allows a line, and when the connection ends::
     motion ('127.0.0.1', 40522): suppressed 1873 lines in 9.8 s: 1870 x malformed message: %s; 3 x ...
 
 So a flood costs at most ``burst + rate x seconds`` lines per connection, and nothing is lost
-without a count.
+without a count. What no single connection causes (connections coming and going by the thousand,
+the lines a controller writes for each trajectory a client starts) is bounded by a
+:class:`BudgetFilter`: one budget over whole loggers, whoever writes to them.
 """
 
 from __future__ import annotations
@@ -19,7 +21,10 @@ import logging
 import time
 from collections.abc import Callable
 
-__all__ = ["LogBudget", "LINES_PER_SECOND", "BURST"]
+__all__ = ["LogBudget", "BudgetFilter", "LINES_PER_SECOND", "BURST"]
+
+#: a record attribute marking a budget's own summary line (it passes every budget)
+_SUMMARY = "log_budget_summary"
 
 #: lines per second a connection may cause once its burst is spent
 LINES_PER_SECOND = 5.0
@@ -62,6 +67,14 @@ class LogBudget:
         """Write ``"<name>: " + msg % args`` to ``logger`` if the budget allows; returns whether it did."""
         if not logger.isEnabledFor(level):
             return False
+        if not self.admit(logger, msg):
+            return False
+        logger.log(level, "%s: " + msg, self.name, *args, exc_info=exc_info)
+        return True
+
+    def admit(self, logger: logging.Logger, msg: str) -> bool:
+        """Take a line of cause ``msg`` from the budget: ``True`` if it may be written (after the
+        summary of what was held back, written here to ``logger``), ``False`` if it is counted."""
         now = self._clock()
         self._tokens = min(float(self.burst), self._tokens + (now - self._last) * self.rate)
         self._last = now
@@ -75,7 +88,6 @@ class LogBudget:
         if self._suppressed:
             self._tokens = max(0.0, self._tokens - 1.0)  # the summary is a line too
             self._summarise(logger, now)
-        logger.log(level, "%s: " + msg, self.name, *args, exc_info=exc_info)
         return True
 
     def flush(self) -> None:
@@ -89,4 +101,43 @@ class LogBudget:
         shown = "; ".join(f"{n} x {cause}" for cause, n in causes[:3])
         more = f"; {len(causes) - 3} more causes" if len(causes) > 3 else ""
         total = sum(counts.values())
-        logger.warning("%s: suppressed %d log lines in %.1f s: %s%s", self.name, total, now - self._since, shown, more)
+        logger.warning(
+            "%s: suppressed %d log lines in %.1f s: %s%s",
+            self.name,
+            total,
+            now - self._since,
+            shown,
+            more,
+            extra={_SUMMARY: True},
+        )
+
+
+class BudgetFilter(logging.Filter):
+    """A :class:`LogBudget` over whole loggers, whoever writes to them: added to several loggers,
+    it bounds the lines they write together (a ceiling over the per-connection budgets, for what
+    no one connection causes: many connections coming and going, the controller's own lines)."""
+
+    def __init__(self, budget: LogBudget) -> None:
+        super().__init__()
+        self.budget = budget
+        self._loggers: list[logging.Logger] = []
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if getattr(record, _SUMMARY, False):
+            return True
+        return self.budget.admit(logging.getLogger(record.name), str(record.msg))
+
+    def install(self, *names: str) -> BudgetFilter:
+        """Add this filter to the loggers ``names``; returns itself."""
+        for name in names:
+            logger = logging.getLogger(name)
+            logger.addFilter(self)
+            self._loggers.append(logger)
+        return self
+
+    def remove(self) -> None:
+        """Take this filter off its loggers, after writing the summary of what it held back."""
+        self.budget.flush()
+        for logger in self._loggers:
+            logger.removeFilter(self)
+        self._loggers.clear()

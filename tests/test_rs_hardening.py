@@ -14,10 +14,12 @@ import logging
 import math
 import socket
 import struct
+import time
 
 import pytest
 
 from robot_server.emulator import Emulator
+from robot_server.emulator.server import PEER_LOG_BURST, PEER_LOG_RATE, PEER_LOGGERS
 from simple_message import MsgType, Ping
 from simple_message.endpoints import Server
 from simple_message.lograte import BURST, LogBudget
@@ -387,6 +389,31 @@ async def test_a_flood_of_bad_frames_writes_a_bounded_log_and_counts_the_rest(
     suppressed = sum(int(m.split("suppressed ")[1].split()[0]) for m in summaries)
     assert len(lines) + suppressed == 1000  # every line written or counted
     assert len(lines) < 100 and summaries  # and most of them counted, not written
+
+
+async def test_the_lines_one_client_makes_the_controller_write_are_bounded_too(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # each download and each STOP makes the controller and the cell write a line of their own,
+    # which no connection's budget covers: the emulator's ceiling over its loggers does
+    caplog.set_level(logging.INFO)
+    download = b"".join(joint_traj_pt(JTP, s, [0.0], 0.5, 0.0, comm_type=1) for s in (-1, 0, -3))
+    stop = joint_traj_pt(JTP, -4, [], comm_type=1)
+    began = time.monotonic()
+    async with stepped_emulator() as (emu, _clock):
+        peer = await RawPeer.connect(emu.ports["motion"])
+        await peer.send((download + stop) * 500 + PING)
+        while (await peer.frame(T)).msg_type != MsgType.PING:
+            pass
+        assert emu.cell.groups[0].trajectories >= 500  # every download ran (and was stopped)
+        await peer.close()
+    elapsed = time.monotonic() - began
+    ceiling = [r.getMessage() for r in caplog.records if r.name in PEER_LOGGERS]
+    summaries = [m for m in ceiling if m.startswith("emulator: suppressed")]
+    lines = [m for m in ceiling if not m.startswith("emulator: suppressed") and "suppressed" not in m]
+    assert len(lines) <= PEER_LOG_BURST + PEER_LOG_RATE * elapsed + 1
+    suppressed = sum(int(m.split("suppressed ")[1].split()[0]) for m in summaries)
+    assert len(lines) + suppressed >= 1000  # a start and a download line each: written or counted
 
 
 def test_the_log_budget_allows_a_burst_then_a_rate_and_summarises_per_cause() -> None:

@@ -30,6 +30,7 @@ from typing import Literal
 from simple_message.constants import MAX_JOINTS
 from simple_message.dialects import ReplyStyle, reply_style_of
 from simple_message.endpoints import DEFAULT_IDLE_AFTER, Server, Session
+from simple_message.lograte import BudgetFilter, LogBudget
 from simple_message.wire import ByteOrder, WireFormat
 
 from ..control import (
@@ -54,6 +55,21 @@ from .profiles import ROLES, Behaviour, EmulatorProfile, ProfileContext, profile
 __all__ = ["Emulator", "EmulatorConfig", "PeriodStats"]
 
 log = logging.getLogger(__name__)
+
+#: the loggers whose lines peers cause: connections, the controller's and the cell's lines, which
+#: one connection's budget does not bound (a client connecting and leaving a thousand times a
+#: second, or starting and stopping trajectories as fast as it can)
+PEER_LOGGERS = (
+    "simple_message.connection",
+    "simple_message.endpoints",
+    "robot_server.control.controller",
+    "robot_server.control.motion",
+    "robot_server.emulator.cell",
+    "robot_server.emulator.owner",
+)
+#: what those loggers may write together while an emulator runs: a burst, then lines per second
+PEER_LOG_BURST = 100
+PEER_LOG_RATE = 20.0
 
 ByteOrderChoice = Literal["little", "big", "auto"]
 _STATE_LINK = "carries_state"
@@ -291,6 +307,8 @@ class Emulator:
         self._tasks: list[asyncio.Task[None]] = []
         self._started = False
         self._closed = False
+        #: the ceiling over :data:`PEER_LOGGERS` while the emulator runs
+        self._log_ceiling: BudgetFilter | None = None
 
     # -- lifecycle ---------------------------------------------------------------------------------
 
@@ -300,6 +318,8 @@ class Emulator:
             return self
         self._started = True
         cfg = self.config
+        self._log_ceiling = BudgetFilter(LogBudget("emulator", rate=PEER_LOG_RATE, burst=PEER_LOG_BURST))
+        self._log_ceiling.install(*PEER_LOGGERS)
         try:
             for name, server in self.servers.items():
                 port = cfg.port(name)
@@ -392,6 +412,8 @@ class Emulator:
         await asyncio.gather(*self._tasks, return_exceptions=True)
         for server in {*self.servers.values(), self.state_server}:
             await server.close()
+        if self._log_ceiling is not None:
+            self._log_ceiling.remove()
         log.info("emulator closed")
 
     async def __aenter__(self) -> Emulator:
