@@ -196,6 +196,7 @@ class Server:
     ) -> None:
         self.wire = wire
         #: a connection that begins a frame and sends nothing more for this long (s) is closed
+        #: (sockets only: a serial link, which cannot be dialled again, is never closed for that)
         self.frame_timeout = frame_timeout
         #: a full server may close a connection silent this long (s) to serve a newcomer (``None``:
         #: never for silence: a state port, whose clients only listen)
@@ -334,7 +335,7 @@ class Server:
         await self._until_closed(self._open(connection, data))
 
     def _connection(self, streams: StreamPair | asyncio.BaseTransport, name: str) -> Connection:
-        return Connection(
+        connection = Connection(
             streams,
             self.wire,
             autodetect=self.autodetect,
@@ -344,6 +345,10 @@ class Server:
             max_write_buffer=self.max_write_buffer,
             frame_timeout=self.frame_timeout,
         )
+        if not connection.is_socket:
+            # a serial line cannot be dialled again: a byte of line noise must not end it
+            connection.frame_timeout = None
+        return connection
 
     def _open(self, connection: Connection, data: dict[str, Any] | None) -> Session:
         """A new session on ``connection``, counted, with its worker, and reading."""

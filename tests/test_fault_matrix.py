@@ -52,9 +52,10 @@ JTP, JTP_TOPIC, JTPF = V["JOINT_TRAJ_PT_REQUEST_SEQ3"], V["JOINT_TRAJ_PT_TOPIC_S
 PING, STOP = V["PING_REQUEST"], V["JOINT_TRAJ_PT_REQUEST_STOP_ALLZERO"]
 PING_TYPE, JOINT_POSITION, STATUS, JOINT_FEEDBACK, MOTO_CTRL, MOTO_REPLY = 1, 10, 13, 15, 2001, 2002
 SERVICE_REPLY, SUCCESS, FAILURE = 3, 1, 2
-START_TRAJ_MODE, STOP_MOTION = 200121, 200111
+START_TRAJ_MODE, STOP_MOTION, CHECK_MOTION_READY = 200121, 200111, 200101
 MOTO_SUCCESS, MOTO_BUSY, MOTO_NOT_READY = 0, 1, 5
-NOT_READY_ALARM, NOT_READY_ESTOP, NOT_READY_SERVO_OFF = 5001, 5003, 5006
+MOTO_FALSE = 2  # CHECK_MOTION_READY's answer when not ready (ROS_RESULT_FALSE)
+NOT_READY_ALARM, NOT_READY_ESTOP, NOT_READY_SERVO_OFF, NOT_READY_NOT_STARTED = 5001, 5003, 5006, 5008
 TIME_POSITION_VELOCITY = 0x07
 
 DOF = 6
@@ -423,6 +424,24 @@ async def test_a_second_motion_client_at_rest_takes_over(profile: str) -> None:
         await first.close()
         await second.close()
         await watch.close()
+
+
+async def test_a_motoros_takeover_ends_the_first_clients_trajectory_mode() -> None:
+    """As any departure of the motion client does (MotoROS's StopConnection): the newcomer must
+    start trajectory mode itself, it does not inherit the first client's."""
+    async with stepped_emulator(profile="motoros") as (emu, _clock):
+        first = await RawPeer.connect(emu.ports["motion"])
+        assert moto_result(await first.request(moto_ctrl(START_TRAJ_MODE))) == (MOTO_SUCCESS, 0)
+        assert moto_result(await first.request(moto_ctrl(CHECK_MOTION_READY))) == (MOTO_SUCCESS, 0)
+        second = await RawPeer.connect(emu.ports["motion"])
+        await closed_by_server(first)
+        assert moto_result(await second.request(moto_ctrl(CHECK_MOTION_READY))) == (
+            MOTO_FALSE,
+            NOT_READY_NOT_STARTED,
+        )
+        assert moto_result(await second.request(moto_ctrl(START_TRAJ_MODE))) == (MOTO_SUCCESS, 0)
+        await first.close()
+        await second.close()
 
 
 # -- 3. slow and stalled state subscribers ------------------------------------------------------------

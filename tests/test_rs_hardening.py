@@ -10,8 +10,10 @@ the test advances (tests/stepped.py), so what is asserted at a controller time h
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
+import os
 import socket
 import struct
 import time
@@ -23,6 +25,7 @@ from robot_server.emulator.server import PEER_LOG_BURST, PEER_LOG_RATE, PEER_LOG
 from simple_message import MsgType, Ping
 from simple_message.endpoints import Server
 from simple_message.lograte import BURST, LogBudget
+from simple_message.transport import open_fd
 from tests.rawpeer import Frame, RawPeer, joint_traj_pt, joint_traj_pt_full, vectors
 from tests.stepped import poll, settle, step, stepped_emulator
 
@@ -354,6 +357,34 @@ async def test_a_full_state_port_closes_a_subscriber_that_never_reads() -> None:
                 sock.close()
             writer.close()
             reading.cancel()
+
+
+async def test_a_serial_link_is_never_closed_by_a_tcp_newcomer_or_the_frame_timeout() -> None:
+    master, slave = os.openpty()
+    try:
+        async with stepped_emulator(serial=os.ttyname(slave), frame_timeout=0.2) as (emu, clock):
+            await poll(lambda: bool(emu.motion_server.sessions), T)  # the port is open (raw mode)
+            reader, writer = await open_fd(master, close_fd=False, name="pty master")
+            link = RawPeer(reader, writer)
+            await link.send(PING)
+            assert (await link.next_of(MsgType.PING, T)).raw == LE["PING_REPLY_SUCCESS"]  # topics share it
+            (serial,) = emu.motion_server.sessions
+            assert serial.connection.frame_timeout is None  # line noise cannot end it
+            assert emu.owner.owner is serial
+            tcp = await RawPeer.connect(emu.ports["motion"])  # the robot is at rest, and yet:
+            assert await tcp.closed(T)  # the serial link cannot be dialled again: it keeps the motion
+            assert emu.owner.owner is serial and emu.owner.refused == 1
+            await link.send(J(0, 0, 0.5, 0))
+            assert (await link.next_of(MsgType.JOINT_TRAJ_PT, T)).reply_code == 1
+            await link.send(J(1, 0.1, 0.5, 0.4))
+            assert (await link.next_of(MsgType.JOINT_TRAJ_PT, T)).reply_code == 1
+            await settle(emu, clock)
+            assert abs(at(emu)[0] - 0.1) < 1e-3
+            writer.close()
+    finally:
+        for fd in (master, slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
 
 
 # -- 7. log floods ---------------------------------------------------------------------------------

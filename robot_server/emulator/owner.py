@@ -12,7 +12,10 @@ client that vanished without closing its socket:
 * a new client while the robot is at rest **takes over**: the previous owner's connection is
   closed (logged), and the newcomer owns the motion.
 
-So a second client can never append points to the owner's trajectory, nor stop it.
+So a second client can never append points to the owner's trajectory, nor stop it. A serial link
+(``robot-server --serial``) cannot be dialled again, so it is never closed by this rule: while it is
+open it is the motion client and TCP newcomers are refused; a serial link that opens takes the
+motion from a TCP owner (whose departure then counts as below).
 
 When the owner goes away (FIN, reset, a frame error, the server closing it) with the robot busy,
 the ``on_disconnect`` setting decides (``robot-server --on-disconnect``):
@@ -84,17 +87,27 @@ class MotionOwner:
         if owner is None:
             self.owner = session
             return
-        if self.busy:
+        if not session.connection.is_socket:
+            # a serial link opening: it cannot be refused without being lost, so it takes over
+            log.info("%s: replaced by a serial link, %s", owner.name, session.name)
+            self._disconnected(owner)  # the departure first: a busy robot stops (or runs on)
+            self.owner = session
+            owner.connection.abort()
+            return
+        if self.busy or not owner.connection.is_socket:
             self.refused += 1
             session.log(
                 log,
                 logging.WARNING,
-                "refused: the robot is moving under motion client %s (one motion client at a time)",
-                owner.name,
+                "refused: %s (one motion client at a time)",
+                f"the robot is moving under motion client {owner.name}"
+                if owner.connection.is_socket
+                else f"serial link {owner.name} is the motion client while it is open",
             )
             session.connection.abort()
             return
         log.info("%s: replaced by a new motion client, %s (the robot is at rest)", owner.name, session.name)
+        self._disconnected(owner)  # what its departure does (MotoROS: trajectory mode ends) happens now
         self.owner = session
         owner.connection.abort()
 
