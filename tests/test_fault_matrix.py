@@ -444,6 +444,29 @@ async def test_a_motoros_takeover_ends_the_first_clients_trajectory_mode() -> No
         await second.close()
 
 
+async def test_motoros_starts_from_the_position_it_reports_as_soon_as_it_reports_rest() -> None:
+    """An alarm mid-move, reset, and a new trajectory from the position the controller reports the
+    moment in_motion turns FALSE: the start check (30 pulses) must accept it, so the robot cannot
+    report rest while it is farther than that from its command."""
+    async with stepped_emulator(profile="motoros") as (emu, clock):
+        motion = await RawPeer.connect(emu.ports["motion"])
+        here = [0.0] * DOF
+        assert moto_result(await motion.request(moto_ctrl(START_TRAJ_MODE))) == (MOTO_SUCCESS, 0)
+        assert moto_result(await motion.request(moto_point(0, 0.0, here))) == (MOTO_SUCCESS, 0)
+        assert moto_result(await motion.request(moto_point(1, FAR_SECONDS, FAR))) == (MOTO_SUCCESS, 0)
+        await advance_until(clock, lambda: dist(emu.cell.groups[0].command.actual_position, here) > 0.1, what="moving")
+        emu.cell.alarm(42, "test")
+        await advance_until(clock, lambda: not emu.cell.in_motion, what="the alarm's halt")
+        emu.cell.reset_alarm()
+        reported = [float(np.float32(x)) for x in emu.cell.groups[0].command.actual_position]  # as JOINT_FEEDBACK
+        assert moto_result(await motion.request(moto_ctrl(START_TRAJ_MODE))) == (MOTO_SUCCESS, 0)
+        assert moto_result(await motion.request(moto_point(0, 0.0, reported))) == (MOTO_SUCCESS, 0)
+        assert moto_result(await motion.request(moto_point(1, 1.0, here))) == (MOTO_SUCCESS, 0)
+        await advance_until(clock, lambda: not emu.cell.in_motion, limit=5.0, what="the way back")
+        assert dist(emu.cell.groups[0].command.actual_position, here) < 1e-3
+        await motion.close()
+
+
 # -- 3. slow and stalled state subscribers ------------------------------------------------------------
 
 

@@ -92,7 +92,8 @@ class ControllerConfig:
     max_segment_time: float = 3600.0
     #: a segment from rest waits this long at most for the point after its own, to pass through it
     lookahead_wait: float = 0.008
-    #: in_motion stays TRUE until every joint is this close to the command (rad or m) ...
+    #: in_motion stays TRUE until every joint is this close to the command (rad or m; at most half
+    #: ``start_tolerance``, so a trajectory can always start from the rest the robot reports) ...
     settle_position: float = 1e-3
     #: ... and this slow (rad/s or m/s)
     settle_velocity: float = 1e-3
@@ -111,6 +112,8 @@ class ControllerConfig:
         if not self.max_segment_time > 0.0:
             raise ValueError(f"max_segment_time must be > 0, not {self.max_segment_time}")
         object.__setattr__(self, "policy", policy(self.policy).name)
+        if self.start_tolerance is not None and self.settle_position > self.start_tolerance / 2:
+            object.__setattr__(self, "settle_position", self.start_tolerance / 2)
 
 
 class Tick(NamedTuple):
