@@ -23,6 +23,7 @@ acknowledgement), never of a JOINT_TRAJ_PT request.
 
 from __future__ import annotations
 
+import contextlib
 import enum
 from collections import deque
 from collections.abc import Callable
@@ -252,27 +253,15 @@ class Link:
             else:
                 self._end(None)
             return
-        if self.on_frame is None:
-            # Kept as bytes and decoded a slice at a time as the events are taken (next_event):
-            # what a link holds decoded is bounded by one slice, however much arrived at once.
-            if self._backlog:
-                self._backlog = self._backlog[self._backlog_pos :] + data
-            else:
-                self._backlog = bytes(data)
-            self._backlog_pos = 0
-            if not self._events:
-                self._decode_slice()
-            return
-        decoder = self._decoder
-        on_frame = self.on_frame
-        decoder.feed(data)  # each frame is wanted as bytes too (logs, captures)
-        self._detected_order()
-        try:
-            for frame in decoder:
-                on_frame(frame)
-                self._message(decode_or_error(frame, self.wire))
-        except FrameError as exc:
-            self._end(exc)
+        # Kept as bytes and decoded a slice at a time as the events are taken (next_event): what a
+        # link holds decoded is bounded by one slice, however much arrived at once.
+        if self._backlog:
+            self._backlog = self._backlog[self._backlog_pos :] + data
+        else:
+            self._backlog = bytes(data)
+        self._backlog_pos = 0
+        if not self._events:
+            self._decode_slice()
 
     def next_event(self) -> Event | NeedData:
         """The next thing that happened, or :data:`NEED_DATA`."""
@@ -296,9 +285,18 @@ class Link:
         else:
             self._backlog_pos = stop
         decoder = self._decoder
-        for msg in decoder.feed_messages(chunk, self.wire):
-            self._message(msg)
-        self._detected_order()
+        on_frame = self.on_frame
+        if on_frame is None:
+            for msg in decoder.feed_messages(chunk, self.wire):
+                self._message(msg)
+            self._detected_order()
+        else:  # each frame is wanted as bytes too (logs, captures)
+            decoder.feed(chunk)
+            self._detected_order()
+            with contextlib.suppress(FrameError):  # decoder.failed says so, below
+                for frame in decoder:
+                    on_frame(frame)
+                    self._message(decode_or_error(frame, self.wire))
         if decoder.failed:
             self._backlog, self._backlog_pos = b"", 0
             self._end(decoder.error)

@@ -259,3 +259,18 @@ def test_the_dialects_are_registered_data_and_a_new_one_is_one_value() -> None:
         assert dialect("acme").ports == {"motion": 12000, "state": 12001}
     finally:
         del DIALECTS["acme"]
+
+
+def test_on_frame_set_while_a_backlog_waits_sees_every_later_frame_in_order() -> None:
+    # a frame log switched on mid-stream: what waits undecoded goes through it, before new bytes
+    frames = [JointTrajPt(i, comm_type=CommType.TOPIC).encode(LE32) for i in range(3010)]
+    link = Link(LE32)
+    link.receive_data(b"".join(frames[:3000]))  # far more than one decoding slice
+    first = link.next_event()
+    seen: list[bytes] = []
+    link.on_frame = seen.append
+    link.receive_data(b"".join(frames[3000:]))
+    got = [first, *events(link)]
+    assert [e.message.sequence for e in got if isinstance(e, Received)] == list(range(3010))  # type: ignore[attr-defined]
+    assert len(got) == 3010
+    assert len(seen) > 10 and seen == frames[-len(seen) :]  # every frame decoded from then on, in order
