@@ -23,6 +23,8 @@ import time
 PING = struct.pack("<iiii", 12, 1, 2, 0)
 PING_REPLY = struct.pack("<iiii", 12, 1, 3, 1)
 SERVICE_REPLY = 3
+#: the state connections MotoROS serves (and the emulator's motoros profile)
+MOTOROS_STATE_SLOTS = 4
 
 
 async def start_server(profile: str) -> tuple[asyncio.subprocess.Process, int]:
@@ -101,25 +103,33 @@ async def run(clients: int, pings: int, profile: str) -> dict[str, float]:
     }
 
 
-def main() -> None:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--clients", type=int, default=100)
+    parser.add_argument("--clients", type=int, default=None, help="default 100 (MotoROS: 4, its state slots)")
     parser.add_argument("--pings", type=int, default=100)
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--profile", default="generic", choices=["generic", "motoros"])
     args = parser.parse_args()
-    if args.profile == "motoros" and args.clients > 4:
-        print("note: MotoROS serves 4 state clients, as the real one; the others are refused", file=sys.stderr)
+    if args.clients is None:
+        args.clients = MOTOROS_STATE_SLOTS if args.profile == "motoros" else 100
+    if args.profile == "motoros" and args.clients > MOTOROS_STATE_SLOTS:
+        print(
+            f"note: MotoROS serves {MOTOROS_STATE_SLOTS} state clients, as the real one; the others are refused",
+            file=sys.stderr,
+        )
     print(f"{args.clients} clients x {args.pings} PINGs on the state port, {args.profile} profile")
     print("| run | answered | wrong | failed clients | p50 ms | p99 ms | max ms |")
     print("|---:|---:|---:|---:|---:|---:|---:|")
+    complete = True
     for k in range(args.runs):
         r = asyncio.run(run(args.clients, args.pings, args.profile))
         print(
             f"| {k + 1} | {int(r['answered'])}/{args.clients * args.pings} | {int(r['wrong'])} | "
             f"{int(r['failed clients'])} | {r['p50 ms']:.3f} | {r['p99 ms']:.3f} | {r['max ms']:.3f} |"
         )
+        complete = complete and r["answered"] == args.clients * args.pings
+    return 0 if complete else 1  # every PING of every run answered correctly, or a failure
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -969,8 +969,8 @@ PROFILE_CAPS = {"motoros": {"state": 2, "io": 1}}
 CONNECT_TIMEOUT = 5.0
 STALL_TIMEOUT = 10.0  # s without an answer to an outstanding marker: the connection is stalled
 CLOSE_TIMEOUT = 5.0  # s for the server to close a connection after a fatal length prefix
-PROBE_TIMEOUT = 1.0
-STATE_GAP = 1.0  # s of state silence that counts as a hang
+#: s without an answer to a fresh PING, or of state silence, that counts as a hang (the default)
+HANG_AFTER = 1.0
 KEEP_BATCHES = 8  # batches kept per connection for a traceback's reproduction
 KEEP_CLOSED = 64  # closed connections whose batches are kept, per port
 
@@ -989,6 +989,7 @@ class Options:
     batch: int = 128
     window: int = 4
     probe_interval: float = 0.5
+    hang_after: float = HANG_AFTER
     decoder_frames: int = 1_000_000
     host: str = "127.0.0.1"
     motion_port: int | None = None
@@ -1031,6 +1032,7 @@ class ProfileReport:
     """What one profile's server run found (the table's row and the details below it)."""
 
     profile: str
+    hang_after: float = HANG_AFTER
     ports: dict[str, PortStats] = field(default_factory=dict)
     seconds: float = 0.0
     crashes: int = 0
@@ -1410,14 +1412,14 @@ class FuzzRun:
         problem = ""
         writer: asyncio.StreamWriter | None = None
         try:
-            async with asyncio.timeout(PROBE_TIMEOUT):
+            async with asyncio.timeout(report.hang_after):
                 reader, writer = await asyncio.open_connection(self.target.host, self.target.ports["motion"])
                 writer.write(ping_request(order))
                 reply = await reader.readexactly(HEADER)
                 if _HEAD[order].unpack(reply) != (12, PING, 3, 1):
                     problem = f"unexpected reply {reply.hex()}"
         except TimeoutError:
-            problem = f"no reply within {PROBE_TIMEOUT:g} s"
+            problem = f"no reply within {report.hang_after:g} s"
         except (OSError, asyncio.IncompleteReadError) as exc:
             problem = f"{type(exc).__name__}: {exc}"
         finally:
@@ -1468,7 +1470,7 @@ class FuzzRun:
                     gap = now - last
                     last = now
                     report.state_max_gap = max(report.state_max_gap, gap)
-                    if gap > STATE_GAP and ready.is_set():
+                    if gap > report.hang_after and ready.is_set():
                         report.state_gaps += 1
                         report.hangs += 1
                         report.notes.append(f"state port silent for {gap:.2f} s")
@@ -1599,7 +1601,7 @@ def _keep(report: ProfileReport, folder: Path) -> None:
 async def fuzz_server(profile: str, options: Options) -> ProfileReport:
     """One profile's server run (the module doc): start ``robot-server`` (or target the running one),
     fuzz every port, watch, stop, and read the log."""
-    report = ProfileReport(profile)
+    report = ProfileReport(profile, hang_after=options.hang_after)
     proc: asyncio.subprocess.Process | None = None
     tmp: tempfile.TemporaryDirectory[str] | None = None
     if options.external:
@@ -1827,7 +1829,7 @@ def details(r: ProfileReport) -> str:
     out.append(
         f"  probes: {r.probes} ({r.probe_failures} failed, slowest {r.probe_max * 1000:.0f} ms); state messages "
         f"{r.state_messages:,} (longest silence {r.state_max_gap * 1000:.0f} ms, {r.state_gaps} over "
-        f"{STATE_GAP:g} s); largest position change {r.max_deviation:g}"
+        f"{r.hang_after:g} s); largest position change {r.max_deviation:g}"
     )
     if r.rss_samples:
         step = max(1, len(r.rss_samples) // 8)
@@ -1890,6 +1892,13 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--batch", type=int, default=128, help="frames per write (default %(default)s)")
     p.add_argument("--window", type=int, default=4, help="unanswered batches per connection (default 4)")
     p.add_argument("--probe-interval", type=float, default=0.5, metavar="S", help="PING probe period (default 0.5)")
+    p.add_argument(
+        "--hang-after",
+        type=float,
+        default=HANG_AFTER,
+        metavar="S",
+        help="a PING unanswered, or the state port silent, this long is a hang (default %(default)s)",
+    )
     p.add_argument("--decoder-frames", type=int, default=1_000_000, help="0: no decoder run (default %(default)s)")
     p.add_argument("--decoder-seconds", type=float, default=None, help="time limit of the decoder run")
     p.add_argument("--host", default="127.0.0.1", help="a running server's address (default 127.0.0.1)")
@@ -1925,6 +1934,7 @@ def options_from(args: argparse.Namespace) -> Options:
         batch=max(1, args.batch),
         window=max(1, args.window),
         probe_interval=args.probe_interval,
+        hang_after=args.hang_after,
         decoder_frames=args.decoder_frames,
         host=args.host,
         motion_port=args.motion_port,
