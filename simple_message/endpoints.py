@@ -379,6 +379,12 @@ class Server:
             await connection.close()
             if self.on_disconnect is not None:
                 self.on_disconnect(session)
+            # The session and its connection refer to each other through these: unlinked, they are
+            # freed as soon as the last reference goes, not by a later garbage collection (which,
+            # with connections coming and going, let memory pile up between collections).
+            connection.on_message = None
+            connection.on_read_end = None
+            session.worker = None
 
     async def serve_serial(self, url: str, *, data: dict[str, Any] | None = None, **serial_options: Any) -> None:
         """Serve one serial link (pyserial URL) until it closes."""

@@ -162,7 +162,7 @@ class FrameDecoder:
                 append(buf[pos:stop])
                 pos = stop
         except FrameError as exc:
-            self._error = exc
+            self._error = exc.with_traceback(None)  # kept: its frames would keep this decoder in a cycle
             self._buf = b""
             return
         self._buf = buf[pos:] if pos < end else b""
@@ -246,7 +246,7 @@ class FrameDecoder:
                 if length < HEADER_SIZE or length > max_length:
                     raise FrameError(_length_problem(length, max_length), length=length)
         except FrameError as exc:
-            self._error = exc
+            self._error = exc.with_traceback(None)  # kept: its frames would keep this decoder in a cycle
             pos = end
         self._buf = buf[pos:] if pos < end else b""
         self.frames_decoded += len(out) - queued

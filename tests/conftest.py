@@ -1,5 +1,5 @@
-"""What every test runs under: a guard that fails a test which leaks asyncio tasks, threads or
-file descriptors (sockets, pipes, files), naming what leaked.
+"""What every test runs under: a guard that fails a test which leaks asyncio tasks, threads, file
+descriptors (sockets, pipes, files) or logging filters, naming what leaked.
 
 * **Tasks**: the tasks still pending on the test's event loop once the test and its async fixtures
   are done, just before pytest-asyncio's runner closes the loop (which would cancel them
@@ -10,6 +10,8 @@ file descriptors (sockets, pipes, files), naming what leaked.
 * **File descriptors**: entries of ``/proc/self/fd`` that were not there before the test, after
   the event loop has closed, a garbage collection and a bounded wait; a socket is named by its
   addresses (from ``/proc/net``).
+* **Logging filters**: filters added to a logger and not taken off (an emulator's log ceiling left
+  behind would swallow the next test's log lines).
 
 The guard only speaks when the test itself passed (a failing test says enough). A test that has a
 reason to leak says so with ``@pytest.mark.leaks_allowed("why")``: its leaks are then a warning.
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import asyncio
 import gc
+import logging
 import os
 import socket
 import threading
@@ -198,6 +201,12 @@ def _leaked_threads(before: set[threading.Thread]) -> list[threading.Thread]:
     return [t for t in new if t.is_alive()]
 
 
+def _filters() -> set[tuple[str, int]]:
+    """(logger name, filter id) of every filter on a logger."""
+    loggers = [logging.getLogger(), *(logging.getLogger(name) for name in list(logging.Logger.manager.loggerDict))]
+    return {(logger.name, id(f)) for logger in loggers for f in logger.filters}
+
+
 def _describe_thread(thread: threading.Thread) -> str:
     target = getattr(thread, "_target", None)
     runs = f" running {getattr(target, '__qualname__', repr(target))}" if target is not None else ""
@@ -213,6 +222,7 @@ def leak_guard(request: pytest.FixtureRequest) -> Iterator[None]:
     are gone; tasks are checked earlier, by the runner's finalizer (:func:`_check_tasks`)."""
     threads = set(threading.enumerate())
     fds = _fds()
+    filters = _filters()
     yield
     item = request.node
     if item.nodeid in _FAILED:
@@ -220,6 +230,7 @@ def leak_guard(request: pytest.FixtureRequest) -> Iterator[None]:
         return
     leaks = list(item.stash.get(_PENDING_TASKS, []))
     leaks += [_describe_thread(t) for t in _leaked_threads(threads)]
+    leaks += [f"a logging filter on {name!r}" for name, _ in sorted(_filters() - filters)]
     new = _new_fds(fds)
     if new:
         gc.collect()  # descriptors only garbage holds (closed with a ResourceWarning)

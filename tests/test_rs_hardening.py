@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import gc
 import importlib.util
 import logging
 import math
@@ -18,6 +19,7 @@ import os
 import socket
 import struct
 import time
+import weakref
 from pathlib import Path
 
 import pytest
@@ -388,6 +390,30 @@ async def test_a_serial_link_is_never_closed_by_a_tcp_newcomer_or_the_frame_time
         for fd in (master, slave):
             with contextlib.suppress(OSError):
                 os.close(fd)
+
+
+async def test_a_finished_session_is_freed_without_the_garbage_collector() -> None:
+    # a session and its connection must not be kept in reference cycles: under connection churn
+    # (the fuzz: ~940 connections a million frames) cycles waiting for a collection made the RSS
+    # grow by 11 MB; freed by reference counting, it grows by under 2
+    server = _ping_server()
+    port = await server.serve_tcp("127.0.0.1", 0)
+    refs: list[weakref.ref[object]] = []
+    server.on_connect = lambda session: refs.extend((weakref.ref(session), weakref.ref(session.connection)))
+    gc.collect()
+    gc.disable()
+    try:
+        for ending in (b"", struct.pack("<i", -5)):  # a clean close, and a fatal length prefix
+            peer = await RawPeer.connect(port)
+            await peer.send(PING * 3 + header_only(MsgType.JOINT_TRAJ_PT) + ending)
+            for _ in range(4):
+                await peer.frame(T)
+            await peer.close()
+            await poll(lambda: not server.sessions, T)
+        await poll(lambda: len(refs) == 4 and all(ref() is None for ref in refs), T)
+    finally:
+        gc.enable()
+        await server.close()
 
 
 # -- 7. log floods ---------------------------------------------------------------------------------

@@ -318,8 +318,6 @@ class Emulator:
             return self
         self._started = True
         cfg = self.config
-        self._log_ceiling = BudgetFilter(LogBudget("emulator", rate=PEER_LOG_RATE, burst=PEER_LOG_BURST))
-        self._log_ceiling.install(*PEER_LOGGERS)
         try:
             for name, server in self.servers.items():
                 port = cfg.port(name)
@@ -329,6 +327,9 @@ class Emulator:
             for server in self.servers.values():
                 await server.close()
             raise
+        # installed once nothing can fail any more (close takes it off again)
+        self._log_ceiling = BudgetFilter(LogBudget("emulator", rate=PEER_LOG_RATE, burst=PEER_LOG_BURST))
+        self._log_ceiling.install(*PEER_LOGGERS)
         loop = asyncio.get_running_loop()
         self._tasks.append(loop.create_task(self._run_control(), name="emulator control loop"))
         self._tasks.append(loop.create_task(self._run_state(), name="emulator state topics"))
