@@ -56,9 +56,10 @@ __all__ = ["Emulator", "EmulatorConfig", "PeriodStats"]
 
 log = logging.getLogger(__name__)
 
-#: the loggers whose lines peers cause: connections, the controller's and the cell's lines, which
-#: one connection's budget does not bound (a client connecting and leaving a thousand times a
-#: second, or starting and stopping trajectories as fast as it can)
+#: the loggers whose lines peers cause (and the running profile's module logger): connections, the
+#: profiles' per-connection lines, the controller's and the cell's lines. One connection's budget
+#: does not bound them all: a client connecting and leaving a thousand times a second, or starting
+#: and stopping trajectories as fast as it can.
 PEER_LOGGERS = (
     "simple_message.connection",
     "simple_message.endpoints",
@@ -66,6 +67,8 @@ PEER_LOGGERS = (
     "robot_server.control.motion",
     "robot_server.emulator.cell",
     "robot_server.emulator.owner",
+    "robot_server.emulator.generic",
+    "robot_server.emulator.motoros",
 )
 #: what those loggers may write together while an emulator runs: a burst, then lines per second
 PEER_LOG_BURST = 100
@@ -329,7 +332,8 @@ class Emulator:
             raise
         # installed once nothing can fail any more (close takes it off again)
         self._log_ceiling = BudgetFilter(LogBudget("emulator", rate=PEER_LOG_RATE, burst=PEER_LOG_BURST))
-        self._log_ceiling.install(*PEER_LOGGERS)
+        profile_logger = type(self.behaviour).__module__  # a profile of one's own logs there
+        self._log_ceiling.install(*PEER_LOGGERS, *([] if profile_logger in PEER_LOGGERS else [profile_logger]))
         loop = asyncio.get_running_loop()
         self._tasks.append(loop.create_task(self._run_control(), name="emulator control loop"))
         self._tasks.append(loop.create_task(self._run_state(), name="emulator state topics"))
