@@ -19,12 +19,13 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 __all__ = ["LogBudget", "BudgetFilter", "LINES_PER_SECOND", "BURST"]
 
-#: a record attribute marking a budget's own summary line (it passes every budget)
+#: record attributes of a budget's summary line: the budget, and the counts it summarises by cause
 _SUMMARY = "log_budget_summary"
+_COUNTS = "log_budget_counts"
 
 #: lines per second a connection may cause once its burst is spent
 LINES_PER_SECOND = 5.0
@@ -72,9 +73,11 @@ class LogBudget:
         logger.log(level, "%s: " + msg, self.name, *args, exc_info=exc_info)
         return True
 
-    def admit(self, logger: logging.Logger, msg: str) -> bool:
+    def admit(self, logger: logging.Logger, msg: str, counts: Mapping[str, int] | None = None) -> bool:
         """Take a line of cause ``msg`` from the budget: ``True`` if it may be written (after the
-        summary of what was held back, written here to ``logger``), ``False`` if it is counted."""
+        summary of what was held back, written here to ``logger``), ``False`` if it is counted.
+        A line that is itself a summary brings its ``counts`` (by cause): held back, they are
+        counted here in its place."""
         now = self._clock()
         self._tokens = min(float(self.burst), self._tokens + (now - self._last) * self.rate)
         self._last = now
@@ -82,7 +85,9 @@ class LogBudget:
             if not self._suppressed:
                 self._since = now
                 self._first_logger = logger
-            self._suppressed[msg] = self._suppressed.get(msg, 0) + 1
+            suppressed = self._suppressed
+            for cause, n in (counts or {msg: 1}).items():
+                suppressed[cause] = suppressed.get(cause, 0) + n
             return False
         self._tokens -= 1.0
         if self._suppressed:
@@ -108,7 +113,7 @@ class LogBudget:
             now - self._since,
             shown,
             more,
-            extra={_SUMMARY: True},
+            extra={_SUMMARY: self, _COUNTS: counts},
         )
 
 
@@ -123,9 +128,12 @@ class BudgetFilter(logging.Filter):
         self._loggers: list[logging.Logger] = []
 
     def filter(self, record: logging.LogRecord) -> bool:
-        if getattr(record, _SUMMARY, False):
-            return True
-        return self.budget.admit(logging.getLogger(record.name), str(record.msg))
+        budget = self.budget
+        source = getattr(record, _SUMMARY, None)
+        if source is budget:
+            return True  # its own summary
+        # a line, or another budget's summary (one per connection that ends: under churn, many)
+        return budget.admit(logging.getLogger(record.name), str(record.msg), getattr(record, _COUNTS, None))
 
     def install(self, *names: str) -> BudgetFilter:
         """Add this filter to the loggers ``names``; returns itself."""

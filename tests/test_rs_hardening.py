@@ -28,7 +28,7 @@ from robot_server.emulator import Emulator
 from robot_server.emulator.server import PEER_LOG_BURST, PEER_LOG_RATE, PEER_LOGGERS
 from simple_message import MsgType, Ping
 from simple_message.endpoints import LOOP_VARIABLE, Server
-from simple_message.lograte import BURST, LogBudget
+from simple_message.lograte import BURST, BudgetFilter, LogBudget
 from simple_message.transport import open_fd
 from tests.rawpeer import Frame, RawPeer, joint_traj_pt, joint_traj_pt_full, vectors
 from tests.stepped import poll, settle, step, stepped_emulator
@@ -521,6 +521,41 @@ def test_the_log_budget_allows_a_burst_then_a_rate_and_summarises_per_cause() ->
         assert records[-1].getMessage().startswith("peer: suppressed 2 log lines")
         assert budget.suppressed == 0
     finally:
+        logger.removeHandler(handler)
+
+
+def test_a_ceiling_over_loggers_counts_the_summaries_it_holds_back_by_their_causes() -> None:
+    now = [0.0]
+    logger = logging.getLogger("tests.lograte.ceiling")
+    logger.setLevel(logging.INFO)
+    records: list[logging.LogRecord] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            records.append(record)
+
+    handler = Keep()
+    logger.addHandler(handler)
+    ceiling = BudgetFilter(LogBudget("all", rate=1.0, burst=2, clock=lambda: now[0])).install(logger.name)
+    try:
+        for peer in range(5):  # five connections, each with a burst of 1 and 3 bad frames, then gone
+            budget = LogBudget(f"peer {peer}", rate=1.0, burst=1, clock=lambda: now[0])
+            for i in range(3):
+                budget.log(logger, logging.WARNING, "bad frame %d", i)
+            budget.flush()
+        # the ceiling let 2 lines through; the rest (3 lines, 5 summaries of 2 lines each) it holds
+        assert [r.getMessage() for r in records] == [
+            "peer 0: bad frame 0",
+            "peer 0: suppressed 2 log lines in 0.0 s: 2 x bad frame %d",
+        ]
+        now[0] = 10.0
+        logger.warning("later")
+        assert (
+            records[-2].getMessage() == "all: suppressed 12 log lines in 10.0 s: 8 x bad frame %d; 4 x %s: bad frame %d"
+        )
+        assert records[-1].getMessage() == "later"
+    finally:
+        ceiling.remove()
         logger.removeHandler(handler)
 
 
