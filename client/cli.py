@@ -148,7 +148,11 @@ def parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", parents=[common], help="execute a trajectory file (.csv or .json)")
     run.add_argument("file", type=Path)
     run.add_argument("--mode", choices=[m.value for m in Mode], default=Mode.STREAM.value)
-    sub.add_parser("stop", parents=[common], help="stop the robot now")
+    sub.add_parser(
+        "stop",
+        parents=[common],
+        help="stop the robot now (a motion client: refused while another client moves the robot)",
+    )
     record = sub.add_parser("record", parents=[common], help="record the joint states to a CSV file")
     record.add_argument("file", type=Path)
     record.add_argument("--duration", type=_positive, help="seconds (default: until Ctrl-C)")
@@ -371,9 +375,14 @@ _COMMANDS = {
 }
 
 
+#: the commands that only watch: they connect the state port alone, so they never take the motion
+#: port from the client that moves the robot
+_WATCHING = {"status", "monitor", "record"}
+
+
 async def _with_driver(args: argparse.Namespace, model: RobotModel, out: TextIO) -> None:
     driver = _driver(args, model)
-    await driver.connect(args.timeout)
+    await driver.connect(args.timeout, motion=args.command not in _WATCHING)
     try:
         await _COMMANDS[args.command](driver, args, out)
     finally:

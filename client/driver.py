@@ -190,14 +190,17 @@ class RobotDriver:
 
     # -- lifecycle ---------------------------------------------------------------------------------
 
-    async def connect(self, timeout: float = 10.0) -> RobotDriver:
-        """Connect both ports and wait for the first joint state."""
+    async def connect(self, timeout: float = 10.0, *, motion: bool = True) -> RobotDriver:
+        """Connect both ports and wait for the first joint state. ``motion=False`` connects the
+        state port only: to watch the robot without being a motion client, which a controller
+        serves one at a time (MotoROS, and the emulator, close an idle one for a newcomer)."""
         try:
             # whatever joint-state topic the peer sends (its dialect's state_topics, or another: a
             # generic peer may send JOINT_FEEDBACK, a MotoROS look-alike JOINT_POSITION)
             topics = {*self.dialect.state_topics, MsgType.JOINT_POSITION, MsgType.JOINT_FEEDBACK, MsgType.STATUS}
             subscription = self.state.subscribe(64, topics)
-            await self.motion.start(timeout)
+            if motion or self.state is self.motion:
+                await self.motion.start(timeout)
             if self.state is not self.motion:
                 await self.state.start(timeout)
         except (TimeoutError, ConnectionClosed, OSError) as exc:
@@ -294,7 +297,10 @@ class RobotDriver:
                 await connection.close()
             raise DriverError(f"no reply to {msg.name} within {self.reply_timeout} s") from None
         except NotConnected as exc:
-            raise _NotSent(f"motion connection down: {exc}") from None
+            raise _NotSent(
+                f"motion connection down: {exc} (if the controller is up, another client may be moving the robot: "
+                "a controller takes one motion client at a time)"
+            ) from None
         except ConnectionClosed as exc:
             raise _InFlight(f"motion connection lost: {exc}") from None
 

@@ -63,6 +63,32 @@ def positions(emu: Emulator) -> np.ndarray:
     return np.array(emu.cell.groups[0].command.actual_position)
 
 
+@pytest.mark.parametrize("profile", ["generic", "motoros"])
+async def test_the_watching_commands_never_take_the_motion_port_from_its_client(profile: str, tmp_path: Path) -> None:
+    # a controller serves one motion client, and a newcomer at rest replaces an idle one (MotoROS's
+    # rule): status, monitor and record only watch, so they connect the state port alone
+    async with controller(profile=profile) as (emu, ports):
+        _, writer = await asyncio.open_connection("127.0.0.1", emu.ports["motion"])
+        try:
+            await asyncio.wait_for(_until(lambda: emu.owner.owner is not None), 10.0)
+            owner = emu.owner.owner
+            for argv in (
+                ["status"],
+                ["monitor", "--duration", "0.2"],
+                ["record", "--duration", "0.2", str(tmp_path / "r.csv")],
+            ):
+                code, out = await client(*argv, *ports)
+                assert code == 0, out
+                assert emu.owner.owner is owner and not owner.connection.closed, argv
+        finally:
+            writer.close()
+
+
+async def _until(predicate: Any) -> None:
+    while not predicate():  # noqa: ASYNC110 - nothing to wait on: the caller bounds it
+        await asyncio.sleep(0.01)
+
+
 async def test_ping_status_stop_and_monitor(capsys: pytest.CaptureFixture[str]) -> None:
     async with controller() as (_, ports):
         code, out = await client("ping", "--count", "3", *ports)
