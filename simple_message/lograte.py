@@ -21,11 +21,13 @@ import logging
 import time
 from collections.abc import Callable, Mapping
 
-__all__ = ["LogBudget", "BudgetFilter", "LINES_PER_SECOND", "BURST"]
+__all__ = ["LogBudget", "BudgetFilter", "lane", "LINES_PER_SECOND", "BURST"]
 
 #: record attributes of a budget's summary line: the budget, and the counts it summarises by cause
 _SUMMARY = "log_budget_summary"
 _COUNTS = "log_budget_counts"
+#: a record attribute: the :func:`lane` of a line
+_LANE = "log_budget_lane"
 
 #: lines per second a connection may cause once its burst is spent
 LINES_PER_SECOND = 5.0
@@ -117,21 +119,29 @@ class LogBudget:
         )
 
 
+def lane(name: str) -> dict[str, object]:
+    """``extra=lane(name)`` puts a log line in a lane of its own under a :class:`BudgetFilter`
+    that has one: a flood of ordinary lines cannot crowd it out (the robot stopping, an e-stop)."""
+    return {_LANE: name}
+
+
 class BudgetFilter(logging.Filter):
     """A :class:`LogBudget` over whole loggers, whoever writes to them: added to several loggers,
     it bounds the lines they write together (a ceiling over the per-connection budgets, for what
-    no one connection causes: many connections coming and going, the controller's own lines)."""
+    no one connection causes: many connections coming and going, the controller's own lines).
+    ``lanes`` give lines marked with :func:`lane` budgets of their own."""
 
-    def __init__(self, budget: LogBudget) -> None:
+    def __init__(self, budget: LogBudget, lanes: Mapping[str, LogBudget] | None = None) -> None:
         super().__init__()
         self.budget = budget
+        self.lanes = dict(lanes or {})
         self._loggers: list[logging.Logger] = []
 
     def filter(self, record: logging.LogRecord) -> bool:
-        budget = self.budget
         source = getattr(record, _SUMMARY, None)
-        if source is budget:
+        if source is self.budget or source in self.lanes.values():
             return True  # its own summary
+        budget = self.lanes.get(getattr(record, _LANE, ""), self.budget)
         # a line, or another budget's summary (one per connection that ends: under churn, many)
         return budget.admit(logging.getLogger(record.name), str(record.msg), getattr(record, _COUNTS, None))
 
@@ -145,7 +155,8 @@ class BudgetFilter(logging.Filter):
 
     def remove(self) -> None:
         """Take this filter off its loggers, after writing the summary of what it held back."""
-        self.budget.flush()
+        for budget in (self.budget, *self.lanes.values()):
+            budget.flush()
         for logger in self._loggers:
             logger.removeFilter(self)
         self._loggers.clear()

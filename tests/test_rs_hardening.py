@@ -28,7 +28,7 @@ from robot_server.emulator import Emulator
 from robot_server.emulator.server import PEER_LOG_BURST, PEER_LOG_RATE, PEER_LOGGERS
 from simple_message import MsgType, Ping
 from simple_message.endpoints import LOOP_VARIABLE, Server
-from simple_message.lograte import BURST, BudgetFilter, LogBudget
+from simple_message.lograte import BURST, BudgetFilter, LogBudget, lane
 from simple_message.transport import open_fd
 from tests.rawpeer import Frame, RawPeer, joint_traj_pt, joint_traj_pt_full, vectors
 from tests.stepped import poll, settle, step, stepped_emulator
@@ -557,6 +557,25 @@ def test_a_ceiling_over_loggers_counts_the_summaries_it_holds_back_by_their_caus
     finally:
         ceiling.remove()
         logger.removeHandler(handler)
+
+
+def test_safety_lines_have_a_lane_a_flood_of_other_lines_cannot_crowd_out(caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.INFO)
+    logger = logging.getLogger("robot_server.emulator.owner")
+    ceiling = BudgetFilter(
+        LogBudget("all", rate=1.0, burst=2, clock=lambda: 0.0),
+        {"safety": LogBudget("safety", rate=1.0, burst=2, clock=lambda: 0.0)},
+    ).install(logger.name)
+    try:
+        for i in range(50):  # a churn of ordinary lines spends the main budget
+            logger.info("connection %d", i)
+        logger.warning("the motion client left with the robot busy: controlled stop", extra=lane("safety"))
+    finally:
+        ceiling.remove()
+    messages = [r.getMessage() for r in caplog.records if r.name == logger.name]
+    assert messages[:2] == ["connection 0", "connection 1"]
+    assert messages[2] == "the motion client left with the robot busy: controlled stop"
+    assert messages[3].startswith("all: suppressed 48 log lines")  # the rest counted, summarised at the end
 
 
 # -- many monitoring clients -------------------------------------------------------------------------

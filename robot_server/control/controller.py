@@ -47,6 +47,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from simple_message.lograte import lane
+
 from ..model import RobotModel
 from .motion import MotionQueue, Plan
 from .points import Limits, Point, PointRejected, Reason, State, check_point
@@ -65,6 +67,8 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+#: the lines that say the robot stopped or may not move: a lane of their own under a log ceiling
+SAFETY = lane("safety")
 
 #: alarm code of a following-error alarm is this plus the joint number (1-based)
 FOLLOWING_ERROR_ALARM = 4100
@@ -339,13 +343,13 @@ class Controller:
         if self.in_error:
             return
         self.error_code, self.error_message = code, message
-        log.warning("alarm %d: %s", code, message)
+        log.warning("alarm %d: %s", code, message, extra=SAFETY)
         self._abandon()
 
     def reset(self) -> None:
         """Clear the alarm (the robot is held where it is)."""
         if self.in_error:
-            log.info("alarm %d reset", self.error_code)
+            log.info("alarm %d reset", self.error_code, extra=SAFETY)
         self.error_code, self.error_message = 0, ""
 
     def power_off(self) -> None:
@@ -355,13 +359,13 @@ class Controller:
             self.servo.brake()
             self._powered = False
             self._settled = True  # the brakes hold every joint: nothing moves from this instant
-            log.info("drives off")
+            log.info("drives off", extra=SAFETY)
 
     def power_on(self) -> None:
         """Power the drives: they hold the position the brakes kept."""
         if not self._powered:
             self._powered = True
-            log.info("drives on")
+            log.info("drives on", extra=SAFETY)
 
     # -- stepping ------------------------------------------------------------------------------
 

@@ -28,6 +28,7 @@ import logging
 from collections.abc import Sequence
 
 from simple_message.constants import RobotMode, SpecialSeq, TriState
+from simple_message.lograte import lane
 from simple_message.messages import Status
 
 from ..control import Controller, ControllerConfig, Point, PointRejected, Reason, submit_together
@@ -37,6 +38,8 @@ from .points import STREAM_STARTS, dispatch
 __all__ = ["RobotCell", "FaultError", "apply_fault_command", "FAULT_COMMANDS"]
 
 log = logging.getLogger(__name__)
+#: the lines that say the robot stopped or may not move: a lane of their own under a log ceiling
+SAFETY = lane("safety")
 
 
 class FaultError(ValueError):
@@ -154,14 +157,14 @@ class RobotCell:
         return max(g.stop() for g in self.groups)
 
     def estop(self) -> None:
-        log.info("fault: emergency stop engaged")
+        log.info("fault: emergency stop engaged", extra=SAFETY)
         self.e_stopped = True
         for g in self.groups:
             g.power_off()
         self._interrupted()
 
     def drives_off(self) -> None:
-        log.info("fault: drives off")
+        log.info("fault: drives off", extra=SAFETY)
         for g in self.groups:
             g.power_off()
         self._interrupted()
@@ -169,7 +172,7 @@ class RobotCell:
     def drives_on(self) -> None:
         if self.e_stopped:
             raise FaultError("the drives cannot be powered while the emergency stop is engaged")
-        log.info("drives on")
+        log.info("drives on", extra=SAFETY)
         for g in self.groups:
             g.power_on()
         self._interrupted()
@@ -177,21 +180,21 @@ class RobotCell:
     def alarm(self, code: int, message: str = "") -> None:
         if code <= 0:
             raise FaultError(f"an alarm code must be a positive number, not {code}")
-        log.info("fault: alarm %d %s", code, message)
+        log.info("fault: alarm %d %s", code, message, extra=SAFETY)
         for g in self.groups:
             g.raise_alarm(code, message or f"alarm {code}")
         self._interrupted()
 
     def reset_alarm(self) -> None:
         if self.in_error:
-            log.info("alarm %d reset", self.error_code)
+            log.info("alarm %d reset", self.error_code, extra=SAFETY)
         for g in self.groups:
             g.reset()
         self._interrupted()
 
     def reset(self) -> None:
         """The operator's reset: e-stop released, alarms cleared, drives powered."""
-        log.info("reset: e-stop released, alarms cleared, drives on")
+        log.info("reset: e-stop released, alarms cleared, drives on", extra=SAFETY)
         self.e_stopped = False
         self.reset_alarm()
         self.drives_on()
@@ -199,7 +202,7 @@ class RobotCell:
     def set_mode(self, mode: RobotMode) -> None:
         if mode not in (RobotMode.AUTO, RobotMode.MANUAL):
             raise FaultError(f"the mode must be AUTO or MANUAL, not {mode}")
-        log.info("mode %s", mode.name)
+        log.info("mode %s", mode.name, extra=SAFETY)
         if mode != RobotMode.AUTO:
             for g in self.groups:
                 g.stop()

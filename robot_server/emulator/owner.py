@@ -37,7 +37,7 @@ from enum import StrEnum
 
 from simple_message.endpoints import Server, Session
 
-from .cell import RobotCell
+from .cell import SAFETY, RobotCell
 
 __all__ = ["MotionOwner", "OnDisconnect"]
 
@@ -123,13 +123,16 @@ class MotionOwner:
                     "%s: the motion client left with the robot busy: controlled stop in %.3f s (--on-disconnect stop)",
                     session.name,
                     duration,
+                    extra=SAFETY,
                 )
             else:
                 for group in cell.groups:
                     group.abandon_download("its motion client left before its end")
                 if cell.in_motion:
                     log.info(
-                        "%s: the motion client left: the queued motion runs on (--on-disconnect continue)", session.name
+                        "%s: the motion client left: the queued motion runs on (--on-disconnect continue)",
+                        session.name,
+                        extra=SAFETY,
                     )
         for listener in self._listeners:
             listener(session)

@@ -73,6 +73,9 @@ PEER_LOGGERS = (
 #: what those loggers may write together while an emulator runs: a burst, then lines per second
 PEER_LOG_BURST = 100
 PEER_LOG_RATE = 20.0
+#: the same for the lines that say the robot stopped or may not move (``lograte.lane("safety")``)
+SAFETY_LOG_BURST = 20
+SAFETY_LOG_RATE = 5.0
 
 ByteOrderChoice = Literal["little", "big", "auto"]
 _STATE_LINK = "carries_state"
@@ -331,7 +334,11 @@ class Emulator:
                 await server.close()
             raise
         # installed once nothing can fail any more (close takes it off again)
-        self._log_ceiling = BudgetFilter(LogBudget("emulator", rate=PEER_LOG_RATE, burst=PEER_LOG_BURST))
+        self._log_ceiling = BudgetFilter(
+            LogBudget("emulator", rate=PEER_LOG_RATE, burst=PEER_LOG_BURST),
+            # the robot stopping, faults, alarms: a flood of other lines cannot crowd them out
+            {"safety": LogBudget("emulator safety", rate=SAFETY_LOG_RATE, burst=SAFETY_LOG_BURST)},
+        )
         profile_logger = type(self.behaviour).__module__  # a profile of one's own logs there
         self._log_ceiling.install(*PEER_LOGGERS, *([] if profile_logger in PEER_LOGGERS else [profile_logger]))
         loop = asyncio.get_running_loop()
