@@ -94,6 +94,8 @@ DEFAULT_IDLE_AFTER = 10.0
 #: unread bytes that mark a peer that does not read (far above a state round in flight: 4 s of the
 #: emulator's default state stream)
 _DEAF_BYTES = 16 * 1024
+#: how long a full port trusts its last look at what its peers left unread (s)
+_UNREAD_SCAN_AGE = 1.0
 
 HandlerResult = Message | ReplyCode | int | None
 #: ``handler(message, session)``: returns the reply (see the module docstring); may be async.
@@ -234,6 +236,8 @@ class Server:
         self.evicted = 0
         #: the lines refused and evicted connections cause (one budget for the port)
         self._log_budget = LogBudget(name)
+        #: (when, unread bytes by session) of the last look a full port took (``_make_room``)
+        self._unread_scan: tuple[float, dict[Session, int]] = (-_UNREAD_SCAN_AGE, {})
         #: PING is answered by the server itself (no handler, no arrival hook): the fast path
         self._ping_auto = True
 
@@ -295,8 +299,7 @@ class Server:
             victim = min(partial, key=lambda s: s.connection.last_input)
             reason = "held an incomplete frame"
         if victim is None:
-            socks = [s.connection.transport.get_extra_info("socket") for s in candidates]
-            in_socket = unread_by_peers(socks)  # one look at the kernel's table for all of them
+            in_socket = self._unread_in_sockets(candidates, now)
             unread = [s.connection.write_buffer_size() + n for s, n in zip(candidates, in_socket, strict=True)]
             deaf = [(n, s) for n, s in zip(unread, candidates, strict=True) if n >= _DEAF_BYTES]
             if deaf:
@@ -322,6 +325,18 @@ class Server:
         )
         victim.connection.abort(ConnectionClosed(f"closed to make room for a new connection: it {reason}"))
         return True
+
+    def _unread_in_sockets(self, sessions: list[Session], now: float) -> list[int]:
+        """What each session's sockets hold unread by its peer (:func:`.transport.unread_by_peers`:
+        one read of the kernel's socket table for all of them), looked up at most once per
+        ``_UNREAD_SCAN_AGE`` s: the table grows with every socket on the machine, and a flood of
+        newcomers to a full port must not make the event loop read it for each one."""
+        taken, scan = self._unread_scan
+        if now - taken >= _UNREAD_SCAN_AGE:
+            socks = [s.connection.transport.get_extra_info("socket") for s in sessions]
+            scan = dict(zip(sessions, unread_by_peers(socks), strict=True))
+            self._unread_scan = (now, scan)
+        return [scan.get(s, 0) for s in sessions]  # a session newer than the look: nothing unread yet
 
     async def serve_link(
         self, streams: StreamPair, name: str | None = None, data: dict[str, Any] | None = None
@@ -457,6 +472,7 @@ class Server:
             await asyncio.gather(*self._tasks, return_exceptions=True)
         self._servers.clear()
         self._log_budget.flush()  # what refused and evicted connections left unsaid
+        self._unread_scan = (-_UNREAD_SCAN_AGE, {})
 
     async def __aenter__(self) -> Server:
         return self

@@ -26,7 +26,7 @@ import pytest
 
 from robot_server.emulator import Emulator
 from robot_server.emulator.server import PEER_LOG_BURST, PEER_LOG_RATE, PEER_LOGGERS
-from simple_message import MsgType, Ping
+from simple_message import MsgType, Ping, endpoints
 from simple_message.endpoints import LOOP_VARIABLE, Server
 from simple_message.lograte import BURST, BudgetFilter, LogBudget, lane
 from simple_message.transport import open_fd
@@ -328,6 +328,34 @@ async def test_a_full_port_closes_a_peer_that_does_not_read_first() -> None:
         assert (await listener.request(PING)).raw == LE["PING_REPLY_SUCCESS"]
     finally:
         deaf_sock.close()
+        for peer in peers:
+            await peer.close()
+        await server.close()
+
+
+async def test_a_flood_of_newcomers_to_a_full_port_reads_the_socket_table_once_a_second(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # the table has a line per socket on the machine: read for every newcomer, a connect flood
+    # would stall the event loop (and the control loop with it)
+    scans: list[int] = []
+
+    def counted(socks: list[object]) -> list[int]:
+        scans.append(len(socks))
+        return [0] * len(socks)
+
+    monkeypatch.setattr(endpoints, "unread_by_peers", counted)
+    server = _ping_server(max_connections=2, idle_after=None)
+    port = await server.serve_tcp("127.0.0.1", 0)
+    peers = [await RawPeer.connect(port) for _ in range(2)]
+    try:
+        await poll(lambda: len(server.sessions) == 2, T)
+        for _ in range(20):  # refused: nobody to make room for them
+            late = await RawPeer.connect(port)
+            assert await late.closed()
+            await late.close()
+        assert server.refused == 20 and len(scans) == 1  # well within a second of the first
+    finally:
         for peer in peers:
             await peer.close()
         await server.close()
