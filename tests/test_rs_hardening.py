@@ -20,6 +20,7 @@ import socket
 import struct
 import time
 import weakref
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -518,10 +519,10 @@ async def test_the_lines_one_client_makes_the_controller_write_are_bounded_too(
     assert len(lines) + suppressed >= 1000  # a start and a download line each: written or counted
 
 
-def test_the_log_budget_allows_a_burst_then_a_rate_and_summarises_per_cause() -> None:
-    now = [0.0]
-    budget = LogBudget("peer", rate=5.0, burst=BURST, clock=lambda: now[0])
-    logger = logging.getLogger("tests.lograte")
+@contextlib.contextmanager
+def kept(name: str) -> Iterator[tuple[logging.Logger, list[logging.LogRecord]]]:
+    """The logger ``name`` at INFO, and every record it handles while the block runs."""
+    logger = logging.getLogger(name)
     logger.setLevel(logging.INFO)
     records: list[logging.LogRecord] = []
 
@@ -532,6 +533,15 @@ def test_the_log_budget_allows_a_burst_then_a_rate_and_summarises_per_cause() ->
     handler = Keep()
     logger.addHandler(handler)
     try:
+        yield logger, records
+    finally:
+        logger.removeHandler(handler)
+
+
+def test_the_log_budget_allows_a_burst_then_a_rate_and_summarises_per_cause() -> None:
+    now = [0.0]
+    budget = LogBudget("peer", rate=5.0, burst=BURST, clock=lambda: now[0])
+    with kept("tests.lograte") as (logger, records):
         written = sum(budget.log(logger, logging.WARNING, "bad frame %d", i) for i in range(100))
         assert written == BURST and budget.suppressed == 100 - BURST
         budget.log(logger, logging.WARNING, "other cause")
@@ -548,43 +558,31 @@ def test_the_log_budget_allows_a_burst_then_a_rate_and_summarises_per_cause() ->
         budget.flush()  # the connection ends: what is held back is summarised
         assert records[-1].getMessage().startswith("peer: suppressed 2 log lines")
         assert budget.suppressed == 0
-    finally:
-        logger.removeHandler(handler)
 
 
 def test_a_ceiling_over_loggers_counts_the_summaries_it_holds_back_by_their_causes() -> None:
     now = [0.0]
-    logger = logging.getLogger("tests.lograte.ceiling")
-    logger.setLevel(logging.INFO)
-    records: list[logging.LogRecord] = []
-
-    class Keep(logging.Handler):
-        def emit(self, record: logging.LogRecord) -> None:
-            records.append(record)
-
-    handler = Keep()
-    logger.addHandler(handler)
-    ceiling = BudgetFilter(LogBudget("all", rate=1.0, burst=2, clock=lambda: now[0])).install(logger.name)
-    try:
-        for peer in range(5):  # five connections, each with a burst of 1 and 3 bad frames, then gone
-            budget = LogBudget(f"peer {peer}", rate=1.0, burst=1, clock=lambda: now[0])
-            for i in range(3):
-                budget.log(logger, logging.WARNING, "bad frame %d", i)
-            budget.flush()
-        # the ceiling let 2 lines through; the rest (3 lines, 5 summaries of 2 lines each) it holds
-        assert [r.getMessage() for r in records] == [
-            "peer 0: bad frame 0",
-            "peer 0: suppressed 2 log lines in 0.0 s: 2 x bad frame %d",
-        ]
-        now[0] = 10.0
-        logger.warning("later")
-        assert (
-            records[-2].getMessage() == "all: suppressed 12 log lines in 10.0 s: 8 x bad frame %d; 4 x %s: bad frame %d"
-        )
-        assert records[-1].getMessage() == "later"
-    finally:
-        ceiling.remove()
-        logger.removeHandler(handler)
+    ceiling = BudgetFilter(LogBudget("all", rate=1.0, burst=2, clock=lambda: now[0]))
+    with kept("tests.lograte.ceiling") as (logger, records):
+        ceiling.install(logger.name)
+        try:
+            for peer in range(5):  # five connections, each with a burst of 1 and 3 bad frames, then gone
+                budget = LogBudget(f"peer {peer}", rate=1.0, burst=1, clock=lambda: now[0])
+                for i in range(3):
+                    budget.log(logger, logging.WARNING, "bad frame %d", i)
+                budget.flush()
+            # the ceiling let 2 lines through; the rest (3 lines, 5 summaries of 2 lines each) it holds
+            assert [r.getMessage() for r in records] == [
+                "peer 0: bad frame 0",
+                "peer 0: suppressed 2 log lines in 0.0 s: 2 x bad frame %d",
+            ]
+            now[0] = 10.0
+            logger.warning("later")
+            summary = records[-2].getMessage()
+            assert summary == "all: suppressed 12 log lines in 10.0 s: 8 x bad frame %d; 4 x %s: bad frame %d"
+            assert records[-1].getMessage() == "later"
+        finally:
+            ceiling.remove()
 
 
 def test_safety_lines_have_a_lane_a_flood_of_other_lines_cannot_crowd_out(caplog: pytest.LogCaptureFixture) -> None:
