@@ -56,9 +56,12 @@ from robot_server.control import QUINTIC_PEAK_VELOCITY
 from simple_message.connection import ConnectionState, Subscription
 from simple_message.constants import (
     CommType,
+    InvalidSubcode,
     MotoCommand,
     MotoResult,
     MsgType,
+    NotReadySubcode,
+    RobotMode,
     SpecialSeq,
     TriState,
     ValidFields,
@@ -151,6 +154,7 @@ class RobotDriver:
         stall_timeout: float = 1.0,
         serial: str | None = None,
         resume: bool = False,
+        check_limits: bool = True,
     ) -> None:
         #: the controller family (its ports, byte order, reply rule, how motion is commanded)
         self.dialect = dialect(profile) if isinstance(profile, str) else profile
@@ -166,6 +170,9 @@ class RobotDriver:
         self.goal_timeout = goal_timeout
         self.stall_timeout = stall_timeout
         self.resume = resume
+        #: refuse a trajectory beyond the model's position or speed limits before sending it (off:
+        #: to see what a controller does with points it must refuse, e.g. a conformance test)
+        self.check_limits = check_limits
         policy = ReconnectPolicy(initial_delay=0.1, max_delay=2.0)
         self.serial = serial
         if serial is not None:  # one link carries motion and state (robot-server --serial)
@@ -340,6 +347,8 @@ class RobotDriver:
             raise DriverError(
                 f"the trajectory has {trajectory.dof} joints, the controller reports {state.positions.size}"
             )
+        if self.model is not None and self.check_limits:
+            check_limits(trajectory, self.model)
         gap = float(np.max(np.abs(trajectory.positions[0] - state.positions[: trajectory.dof])))
         if gap > self.goal_tolerance:
             raise DriverError(
@@ -363,6 +372,27 @@ class RobotDriver:
         except DriverError as exc:
             await self._stop_quietly()
             raise ExecutionAborted(str(exc), confirmed) from None
+
+    def _why(self) -> str:
+        """Why the controller may refuse motion, as its latest STATUS says (it gives no reason with a
+        FAILURE): e-stop, drives, an alarm, the mode; or that STATUS shows nothing wrong."""
+        status = self._status
+        if status is None:
+            return "no STATUS received to say why"
+        reasons = []
+        if status.e_stopped == TriState.TRUE:
+            reasons.append("the controller is e-stopped")
+        if status.drives_powered == TriState.FALSE:
+            reasons.append("the drives are off")
+        if status.in_error == TriState.TRUE:
+            reasons.append(f"it is in error (code {status.error_code})")
+        if status.mode == RobotMode.MANUAL:
+            reasons.append("it is in MANUAL mode (motion from a PC needs AUTO)")
+        if not reasons and status.motion_possible == TriState.FALSE:
+            reasons.append("STATUS says motion is not possible")
+        if reasons:
+            return "; ".join(reasons)
+        return "STATUS shows nothing wrong, so the point itself was refused (beyond a limit, or not where the robot is)"
 
     async def _stop_quietly(self) -> None:
         """Stop after an abort; if the motion link is down, wait (bounded) for it to come back."""
@@ -403,7 +433,7 @@ class RobotDriver:
             try:
                 await self._request(self._point(trajectory, k, k, CommType.SERVICE_REQUEST))
             except RequestFailed:
-                raise ExecutionAborted(f"the controller refused point {k}", confirmed) from None
+                raise ExecutionAborted(f"the controller refused point {k}: {self._why()}", confirmed) from None
             except _NotSent as exc:
                 await self._reconnected(k, confirmed, exc)
                 continue  # point k was never written: send it on the new connection
@@ -453,11 +483,13 @@ class RobotDriver:
             enable = await self._moto(MotoCommand.START_TRAJ_MODE)
             if enable.result != MotoResult.SUCCESS:
                 raise ExecutionAborted(
-                    f"START_TRAJ_MODE refused (result {enable.result}, subcode {enable.subcode})", -1
+                    f"START_TRAJ_MODE refused: {moto_reason(enable.result, enable.subcode)}; {self._why()}", -1
                 )
             ready = await self._moto(MotoCommand.CHECK_MOTION_READY)
             if ready.result != MotoResult.TRUE:
-                raise ExecutionAborted(f"the controller is not ready for motion (subcode {ready.subcode})", -1)
+                raise ExecutionAborted(
+                    f"the controller is not ready for motion: {moto_reason(ready.result, ready.subcode)}", -1
+                )
 
     async def _send_motoros(self, trajectory: Trajectory) -> int:
         await self._motion_ready()
@@ -484,7 +516,9 @@ class RobotDriver:
                     break
                 if reply.result != MotoResult.BUSY:
                     raise ExecutionAborted(
-                        f"the controller refused point {k}: result {reply.result}, subcode {reply.subcode}", confirmed
+                        f"the controller refused point {k}: {moto_reason(reply.result, reply.subcode)}"
+                        f"{'' if reply.result != MotoResult.NOT_READY else f'; {self._why()}'}",
+                        confirmed,
                     )
                 if waited > self.goal_timeout:
                     raise ExecutionAborted(f"point {k} still BUSY after {waited:.1f} s", confirmed)
@@ -592,3 +626,45 @@ def _path_deviation(trajectory: Trajectory, position: Array) -> float:
     s = np.clip(np.einsum("ij,ij->i", position - a, d) / np.where(length > 0, length, 1.0), 0.0, 1.0)
     nearest = a + s[:, None] * d
     return float(np.min(np.max(np.abs(nearest - position), axis=1)))
+
+
+def moto_reason(result: int, subcode: int) -> str:
+    """A MOTO_MOTION_REPLY's result and subcode, named."""
+    try:
+        name = MotoResult(result).name
+    except ValueError:
+        name = f"result {result}"
+    for kind in (NotReadySubcode, InvalidSubcode):
+        try:
+            return f"{name} ({kind(subcode).name}, subcode {subcode})"
+        except ValueError:
+            continue
+    return f"{name} (subcode {subcode})" if subcode else name
+
+
+def check_limits(trajectory: Trajectory, model: RobotModel) -> None:
+    """Refuse, before anything is sent, a trajectory the robot cannot follow: a position beyond a
+    joint's limits, or a segment whose mean speed is beyond a joint's maximum speed (no controller
+    can run it in its time). The message names the point, the joint, the value and the limit."""
+    names = model.joint_names
+    units = ["m" if joint.type.value == "prismatic" else "rad" for joint in model.joints]
+    lower, upper, vmax = model.lower, model.upper, model.max_velocity
+    q = trajectory.positions
+    for bound, beyond, side in ((lower, q < lower - 1e-9, "lower"), (upper, q > upper + 1e-9, "upper")):
+        if beyond.any():
+            k, j = (int(i) for i in np.argwhere(beyond)[0])
+            raise DriverError(
+                f"point {k}: joint {j + 1} ({names[j]}) at {q[k, j]:.4g} is beyond its {side} limit "
+                f"{bound[j]:.4g} {units[j]}"
+            )
+    dt = np.diff(trajectory.times)
+    if dt.size:
+        speed = np.abs(np.diff(q, axis=0)) / np.maximum(dt, 1e-12)[:, None]
+        over = speed > vmax * (1 + 1e-6)
+        if over.any():
+            k, j = (int(i) for i in np.argwhere(over)[0])
+            raise DriverError(
+                f"segment {k}->{k + 1}: joint {j + 1} ({names[j]}) would move at {speed[k, j]:.4g} {units[j]}/s on "
+                f"average, beyond its maximum {vmax[j]:.4g} {units[j]}/s (give the segment at least "
+                f"{abs(q[k + 1, j] - q[k, j]) / vmax[j]:.3g} s)"
+            )

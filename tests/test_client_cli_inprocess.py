@@ -26,6 +26,7 @@ import pytest
 from client import cli
 from client.trajectory import Trajectory
 from robot_server.emulator import Emulator, EmulatorConfig
+from simple_message.constants import RobotMode
 from tests.fakecontroller import JOINT_TRAJ_PT, FakeController, Reply
 from tests.rawpeer import Frame
 
@@ -87,6 +88,55 @@ async def test_the_watching_commands_never_take_the_motion_port_from_its_client(
 async def _until(predicate: Any) -> None:
     while not predicate():  # noqa: ASYNC110 - nothing to wait on: the caller bounds it
         await asyncio.sleep(0.01)
+
+
+REFUSALS = [
+    ("estop", "the controller is e-stopped"),
+    ("drives_off", "the drives are off"),
+    ("alarm", "it is in error (code 42)"),
+    ("manual", "it is in MANUAL mode"),
+]
+
+
+#: MotoROS's START_TRAJ_MODE, which the driver sends when the controller is not ready, turns the
+#: drives on and resets alarms itself: only an e-stop and MANUAL mode keep it from moving
+CASES = [("generic", *r) for r in REFUSALS] + [("motoros", *r) for r in REFUSALS if r[0] in ("estop", "manual")]
+
+
+@pytest.mark.parametrize(("profile", "fault", "says"), CASES, ids=[f"{p}-{f}" for p, f, _ in CASES])
+async def test_every_refusal_says_why(
+    profile: str, fault: str, says: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    async with controller(profile=profile) as (emu, ports):
+        cell = emu.cell
+        {"estop": cell.estop, "drives_off": cell.drives_off, "alarm": lambda: cell.alarm(42, "test"),
+         "manual": lambda: cell.set_mode(RobotMode.MANUAL)}[fault]()  # fmt: skip
+        path = tmp_path / "path.csv"
+        path.write_text("time,q1,q2,q3,q4,q5,q6\n0,0,0,0,0,0,0\n1,0.1,0,0,0,0,0\n")
+        code, _ = await client("run", str(path), *ports)
+        err = capsys.readouterr().err
+        assert code == 1 and says in err, err
+        assert positions(emu)[0] == 0.0  # nothing moved
+
+
+@pytest.mark.parametrize(
+    ("rows", "says"),
+    [
+        ("0,0,0,0,0,0,0\n1,20,0,0,0,0,0", "point 1: joint 1 (joint_1) at 20 is beyond its upper limit 2.967 rad"),
+        ("0,0,0,0,0,0,0\n0.01,1,0,0,0,0,0", "segment 0->1: joint 1 (joint_1) would move at 100 rad/s on average"),
+    ],
+    ids=["beyond a limit", "too fast"],
+)
+async def test_a_trajectory_beyond_the_models_limits_is_refused_before_anything_is_sent(
+    rows: str, says: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    async with controller() as (emu, ports):
+        path = tmp_path / "path.csv"
+        path.write_text(f"time,q1,q2,q3,q4,q5,q6\n{rows}\n")
+        code, _ = await client("run", str(path), *ports)
+        err = capsys.readouterr().err
+        assert code == 1 and says in err, err
+        assert emu.cell.groups[0].points_accepted == 0  # nothing reached the controller
 
 
 async def test_ping_status_stop_and_monitor(capsys: pytest.CaptureFixture[str]) -> None:
@@ -184,7 +234,7 @@ async def test_failures_exit_1_with_one_line(tmp_path: Path, capsys: pytest.Capt
         far = tmp_path / "far.csv"
         Trajectory(np.array([0.0, 1.0]), np.array([[0.0] * 6, [3.0] + [0.0] * 5])).save(far)
         assert (await client("run", str(far), *ports))[0] == 1
-        assert "refused point 1" in one_line()
+        assert "point 1: joint 1 (joint_1) at 3 is beyond its upper limit" in one_line()
 
         elsewhere = tmp_path / "elsewhere.csv"
         Trajectory(np.array([0.0, 1.0]), np.array([[0.5] * 6, [0.6] * 6])).save(elsewhere)

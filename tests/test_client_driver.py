@@ -97,6 +97,7 @@ async def test_stop_while_idle_and_cancel_stops_the_robot() -> None:
 
 async def test_refused_point_aborts_with_the_confirmed_index() -> None:
     async with setup(speedup=4.0) as (_, driver):
+        driver.check_limits = False  # what the controller does with it
         bad = Trajectory(np.array([0.0, 0.5, 1.0]), np.array([[0.0] * 6, [0.1] * 6, [0.0, 3.0, 0, 0, 0, 0]]))
         with pytest.raises(ExecutionAborted, match="refused point 2") as info:
             await driver.execute(bad)

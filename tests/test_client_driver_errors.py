@@ -72,6 +72,7 @@ async def test_a_dropped_download_shows_as_a_robot_standing_still() -> None:
     """A download point beyond the limits: the controller drops the download without a word
     (TOPICs have no reply); the robot never moves and the driver says so after stall_timeout."""
     async with setup(stall_timeout=0.2) as (emu, _clock, driver):
+        driver.check_limits = False  # what the controller does with it
         beyond = Trajectory(np.array([0.0, 0.5, 1.0]), np.array([[0.0] * 6, [0.1] * 6, [0.0, 3.0, 0, 0, 0, 0]]))
         with pytest.raises(ExecutionAborted, match="stands still") as info:
             await bounded(driver.execute(beyond, "download"))
@@ -113,15 +114,19 @@ async def test_trajectories_that_do_not_fit_the_robot_are_refused_before_anythin
 async def test_motoros_refuses_to_start_while_the_emergency_stop_is_engaged() -> None:
     async with setup("motoros") as (emu, _clock, driver):
         emu.cell.estop()
-        with pytest.raises(ExecutionAborted, match=r"START_TRAJ_MODE refused \(result 5, subcode 5003\)") as info:
+        with pytest.raises(
+            ExecutionAborted,
+            match=r"START_TRAJ_MODE refused: NOT_READY \(ESTOP, subcode 5003\); the controller is e-stopped",
+        ) as info:
             await bounded(driver.execute(line([0.0] * 6, TARGET, 1.0, n=3)))
         assert info.value.confirmed == -1
 
 
 async def test_motoros_refuses_a_point_beyond_the_limits() -> None:
     async with setup("motoros") as (emu, _clock, driver):
+        driver.check_limits = False  # what the controller does with it
         beyond = Trajectory(np.array([0.0, 0.5]), np.array([[0.0] * 6, [0.0, 3.0, 0, 0, 0, 0]]))
-        with pytest.raises(ExecutionAborted, match=r"refused point 1: result 3, subcode 3012") as info:
+        with pytest.raises(ExecutionAborted, match=r"refused point 1: INVALID \(\w+, subcode 3012\)") as info:
             await bounded(driver.execute(beyond))
         assert info.value.confirmed == 0
         assert emu.cell.groups[0].command.actual_position == [0.0] * 6
