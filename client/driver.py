@@ -206,16 +206,41 @@ class RobotDriver:
             # generic peer may send JOINT_FEEDBACK, a MotoROS look-alike JOINT_POSITION)
             topics = {*self.dialect.state_topics, MsgType.JOINT_POSITION, MsgType.JOINT_FEEDBACK, MsgType.STATUS}
             subscription = self.state.subscribe(64, topics)
-            if motion or self.state is self.motion:
-                await self.motion.start(timeout)
+            clients = [self.motion] if motion or self.state is self.motion else []
             if self.state is not self.motion:
-                await self.state.start(timeout)
+                clients.append(self.state)
+            for client in clients:
+                await client.start(timeout, refused_ends=True)
         except (TimeoutError, ConnectionClosed, OSError) as exc:
             await self.close()
-            raise DriverError(f"cannot connect to {self.address}: {str(exc) or 'timed out'}") from None
+            raise DriverError(self._cannot_connect(exc)) from None
         self._reader = asyncio.get_running_loop().create_task(self._read_state(subscription), name="driver state")
         await self.wait_state(timeout)
         return self
+
+    def _no_state(self) -> str:
+        """Why no joint state came: the connection's end if it ended, else the watchdog."""
+        client = self.state
+        if client.state is not ConnectionState.CONNECTED:
+            cause = client.last_error
+            return (
+                f"the controller closed the state connection ({client.name}"
+                f"{f': {cause}' if cause else ''}); no joint state for {self.watchdog} s"
+            )
+        return f"no joint state for {self.watchdog} s (watchdog)"
+
+    def _cannot_connect(self, exc: BaseException) -> str:
+        """Why connecting failed, with the cause the connection attempts met."""
+        for client in (self.motion, self.state):
+            error = client.last_error
+            if client.state is not ConnectionState.CONNECTED and error is not None:
+                if isinstance(error, ConnectionRefusedError):
+                    return (
+                        f"cannot connect to {client.name}: connection refused (is the controller, e.g. robot-server, "
+                        "running there? check --host and the ports)"
+                    )
+                return f"cannot connect to {client.name}: {error or type(error).__name__}"
+        return f"cannot connect to {self.address}: {str(exc) or 'timed out'}"
 
     async def close(self) -> None:
         if self._reader is not None:
@@ -241,14 +266,27 @@ class RobotDriver:
     # -- state -------------------------------------------------------------------------------------
 
     async def _read_state(self, subscription: Subscription) -> None:
+        """One joint-state sample per state round: from JOINT_FEEDBACK once the controller has sent
+        one (it carries velocities too), else from JOINT_POSITION; the other joint topic of the
+        same round is ignored. A STATUS updates the latest sample's status, and wakes waiters only
+        when it changed (:meth:`states` yields each sample once: recordings used to hold copies
+        0.2 ms apart, and rates read high)."""
+        feedback = False
         async for msg in subscription:
             if isinstance(msg, Status):
+                changed = msg != self._status
                 self._status = msg
                 if self._latest is not None:
-                    self._latest = JointState(self._latest.positions, self._latest.velocities, msg, time.monotonic())
-            elif isinstance(msg, JointPosition):
+                    latest = self._latest
+                    self._latest = JointState(latest.positions, latest.velocities, msg, latest.received)
+                if not changed:
+                    continue  # the same STATUS again: nothing new to wake anyone for
+            if isinstance(msg, JointPosition):
+                if feedback:
+                    continue
                 self._latest = JointState(self._positions(msg.joint_data), None, self._status, time.monotonic())
             elif isinstance(msg, JointFeedback) and msg.robot_id == 0:
+                feedback = True
                 velocities = self._positions(msg.velocities) if ValidFields.VELOCITY & msg.valid_fields else None
                 self._latest = JointState(self._positions(msg.positions), velocities, self._status, time.monotonic())
             else:
@@ -280,9 +318,14 @@ class RobotDriver:
             raise DriverError(f"no joint state and STATUS from {self.address}") from None
 
     async def states(self) -> AsyncIterator[JointState]:
-        """Every joint state as it arrives (raises DriverError when none comes for the watchdog period)."""
+        """Every joint-state sample once, as it arrives (raises DriverError when none comes for the
+        watchdog period); a changed STATUS alone is not a new sample."""
+        last: float | None = None
         while True:
-            yield await self.wait_state()
+            state = await self.wait_state()
+            if state.received != last:
+                last = state.received
+                yield state
 
     # -- requests ----------------------------------------------------------------------------------
 
@@ -561,7 +604,7 @@ class RobotDriver:
             except DriverError:
                 if remaining < self.watchdog:
                     raise ExecutionAborted("the robot did not reach the goal in time", confirmed) from None
-                raise ExecutionAborted(f"no joint state for {self.watchdog} s (watchdog)", confirmed) from None
+                raise ExecutionAborted(self._no_state(), confirmed) from None
             error = float(np.max(np.abs(state.positions[: goal.size] - goal)))
             if self.path_tolerance is not None:
                 deviation = _path_deviation(trajectory, state.positions[: goal.size])

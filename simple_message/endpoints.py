@@ -780,6 +780,7 @@ class Client:
         self.connects = 0
         #: Why the last connection attempt or connection failed.
         self.last_error: BaseException | None = None
+        self._refused_ends = False
 
     @classmethod
     def tcp(cls, host: str, port: int, wire: WireFormat = DEFAULT_FORMAT, **kwargs: Any) -> Client:
@@ -827,8 +828,12 @@ class Client:
 
     # -- lifecycle ---------------------------------------------------------------------------------
 
-    async def start(self, timeout: float | None = 10.0) -> Client:
-        """Connect, and keep reconnecting in the background. Waits for the first connection."""
+    async def start(self, timeout: float | None = 10.0, *, refused_ends: bool = False) -> Client:
+        """Connect, and keep reconnecting in the background. Waits for the first connection.
+        ``refused_ends``: if the very first attempt is refused (nothing listens there), give up at
+        once with :class:`ConnectionClosed` (its ``last_error`` the refusal) instead of retrying
+        until ``timeout``: what a command a user just typed wants."""
+        self._refused_ends = refused_ends
         if self._task is None:
             self._task = asyncio.get_running_loop().create_task(self._run(), name=f"sm-client {self.name}")
         await self.wait_for(ConnectionState.CONNECTED, timeout)
@@ -864,6 +869,8 @@ class Client:
                     self.last_error = exc
                     failures += 1
                     log.info("%s: connection attempt %d failed: %s", self.name, failures, exc)
+                    if self._refused_ends and self.connects == 0 and isinstance(exc, ConnectionRefusedError):
+                        break
                 else:
                     failures = 0
                     self.connects += 1

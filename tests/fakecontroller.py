@@ -68,6 +68,10 @@ class FakeController:
     #: requests that arrived while an earlier one was still unanswered (must stay 0: one in flight)
     overlapping: int = 0
     state_period: float = 0.01
+    #: STATUS written this long after JOINT_POSITION (a write of its own), not with it
+    status_after: float | None = None
+    #: state rounds published (over all state connections)
+    rounds: int = 0
 
     def __post_init__(self) -> None:
         v = vectors(self.order)
@@ -109,7 +113,7 @@ class FakeController:
 
     # -- state port: JOINT_POSITION and STATUS, patched into the reference frames -----------------
 
-    def _topics(self) -> bytes:
+    def _topics(self) -> tuple[bytes, bytes]:
         o = self.order
         position = bytearray(self._position)
         struct.pack_into(f"{o}i10f", position, HEADER, 0, *self.joints, *[0.0] * (10 - len(self.joints)))
@@ -117,7 +121,7 @@ class FakeController:
         moving = 0 if self._goal is None or self._goal == self.joints else 1
         # drives_powered, e_stopped, error_code, in_error, in_motion, mode (auto), motion_possible
         struct.pack_into(f"{o}7i", status, HEADER, 1, 0, 0, 0, moving, 2, 1)
-        return bytes(position) + bytes(status)
+        return bytes(position), bytes(status)
 
     async def _state(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         task = asyncio.current_task()
@@ -126,7 +130,15 @@ class FakeController:
         self._writers.append(writer)
         try:
             while True:  # a periodic publisher, like a controller's state server
-                writer.write(self._topics())
+                position, status = self._topics()
+                if self.status_after is None:
+                    writer.write(position + status)
+                else:
+                    writer.write(position)
+                    await writer.drain()
+                    await asyncio.sleep(self.status_after)  # the controller's pace, not a wait for us
+                    writer.write(status)
+                self.rounds += 1
                 await writer.drain()
                 await asyncio.sleep(self.state_period)
         except (ConnectionError, asyncio.CancelledError):

@@ -139,6 +139,20 @@ async def test_a_trajectory_beyond_the_models_limits_is_refused_before_anything_
         assert emu.cell.groups[0].points_accepted == 0  # nothing reached the controller
 
 
+@pytest.mark.parametrize("feedback", [False, True], ids=["JOINT_POSITION", "JOINT_POSITION and JOINT_FEEDBACK"])
+async def test_record_writes_one_sample_per_state_round(feedback: bool, tmp_path: Path) -> None:
+    # a round is JOINT_POSITION (and JOINT_FEEDBACK) and STATUS: each used to be a sample of its
+    # own, copies 0.2 ms apart; counted against the rounds the emulator sent, not the clock
+    async with controller(feedback=feedback) as (emu, ports):
+        before = emu.state_stats.sent
+        path = tmp_path / "rec.csv"
+        code, out = await client("record", "--duration", "0.5", str(path), *ports)
+        rounds = emu.state_stats.sent - before
+        assert code == 0, out
+        samples = len(path.read_text().splitlines()) - 1
+        assert 0 < samples <= rounds, (samples, rounds)
+
+
 async def test_ping_status_stop_and_monitor(capsys: pytest.CaptureFixture[str]) -> None:
     async with controller() as (_, ports):
         code, out = await client("ping", "--count", "3", *ports)
@@ -249,8 +263,10 @@ async def test_failures_exit_1_with_one_line(tmp_path: Path, capsys: pytest.Capt
     with socket.socket() as closed:  # bound, not listening: every connection is refused
         closed.bind(("127.0.0.1", 0))
         port = str(closed.getsockname()[1])
-        code, _ = await client("status", "--motion-port", port, "--state-port", port, "--timeout", "0.5")
-    assert code == 1 and "cannot connect" in one_line()
+        # refused is said at once, as refused (it used to wait out the timeout and say "timed out")
+        code, _ = await client("ping", "--motion-port", port, "--state-port", port, "--timeout", "30")
+    assert code == 1
+    assert f"cannot connect to motion 127.0.0.1:{port}: connection refused (is the controller" in one_line()
 
 
 @pytest.mark.parametrize(

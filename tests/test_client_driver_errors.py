@@ -87,11 +87,20 @@ async def test_a_single_point_download_is_sent_twice_as_the_reference_downloader
         assert emu.cell.groups[0].trajectories == 1
 
 
-async def test_no_joint_state_is_the_watchdog() -> None:
+async def test_a_state_connection_the_controller_closed_is_said_so() -> None:
     async with setup(watchdog=0.3) as (emu, clock, driver):
         task = asyncio.create_task(driver.execute(line([0.0] * 6, TARGET, 3.0, n=8)))
         await advance_until(clock, lambda: emu.cell.in_motion, what="moving")
         await emu.state_server.close()  # the state port goes away
+        with pytest.raises(ExecutionAborted, match=r"the controller closed the state connection .*no joint state"):
+            await bounded(task)
+
+
+async def test_no_joint_state_on_a_live_connection_is_the_watchdog() -> None:
+    async with setup(watchdog=0.3) as (emu, clock, driver):
+        task = asyncio.create_task(driver.execute(line([0.0] * 6, TARGET, 3.0, n=8)))
+        await advance_until(clock, lambda: emu.cell.in_motion, what="moving")
+        emu.publish_state = lambda: None  # type: ignore[method-assign]  # the topics stop, the connection stays
         with pytest.raises(ExecutionAborted, match=r"no joint state for 0.3 s \(watchdog\)"):
             await bounded(task)
 
@@ -158,3 +167,32 @@ async def test_a_motoros_controller_that_refuses_stop_motion() -> None:
             with pytest.raises(DriverError, match="STOP_MOTION refused: result 3, subcode 3006"):
                 await bounded(driver.stop())
         assert len(fake.frames(MOTO_MOTION_CTRL)) == 1
+
+
+# -- one sample per state round -------------------------------------------------------------------------
+
+
+async def test_a_status_in_a_read_of_its_own_is_not_a_new_joint_state() -> None:
+    """JOINT_POSITION and STATUS of a round arriving in two reads (a loaded machine, a busy
+    network): one sample per round, as `record` and `monitor` count them (each STATUS used to be a
+    sample of its own, a copy of the position 2 ms later)."""
+
+    def script(frame: Frame, _count: int) -> Reply:
+        return Reply("success")
+
+    async with (
+        FakeController(script, status_after=0.002, state_period=0.01) as fake,
+        RobotDriver("127.0.0.1", fake.ports["motion"], fake.ports["state"], model=MODEL) as driver,
+    ):
+        samples = 0
+        first = fake.rounds
+
+        async def count() -> None:
+            nonlocal samples
+            async for _ in driver.states():
+                samples += 1
+                if fake.rounds - first >= 20:
+                    return
+
+        await bounded(count())
+        assert samples <= fake.rounds - first + 1, (samples, fake.rounds - first)
