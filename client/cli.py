@@ -38,7 +38,7 @@ from simple_message.wire import ByteOrder, WireFormat
 from .demo import PAPER_POLICIES, DemoConfig, format_table, run_demo
 from .driver import DriverError, JointState, Mode, RobotDriver
 from .planner import Planner, PlanningError, pose
-from .trajectory import Trajectory, TrajectoryError, save_joint_states
+from .trajectory import Trajectory, TrajectoryError, recording
 
 __all__ = ["main", "parser"]
 
@@ -276,7 +276,6 @@ async def _monitor(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -
 async def _record(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
     names = driver.model.joint_names if driver.model is not None else ()
     states: list[JointState] = []
-    origin = time.monotonic()
 
     async def body() -> None:
         async for state in driver.states():
@@ -285,14 +284,17 @@ async def _record(driver: RobotDriver, args: argparse.Namespace, out: TextIO) ->
     try:
         await _for(args.duration, body)
     finally:
-        save_joint_states(
-            args.file,
-            names,
-            [s.received - origin for s in states],
-            [s.positions.tolist() for s in states],
-            [None if s.velocities is None else s.velocities.tolist() for s in states],
-        )
-        print(f"{len(states)} joint states written to {args.file}", file=out)
+        if states:
+            recorded = recording(
+                [s.received for s in states],
+                [s.positions.tolist() for s in states],
+                [None if s.velocities is None else s.velocities.tolist() for s in states],
+                names,
+            )
+            recorded.save(args.file)
+            print(f"{len(recorded)} joint states written to {args.file} (replay it with: run {args.file})", file=out)
+        else:
+            print("no joint state received: nothing written", file=out)
 
 
 async def _execute(driver: RobotDriver, trajectory: Trajectory, mode: str, out: TextIO) -> None:

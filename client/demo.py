@@ -47,7 +47,7 @@ from simple_message.wire import DEFAULT_FORMAT, WireFormat
 
 from .driver import DriverError, Mode, RobotDriver
 from .planner import Motion, Planner, PlanningError, pose
-from .trajectory import Trajectory, save_joint_states
+from .trajectory import Trajectory, recording
 
 __all__ = ["DemoConfig", "DemoRow", "DemoResult", "analyse", "plan_rectangle", "run_demo", "format_table"]
 
@@ -400,7 +400,7 @@ async def run_demo(config: DemoConfig, progress: Callable[[str], None] = print) 
             await external.close()
         result.rows.append(row)
         trace = out / "demo_controller.csv"
-        save_joint_states(trace, model.joint_names, t.tolist(), q.tolist())
+        recording(t.tolist(), q.tolist(), joint_names=model.joint_names).save(trace)
         result.files.append(trace)
         return result
     records: dict[str, Recorder] = {}

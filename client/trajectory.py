@@ -4,12 +4,17 @@ A :class:`Trajectory` is what a planner hands over and what the driver sends: ``
 the start, strictly increasing, the first 0), ``positions`` (n x dof, rad or m) and, optionally,
 ``velocities`` and ``accelerations`` of the same shape. Units are SI.
 
-**CSV** (one waypoint per line, a header line naming the columns)::
+**CSV**, the one layout the project reads and writes for joint motion (a trajectory file for
+``robot-client run``, a ``robot-client record`` recording, which ``run`` replays as it is, and the
+demo's waypoints): a header line naming the columns, then one point per line::
 
-    time,q1,q2,...,qN[,v1,...,vN][,a1,...,aN]
+    time,<joint 1>,...,<joint N>[,<joint 1>.velocity,...][,<joint 1>.acceleration,...][,<extra>...]
 
-joint names may replace ``q1``...: the columns are ``time``, then ``<name>`` for positions,
-``<name>.velocity`` and ``<name>.acceleration``. Lines starting with ``#`` are comments.
+``time`` first (s from the start: the first is 0, strictly increasing), then one column per joint
+named by the joint (``q1``... or the model's names) with its position, then optionally
+``<joint>.velocity`` and ``<joint>.acceleration`` for every joint. Any further column whose name
+has a dot and is not one of those (``<joint>.effort``, ``note.source``...) is an *extra*: kept by
+whoever wrote it, ignored on reading. Lines starting with ``#`` are comments.
 
 **JSON**::
 
@@ -32,7 +37,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Trajectory", "TrajectoryError", "save_joint_states"]
+__all__ = ["Trajectory", "TrajectoryError", "recording"]
 
 Array = NDArray[np.float64]
 
@@ -149,26 +154,35 @@ class Trajectory:
         header = [h.strip() for h in header]
         if not header or header[0] != "time":
             raise TrajectoryError(f"line {lines[0][0]}: the first column must be 'time', not {header[:1]}")
-        names = [h for h in header[1:] if not h.endswith((".velocity", ".acceleration"))]
+        names = [h for h in header[1:] if "." not in h]
         velocity = [f"{n}.velocity" for n in names]
         acceleration = [f"{n}.acceleration" for n in names]
-        expected = ["time", *names]
-        has_v = velocity[0] in header if names else False
-        has_a = acceleration[0] in header if names else False
-        expected += velocity if has_v else []
-        expected += acceleration if has_a else []
-        if not names or header != expected:
+        has_v = bool(names) and all(v in header for v in velocity)
+        has_a = bool(names) and all(a in header for a in acceleration)
+        known = {"time", *names, *velocity, *acceleration}
+        if not names or header[: 1 + len(names)] != ["time", *names] or len(set(header)) != len(header):
             raise TrajectoryError(
                 f"line {lines[0][0]}: columns must be time, the joints, then optionally <joint>.velocity "
-                f"and <joint>.acceleration for every joint, in that order"
+                "and <joint>.acceleration for every joint, and extra columns named with a dot"
             )
+        partial = [h for h in header if h in known and h not in ("time", *names)]
+        if (any(h.endswith(".velocity") for h in partial) and not has_v) or (
+            any(h.endswith(".acceleration") for h in partial) and not has_a
+        ):
+            raise TrajectoryError(f"line {lines[0][0]}: velocities or accelerations are given for some joints only")
+        stray = [h for h in header if h.endswith((".velocity", ".acceleration")) and h not in known]
+        if stray:
+            raise TrajectoryError(f"line {lines[0][0]}: columns {stray} name no joint column")
+        take = [
+            header.index(h) for h in ("time", *names, *(velocity if has_v else []), *(acceleration if has_a else []))
+        ]
         rows = []
         for number, line in lines[1:]:
             cells = next(csv.reader([line]))
             if len(cells) != len(header):
                 raise TrajectoryError(f"line {number}: {len(cells)} values, the header has {len(header)}")
             try:
-                rows.append([float(c) for c in cells])
+                rows.append([float(cells[i]) for i in take])
             except ValueError:
                 raise TrajectoryError(f"line {number}: not a number in {line.strip()!r}") from None
         if not rows:
@@ -215,26 +229,23 @@ class Trajectory:
         return cls(times, positions, velocities, accelerations, tuple(names))
 
 
-def save_joint_states(
-    path: str | Path,
-    joint_names: Sequence[str],
+def recording(
     times: Sequence[float],
     positions: Sequence[Sequence[float]],
     velocities: Sequence[Sequence[float] | None] | None = None,
-) -> None:
-    """Recorded joint states as CSV: ``time,position_<name>...[,velocity_<name>...]`` (SI units),
-    one state per line as received (times need not be strictly increasing, unlike a trajectory's).
-    Velocity columns are written when every state has velocities."""
-    with_velocity = velocities is not None and len(velocities) > 0 and all(v is not None for v in velocities)
-    header = ["time", *(f"position_{n}" for n in joint_names)]
-    if with_velocity:
-        header += [f"velocity_{n}" for n in joint_names]
-    with open(path, "w", newline="") as stream:
-        writer = csv.writer(stream)
-        writer.writerow(header)
-        for k, (t, q) in enumerate(zip(times, positions, strict=True)):
-            row = [repr(float(t)), *(repr(float(x)) for x in q)]
-            if with_velocity:
-                assert velocities is not None
-                row += [repr(float(x)) for x in velocities[k] or ()]
-            writer.writerow(row)
+    joint_names: Sequence[str] = (),
+) -> Trajectory:
+    """Joint states as received (``time.monotonic()`` stamps) as a :class:`Trajectory` in the one
+    CSV layout: times from the first state (0), a state whose time is not after the one before it
+    dropped, velocities kept when every state has them. ``robot-client run`` replays its file."""
+    keep = [k for k in range(len(times)) if k == 0 or times[k] > times[k - 1]]
+    if not keep:
+        raise TrajectoryError("no joint state was recorded")
+    t = np.array([times[k] for k in keep], dtype=float)
+    with_velocity = velocities is not None and all(velocities[k] is not None for k in keep)
+    return Trajectory(
+        t - t[0],
+        np.array([positions[k] for k in keep], dtype=float),
+        np.array([velocities[k] for k in keep], dtype=float) if with_velocity and velocities is not None else None,
+        joint_names=tuple(joint_names),
+    )

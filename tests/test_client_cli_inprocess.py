@@ -52,7 +52,8 @@ async def client(*argv: str, out: io.StringIO | None = None) -> tuple[int, str]:
 @contextlib.asynccontextmanager
 async def controller(**options: Any) -> AsyncIterator[tuple[Emulator, list[str]]]:
     """An emulator on free loopback ports (8x real time), and the options that reach it."""
-    config = EmulatorConfig(motion_port=0, state_port=0, io_port=0, speedup=8.0, state_rate=100.0, **options)
+    options.setdefault("speedup", 8.0)
+    config = EmulatorConfig(motion_port=0, state_port=0, io_port=0, state_rate=100.0, **options)
     async with Emulator(config) as emu:
         ports = ["--motion-port", str(emu.ports["motion"]), "--state-port", str(emu.ports["state"])]
         if config.profile != "generic":
@@ -211,14 +212,28 @@ async def test_move_to_joints_then_along_a_line_and_run_a_file(tmp_path: Path) -
         assert np.allclose(positions(emu), goal, atol=2e-3)
 
 
-async def test_record_writes_the_joint_states(tmp_path: Path) -> None:
+@pytest.mark.slow
+async def test_a_recording_is_replayed_by_run_as_it_is(tmp_path: Path) -> None:
+    # record a move another client makes, then run the recording: the robot goes the same way
     record = tmp_path / "record.csv"
-    async with controller() as (_, ports):
-        code, out = await client("record", str(record), "--duration", "0.5", *ports)
-    assert code == 0
-    rows = record.read_text().splitlines()
-    assert out == f"{len(rows) - 1} joint states written to {record}\n"
-    assert rows[0].startswith("time,position_joint_1") and len(rows) >= 2
+    goal = np.array([0.3, -0.2, 0.1, 0.0, 0.2, 0.0])
+    async with controller(speedup=1.0) as (emu, ports):  # a recording is in wall-clock time
+        recorder = asyncio.create_task(client("record", str(record), "--duration", "4", *ports))
+        code, out = await client("move", "--joints", *map(str, goal), *ports)
+        assert code == 0, out
+        code, out = await recorder
+        assert code == 0
+        rows = record.read_text().splitlines()
+        assert out == f"{len(rows) - 1} joint states written to {record} (replay it with: run {record})\n"
+        assert rows[0] == "time," + ",".join(f"joint_{j}" for j in range(1, 7))
+        assert rows[1].startswith("0.0,")  # a trajectory's first time
+        recorded = Trajectory.load(record)
+        assert np.allclose(recorded.positions[-1], goal, atol=2e-3)
+        code, out = await client("move", "--joints", *map(str, recorded.positions[0]), *ports)  # back to its start
+        assert code == 0, out
+        code, out = await client("run", str(record), *ports)
+        assert code == 0 and out.startswith(f"done: {len(recorded)} points"), out
+        assert np.allclose(positions(emu), goal, atol=2e-3)
 
 
 async def test_motoros_move(capsys: pytest.CaptureFixture[str]) -> None:

@@ -35,6 +35,14 @@ def test_round_trip(tmp_path: Path, suffix: str, fields: tuple[bool, bool]) -> N
             np.testing.assert_array_equal(a, b)
 
 
+def test_extra_columns_named_with_a_dot_are_ignored_on_reading(tmp_path: Path) -> None:
+    path = tmp_path / "extra.csv"
+    path.write_text("time,q1,q2,q1.velocity,q2.velocity,q1.effort,note.source\n0,0,0,0,0,5,1\n1,0.5,0.25,0,0,6,1\n")
+    t = Trajectory.load(path)
+    assert t.joint_names == ("q1", "q2") and t.velocities is not None and t.accelerations is None
+    assert t.positions.tolist() == [[0.0, 0.0], [0.5, 0.25]]
+
+
 def test_csv_format_is_documented_columns(tmp_path: Path) -> None:
     text = sample(True, False).to_csv()
     assert text.splitlines()[0] == "time,s,l,u,s.velocity,l.velocity,u.velocity"
@@ -63,7 +71,9 @@ def test_csv_format_is_documented_columns(tmp_path: Path) -> None:
             "some points",
         ),
         ("l.json", '{"points": [{"time": 0, "positions": [0, 1]}, {"time": 1, "positions": [1]}]}', "as many joints"),
-        ("m.csv", "time,q1,q2.velocity\n0,0,0\n", "columns"),
+        ("m.csv", "time,q1,q2.velocity\n0,0,0\n", "name no joint column"),
+        ("n.csv", "time,q1,q2,q1.velocity\n0,0,0,0\n", "some joints only"),
+        ("o.csv", "time,q1,q1.velocity,q2\n0,0,0,0\n", "columns must be"),
     ],
 )
 def test_bad_files_name_the_file_and_the_place(tmp_path: Path, name: str, content: str, words: str) -> None:
