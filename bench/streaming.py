@@ -579,15 +579,15 @@ class Record:
             header = next(csv.reader(f))
         index = {name: i for i, name in enumerate(header)}
 
-        def columns(quantity: str) -> list[int]:
-            return [index[f"{quantity}_{name}"] for name in joint_names]
+        def columns(suffix: str) -> list[int]:
+            return [index[f"{name}{suffix}"] for name in joint_names]
 
         wanted = [
-            index["time"],
-            *columns("command_position"),
-            *columns("command_velocity"),
-            *columns("actual_position"),
-            index["points"],
+            index["record.controller_time"],
+            *columns(".command_position"),
+            *columns(".command_velocity"),
+            *columns(""),  # the actual position
+            index["record.points"],
         ]
         data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=wanted, ndmin=2)
         if data.shape[0] < 8:

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from client.demo import DemoConfig, analyse, format_table, run_demo
+from client.trajectory import Trajectory
 from robot_server.loader import load_model
 
 pytestmark = pytest.mark.slow
@@ -42,7 +43,9 @@ async def test_short_demo_table(tmp_path: Path) -> None:
     assert names == {"demo_waypoints.csv", "demo_linear.csv", "demo_cubic.csv", "demo_quintic.csv", "demo_ruckig.csv"}
     with (tmp_path / "demo_quintic.csv").open() as stream:
         header = next(csv.reader(stream))
-    assert header[0] == "time" and "actual_position_joint_1" in header
+    assert header[:2] == ["time", "joint_1"] and "joint_1.command_position" in header
+    trace = Trajectory.load(tmp_path / "demo_quintic.csv")  # the one layout: a trace loads as a trajectory
+    assert trace.velocities is not None and trace.accelerations is not None
     table = format_table(result.rows)
     assert table.splitlines()[0].startswith("policy") and len(table.splitlines()) == 5
     assert any("embedded emulator" in line for line in lines)

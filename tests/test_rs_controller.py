@@ -561,8 +561,10 @@ def test_recorder_is_bounded_and_exports_csv() -> None:
     rec.to_csv(out, MODEL.joint_names)
     lines = out.getvalue().splitlines()
     assert len(lines) == 101
-    assert lines[0].startswith("time,command_position_joint_1,") and lines[0].endswith(",points")
-    assert len(lines[1].split(",")) == 1 + 7 * N + 1
+    assert lines[0].startswith("time,joint_1,") and f",joint_{N}.velocity," in lines[0]
+    assert lines[0].endswith(",record.controller_time,record.points")
+    assert len(lines[1].split(",")) == 1 + 7 * N + 2
+    assert lines[1].startswith("0.0,") and lines[1].split(",")[-2] == repr(float(rec.time()[0]))
     assert lines[1].endswith(",2") and list(rec.points()) == [2] * 100  # both points arrived before
     every_tenth = Recorder(N, capacity=100, decimation=10)
     ctl.run_for(0.1, every_tenth)

@@ -3,8 +3,12 @@
 It keeps the most recent ``capacity`` ticks in preallocated arrays (a ring buffer), so a long run
 never grows memory; :attr:`Recorder.dropped` says how many older ticks were overwritten.
 
-The CSV has a header row: ``time`` (s), then each of :data:`QUANTITIES` per joint (SI units),
-then ``points``: how many points the controller had accepted by that tick (it steps where points
+The CSV is the project's one layout for joint motion (``client.trajectory``), so a trace loads as a
+trajectory: ``time`` (s from the first tick written), the actual position of each joint under its
+name, ``<joint>.velocity`` and ``<joint>.acceleration`` (actual), then extra columns:
+``<joint>.command_position``, ``<joint>.command_velocity``, ``<joint>.command_acceleration``,
+``<joint>.following_error`` (SI units), ``record.controller_time`` (the controller's clock, s) and
+``record.points`` (how many points the controller had accepted by that tick: it steps where points
 arrived).
 """
 
@@ -36,6 +40,20 @@ QUANTITIES = (
     "actual_acceleration",
     "following_error",
 )
+
+#: the CSV's columns per joint (``{}`` the joint's name), in this order after ``time``: the actual
+#: motion as the trajectory layout's own columns, then the rest as extras
+_COLUMN = {
+    "actual_position": "{}",
+    "actual_velocity": "{}.velocity",
+    "actual_acceleration": "{}.acceleration",
+    "command_position": "{}.command_position",
+    "command_velocity": "{}.command_velocity",
+    "command_acceleration": "{}.command_acceleration",
+    "following_error": "{}.following_error",
+}
+_ORDER = tuple(_COLUMN)
+_TAIL = ["record.controller_time", "record.points"]
 
 
 class Recorder:
@@ -104,7 +122,7 @@ class Recorder:
 
     def header(self, joint_names: Sequence[str] | None = None) -> list[str]:
         names = list(joint_names) if joint_names is not None else [f"j{i + 1}" for i in range(self.dof)]
-        return ["time"] + [f"{q}_{name}" for q in QUANTITIES for name in names] + ["points"]
+        return ["time"] + [_COLUMN[q].format(name) for q in _ORDER for name in names] + _TAIL
 
     def to_csv(self, target: str | Path | io.TextIOBase, joint_names: Sequence[str] | None = None) -> None:
         """CSV with a header row (see the module doc)."""
@@ -118,6 +136,7 @@ class Recorder:
         writer = csv.writer(stream)
         writer.writerow(self.header(joint_names))
         times = self.time()
-        data = np.concatenate([self.get(q) for q in QUANTITIES], axis=1)
+        start = float(times[0]) if times.size else 0.0
+        data = np.concatenate([self.get(q) for q in _ORDER], axis=1)
         for t, row, n in zip(times.tolist(), data.tolist(), self.points().tolist(), strict=True):
-            writer.writerow([repr(t)] + [repr(x) for x in row] + [n])
+            writer.writerow([repr(t - start)] + [repr(x) for x in row] + [repr(t), n])
