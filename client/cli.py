@@ -45,8 +45,16 @@ __all__ = ["main", "parser"]
 log = logging.getLogger("client.cli")
 
 
+#: robot-client's exit statuses (README, "Exit status")
+EXIT_DONE, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
+
+
 class CommandError(Exception):
-    """A failure to report in one line (exit status 1)."""
+    """A failure to report in one line (exit status 1: the robot or the controller)."""
+
+
+class InputError(CommandError):
+    """Bad input found before anything was sent: an unreadable or malformed file (exit status 2)."""
 
 
 class Terminated(Exception):
@@ -357,7 +365,7 @@ async def _run(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> No
     try:
         trajectory = Trajectory.load(args.file)
     except (TrajectoryError, OSError) as exc:
-        raise CommandError(str(exc)) from None
+        raise InputError(str(exc)) from None
     await _execute(driver, trajectory, args.mode, out)
 
 
@@ -439,7 +447,7 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     failure = preimport(argv)  # modules that register dialects or policies, before the parser lists them
     if failure is not None:
         print(f"robot-client: {failure}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     args = parser().parse_args(argv)
     stream = out if out is not None else sys.stdout
     logging.basicConfig(
@@ -449,13 +457,13 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
         print(
             "robot-client: demo runs over TCP (its embedded emulator too); --serial is not supported", file=sys.stderr
         )
-        return 2
+        return EXIT_USAGE
     try:
         model = load_model(args.model)
         _check_arguments(args, model)
     except (ModelError, OSError, ValueError) as exc:
         print(f"robot-client: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     try:
         if args.command == "demo":
             _run_main(_demo(args, stream))
@@ -463,11 +471,14 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
             _run_main(_with_driver(args, model, stream))
     except KeyboardInterrupt:
         print("robot-client: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except Terminated:
         print("robot-client: terminated", file=sys.stderr)
-        return 143
+        return EXIT_TERMINATED
+    except InputError as exc:
+        print(f"robot-client: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     except (CommandError, DriverError, PlanningError, SimpleMessageError, OSError) as exc:
         print(f"robot-client: {exc}", file=sys.stderr)
-        return 1
-    return 0
+        return EXIT_FAILED
+    return EXIT_DONE

@@ -213,14 +213,14 @@ async def test_move_to_joints_then_along_a_line_and_run_a_file(tmp_path: Path) -
 
 
 @pytest.mark.slow
-async def test_a_recording_is_replayed_by_run_as_it_is(tmp_path: Path) -> None:
+async def test_a_recording_is_replayed_by_run_as_it_is(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     # record a move another client makes, then run the recording: the robot goes the same way
     record = tmp_path / "record.csv"
     goal = np.array([0.3, -0.2, 0.1, 0.0, 0.2, 0.0])
     async with controller(speedup=1.0) as (emu, ports):  # a recording is in wall-clock time
         recorder = asyncio.create_task(client("record", str(record), "--duration", "4", *ports))
         code, out = await client("move", "--joints", *map(str, goal), *ports)
-        assert code == 0, out
+        assert code == 0, capsys.readouterr().err
         code, out = await recorder
         assert code == 0
         rows = record.read_text().splitlines()
@@ -230,9 +230,9 @@ async def test_a_recording_is_replayed_by_run_as_it_is(tmp_path: Path) -> None:
         recorded = Trajectory.load(record)
         assert np.allclose(recorded.positions[-1], goal, atol=2e-3)
         code, out = await client("move", "--joints", *map(str, recorded.positions[0]), *ports)  # back to its start
-        assert code == 0, out
+        assert code == 0, capsys.readouterr().err
         code, out = await client("run", str(record), *ports)
-        assert code == 0 and out.startswith(f"done: {len(recorded)} points"), out
+        assert code == 0 and out.startswith(f"done: {len(recorded)} points"), (out, capsys.readouterr().err)
         assert np.allclose(positions(emu), goal, atol=2e-3)
 
 
@@ -245,7 +245,7 @@ async def test_motoros_move(capsys: pytest.CaptureFixture[str]) -> None:
         assert (code, out) == (0, "stopped\n")
 
 
-async def test_failures_exit_1_with_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+async def test_failures_exit_1_or_2_with_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     def one_line() -> str:
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and err.startswith("robot-client: "), err
@@ -257,7 +257,7 @@ async def test_failures_exit_1_with_one_line(tmp_path: Path, capsys: pytest.Capt
 
         bad = tmp_path / "bad.csv"
         bad.write_text("time,a\n0,x\n")
-        assert (await client("run", str(bad), *ports))[0] == 1
+        assert (await client("run", str(bad), *ports))[0] == 2  # bad input, nothing sent: a usage error
         assert str(bad) in one_line()
 
         far = tmp_path / "far.csv"
