@@ -61,6 +61,18 @@ _REST_ACCELERATION = max(CUBIC_PEAK_ACCELERATION, QUINTIC_PEAK_ACCELERATION)
 _RETRIES = 12
 
 
+#: what to try when a straight line cannot be followed (the planner's errors end with it)
+_TRY_JUMP = (
+    "try a smaller change of orientation, or move in two steps (the position with the orientation kept, "
+    "then the orientation), or go by joints (move --joints)"
+)
+_TRY_SINGULAR = (
+    "a straight line cannot start at or cross a singular configuration (a wrist singularity: joints 4 and 6 "
+    "aligned, joint 5 near 0, as at the home pose); move the robot out of it by joints first, e.g. "
+    "move --joints 0 0.3 -0.2 0 0.9 0"
+)
+
+
 class PlanningError(ValueError):
     """The task cannot be planned (unreachable, a singularity, a joint jump, a bad argument)."""
 
@@ -435,13 +447,16 @@ class Planner:
             if jump > self.max_joint_step:
                 raise PlanningError(
                     f"line {index}: a joint would jump {jump:.3g} rad between two poses {self.step * 1000:g} mm apart "
-                    f"(at step {k}; limit {self.max_joint_step} rad)"
+                    f"(at step {k}; limit {self.max_joint_step} rad): {_TRY_JUMP}"
                 )
             if order.size > 1 and distance[order[1]] <= self.max_joint_step:
-                raise PlanningError(f"line {index}: passes too near a singularity at step {k} (two IK branches meet)")
+                raise PlanningError(
+                    f"line {index}: passes too near a singularity at step {k} (two IK branches meet): {_TRY_SINGULAR}"
+                )
             flag = Singularity(int(flags[k][ok][order[0]]))
             if flag != Singularity.NONE:
-                raise PlanningError(f"line {index}: passes through a {flag.name} singularity at step {k}")
+                where = "starts at" if k == 0 else f"passes through, at step {k},"
+                raise PlanningError(f"line {index}: {where} a {flag.name} singularity: {_TRY_SINGULAR}")
             if np.any(best < lower - 1e-9) or np.any(best > upper + 1e-9):
                 raise PlanningError(f"line {index}: leaves the joint limits at step {k}")
             out[k] = previous = best
