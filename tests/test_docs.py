@@ -1,7 +1,7 @@
-"""Every example in docs/ runs as written: each ```bash and ```python block of the pages, in the
-index's order, against one ``robot-server`` on the default ports (as a reader who started it in
-another terminal has it). Blocks fenced ```text are output or need what a test machine has not
-(ROS). A page's blocks run in the order the page gives them: later ones may rely on earlier ones.
+"""Every example in the README and docs/ runs as written: each ```bash and ```python block, in the
+order given, against one ``robot-server`` on the default ports (as a reader who started it in
+another terminal has it). Blocks fenced ```sh (installing, starting servers) or ```text (output,
+or what a test machine has not: ROS) are not run. Later blocks may rely on earlier ones.
 """
 
 from __future__ import annotations
@@ -30,7 +30,8 @@ DEFAULT_PORTS = (11000, 11002)
 
 
 def blocks(page: str) -> Iterator[tuple[str, str]]:
-    for match in BLOCK.finditer((ROOT / "docs" / page).read_text(encoding="utf-8")):
+    path = ROOT / page if page == "README.md" else ROOT / "docs" / page
+    for match in BLOCK.finditer(path.read_text(encoding="utf-8")):
         yield match.group(1), match.group(2)
 
 
@@ -59,13 +60,15 @@ def _free(port: int) -> bool:
     return True
 
 
-async def test_the_examples_run_as_written(tmp_path: Path) -> None:
+@pytest.mark.parametrize("pages", [["README.md"], PAGES], ids=["README", "docs"])
+async def test_the_examples_run_as_written(tmp_path: Path, pages: list[str]) -> None:
     if not all(_free(port) for port in DEFAULT_PORTS):
-        pytest.fail(f"the docs' examples use the default ports {DEFAULT_PORTS}; something else holds one of them")
+        pytest.fail(f"the examples use the default ports {DEFAULT_PORTS}; something else holds one of them")
     env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
+    (tmp_path / "tests").symlink_to(ROOT / "tests")  # the README decodes the project's test vectors
     async with robot_server(tmp_path, "--motion-port", "11000", "--state-port", "11002", "--no-stdin") as server:
         ran = 0
-        for page in PAGES:
+        for page in pages:
             for number, (language, code) in enumerate(blocks(page), 1):
                 command = (
                     ["bash", "-euo", "pipefail", "-c", code] if language == "bash" else [sys.executable, "-c", code]
@@ -73,8 +76,8 @@ async def test_the_examples_run_as_written(tmp_path: Path) -> None:
                 done = subprocess.run(  # noqa: ASYNC221 - one block at a time, bounded; the server is another process
                     command, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=TIMEOUT, check=False
                 )
-                where = f"docs/{page}, {language} block {number}"
+                where = f"{page}, {language} block {number}"
                 assert done.returncode == 0, f"{where} failed ({done.returncode}):\n{code}\n{done.stdout}{done.stderr}"
                 ran += 1
         assert await server.terminate() == 0
-    assert ran >= len(PAGES)
+    assert ran >= len(pages)
