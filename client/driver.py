@@ -56,15 +56,14 @@ from robot_server.control import QUINTIC_PEAK_VELOCITY
 from simple_message.connection import ConnectionState, Subscription
 from simple_message.constants import (
     CommType,
-    InvalidSubcode,
     MotoCommand,
     MotoResult,
     MsgType,
-    NotReadySubcode,
     RobotMode,
     SpecialSeq,
     TriState,
     ValidFields,
+    moto_subcode_name,
 )
 from simple_message.dialects import GENERIC, Dialect, dialect
 from simple_message.endpoints import Client, ReconnectPolicy
@@ -677,11 +676,9 @@ def moto_reason(result: int, subcode: int) -> str:
         name = MotoResult(result).name
     except ValueError:
         name = f"result {result}"
-    for kind in (NotReadySubcode, InvalidSubcode):
-        try:
-            return f"{name} ({kind(subcode).name}, subcode {subcode})"
-        except ValueError:
-            continue
+    sub = moto_subcode_name(result, subcode)
+    if sub is not None:
+        return f"{name} ({sub}, subcode {subcode})"
     return f"{name} (subcode {subcode})" if subcode else name
 
 

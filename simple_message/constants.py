@@ -261,3 +261,19 @@ class Port(IntEnum):
     MOTOROS_MOTION = 50240
     MOTOROS_STATE = 50241
     MOTOROS_IO = 50242
+
+
+def moto_subcode_name(result: int, subcode: int) -> str | None:
+    """The name of a MOTO_MOTION_REPLY ``subcode``, which depends on its ``result`` (INVALID and
+    NOT_READY have their own tables); ``None`` when it has none (0, or an unknown value)."""
+    kinds: tuple[type[IntEnum], ...] = (InvalidSubcode, NotReadySubcode)
+    if result == MotoResult.INVALID:
+        kinds = (InvalidSubcode,)
+    elif result == MotoResult.NOT_READY:
+        kinds = (NotReadySubcode,)
+    for kind in kinds:
+        try:
+            return kind(subcode).name
+        except ValueError:
+            continue
+    return None

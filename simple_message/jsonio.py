@@ -14,6 +14,12 @@ keys (nested parts as objects). Special bodies:
 * ``{"raw": "hex"}``: an unknown type's body, kept byte for byte (also accepted for known types when
   encoding, to write deliberately odd frames).
 
+Where the protocol names a number, the object also has ``"names"``: the symbolic name of each such
+field, header included (``{"comm_type": "TOPIC", "reply_code": "INVALID", "drives_powered": "TRUE",
+"mode": "AUTO", ...}``; tri-states, modes, special sequence numbers, valid-field bits joined by
+``|``, MotoROS commands, results and subcodes, IO result codes). The numbers stay where they are and
+decide; ``"names"`` is ignored when a message is built from JSON.
+
 Reals that are not finite are written as the strings ``"NaN"``, ``"Infinity"`` and ``"-Infinity"``
 (plain JSON has no such numbers) and accepted back in that form. In float32 formats each real is
 printed as the shortest decimal that reads back to the same float32, so ``0.1`` prints as ``0.1``
@@ -25,9 +31,23 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import fields
+from enum import IntEnum
 from typing import Any
 
-from .constants import HEADER_SIZE, LENGTH_SIZE
+from .constants import (
+    HEADER_SIZE,
+    LENGTH_SIZE,
+    CommType,
+    IoResult,
+    MotoCommand,
+    MotoResult,
+    ReplyCode,
+    RobotMode,
+    SpecialSeq,
+    TriState,
+    ValidFields,
+    moto_subcode_name,
+)
 from .errors import LocalProtocolError
 from .messages import (
     DummyReply,
@@ -39,7 +59,7 @@ from .messages import (
     type_for_name,
 )
 
-__all__ = ["message_to_json", "message_from_json"]
+__all__ = ["message_to_json", "message_from_json", "symbolic_names"]
 
 _F32 = struct.Struct("<f")
 _NONFINITE = {"NaN": math.nan, "Infinity": math.inf, "-Infinity": -math.inf}
@@ -67,15 +87,66 @@ def _plain(value: Any, real_size: int) -> Any:
     return value
 
 
+#: body fields whose numbers the protocol names, and the names' enum (by field name: the same field
+#: name means the same thing in every message that has it)
+_NAMED: dict[str, type[IntEnum]] = {
+    "drives_powered": TriState,
+    "e_stopped": TriState,
+    "in_error": TriState,
+    "in_motion": TriState,
+    "motion_possible": TriState,
+    "mode": RobotMode,
+    "command": MotoCommand,
+    "result": MotoResult,
+    "result_code": IoResult,
+}
+
+
+def _enum_name(kind: type[IntEnum], value: int) -> str | None:
+    try:
+        return kind(value).name
+    except ValueError:
+        return None
+
+
+def symbolic_names(msg: Message) -> dict[str, str]:
+    """The symbolic name of each of ``msg``'s numbers that the protocol names (see the module doc)."""
+    names: dict[str, str] = {}
+    for key, kind in (("comm_type", CommType), ("reply_code", ReplyCode)):
+        name = _enum_name(kind, msg.__getattribute__(key))
+        if name is not None:
+            names[key] = name
+    body = msg.body_dict()
+    for key, value in body.items():
+        if not isinstance(value, int) or isinstance(value, bool):
+            continue
+        name = None
+        if key in _NAMED:
+            name = _enum_name(_NAMED[key], value)
+        elif key == "sequence" and value < 0:
+            name = _enum_name(SpecialSeq, value)
+        elif key == "valid_fields":
+            name = "|".join(f.name for f in ValidFields if f and f & value and f.name) or "NONE"
+        elif key == "subcode" and value:
+            name = moto_subcode_name(int(body.get("result", 0)), value)
+        if name is not None:
+            names[key] = name
+    return names
+
+
 def message_to_json(msg: Message, real_size: int = 4) -> dict[str, Any]:
     """``msg`` as a JSON-ready dict; ``real_size`` (4 or 8) only affects how reals are printed."""
-    return {
+    out = {
         "msg_type": int(msg.msg_type),
         "name": msg.name,
         "comm_type": int(msg.comm_type),
         "reply_code": int(msg.reply_code),
         "body": _plain(msg.body_dict(), real_size),
     }
+    names = symbolic_names(msg)
+    if names:
+        out["names"] = names
+    return out
 
 
 def _real(value: Any) -> Any:

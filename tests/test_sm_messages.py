@@ -323,3 +323,30 @@ def test_registering_other_converters_changes_what_feed_messages_decodes() -> No
         assert isinstance(dec.feed_messages(frame, LE32)[0], RawMessage)
     assert isinstance(dec.feed_messages(frame, LE32)[0], RawMessage)
     assert type(dec.feed_messages(ack, LE32)[0]) is RawMessage
+
+
+def test_json_names_the_numbers_the_protocol_names() -> None:
+    from simple_message.constants import MotoCommand, MotoResult
+    from simple_message.jsonio import message_from_json, message_to_json
+    from simple_message.messages import JointTrajPtFull, MotoMotionReply, Status
+
+    status = message_to_json(Status(1, 0, 0, 0, 1, 2, 1))
+    assert status["body"]["drives_powered"] == 1  # the numbers stay, and decide
+    assert status["names"] == {
+        "comm_type": "TOPIC",
+        "reply_code": "INVALID",
+        "drives_powered": "TRUE",
+        "e_stopped": "FALSE",
+        "in_error": "FALSE",
+        "in_motion": "TRUE",
+        "mode": "AUTO",
+        "motion_possible": "TRUE",
+    }
+    reply = message_to_json(MotoMotionReply(0, 3, MotoCommand.START_TRAJ_MODE, MotoResult.NOT_READY, 5003))
+    assert reply["names"]["command"] == "START_TRAJ_MODE" and reply["names"]["subcode"] == "ESTOP"
+    invalid = message_to_json(MotoMotionReply(0, 3, 0, MotoResult.INVALID, 3011))
+    assert invalid["names"]["result"] == "INVALID" and invalid["names"]["subcode"] == "DATA_START_POS"
+    point = message_to_json(JointTrajPtFull(0, -1, 0x07, 0.0, [0.0] * 6))
+    assert point["names"]["sequence"] == "START_TRAJECTORY_DOWNLOAD"
+    assert point["names"]["valid_fields"] == "TIME|POSITION|VELOCITY"
+    assert message_from_json({**status, "names": {"mode": "MANUAL"}}) == Status(1, 0, 0, 0, 1, 2, 1)  # ignored

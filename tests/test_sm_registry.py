@@ -240,6 +240,7 @@ def test_cli_decodes_and_encodes_vendor_messages(
         "comm_type": 2,
         "reply_code": 0,
         "body": {"tool": 2, "width": 0.25, "force": 40.0},
+        "names": {"comm_type": "SERVICE_REQUEST", "reply_code": "INVALID"},
         "line": 1,
         "label": "GRIP",
     }
