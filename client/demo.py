@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import io
 import logging
 import math
 import time
@@ -175,6 +176,31 @@ def distance_to_path(points: Array, corners: Array) -> Array:
     return best
 
 
+def drive_differences(command: Array, dt: float) -> tuple[Array, Array, Array]:
+    """The drive's view of a commanded motion, the one definition the demo's table, traces and
+    figure share: velocity, acceleration and jerk as the first, second and third differences of
+    the commanded positions ``(N, dof)`` sampled every ``dt`` (the controller's interpolation
+    period), divided by ``dt``, ``dt²``, ``dt³``: ``N - 1``, ``N - 2`` and ``N - 3`` rows."""
+    velocity = np.diff(command, axis=0) / dt
+    acceleration = np.diff(velocity, axis=0) / dt
+    jerk = np.diff(acceleration, axis=0) / dt
+    return velocity, acceleration, jerk
+
+
+#: what the table's columns mean (printed under it)
+GLOSSARY = (
+    "cycle time: from the last command sample before the motion starts to the first at which the robot stays "
+    "settled at the goal",
+    "peak acc, peak jerk: the largest magnitude over all joints of the second and third differences of the "
+    "commanded positions at the interpolation instants (every 4 ms), divided by 4 ms squared and cubed: what the "
+    "drives receive (the traces' <joint>.drive_acceleration column and the figure plot the same)",
+    "acc discontinuities: runs of interpolation instants where that acceleration changes by more than the joint's "
+    "jerk limit allows in one period",
+    "path deviation: the largest distance of the actual flange position from the rectangle's edges",
+    "following error: the largest |command - actual| joint position at any servo tick",
+)
+
+
 def analyse(
     policy: str,
     model: RobotModel,
@@ -196,9 +222,7 @@ def analyse(
     unsettled = np.max(np.abs(actual - goal), axis=1) > SETTLED_POSITION
     late = np.flatnonzero(unsettled)
     end = times[min(late[-1] + 1, times.size - 1)] if late.size else times[0]
-    velocity = np.diff(command, axis=0) / dt
-    acceleration = np.diff(velocity, axis=0) / dt
-    jerk = np.diff(acceleration, axis=0) / dt
+    _, acceleration, jerk = drive_differences(command, dt)
     jumps = np.any(np.abs(np.diff(acceleration, axis=0)) > model.max_jerk * dt * (1 + 1e-6), axis=1)
     # one discontinuity is a run of consecutive jumps (an impulse shows up as two)
     events = int(np.count_nonzero(jumps[1:] & ~jumps[:-1]) + (1 if jumps.size and jumps[0] else 0))
@@ -256,6 +280,7 @@ def format_table(rows: Sequence[DemoRow]) -> str:
         "  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(line, widths, strict=True)))
         for line in lines
     ]
+    out += ["", *(f"* {entry}" for entry in GLOSSARY)]
     return "\n".join(out)
 
 
@@ -280,7 +305,7 @@ class _Plan:
     corners: Array
 
 
-async def _embedded_run(config: DemoConfig, plan: _Plan, policy: str) -> tuple[DemoRow, Recorder]:
+async def _embedded_run(config: DemoConfig, plan: _Plan, policy: str) -> tuple[DemoRow, Recorder, int]:
     model, waypoints = plan.model, plan.waypoints
     emulator_config = EmulatorConfig(
         models=(config.model,),
@@ -311,7 +336,8 @@ async def _embedded_run(config: DemoConfig, plan: _Plan, policy: str) -> tuple[D
             finally:
                 emu.stop_recording()
     servo = emulator_config.servo_period
-    rows = _interpolation_rows(record, servo, round(emulator_config.interpolation_period / servo))
+    ticks = round(emulator_config.interpolation_period / servo)
+    rows = _interpolation_rows(record, servo, ticks)
     row = analyse(
         policy,
         plan.model,
@@ -321,7 +347,38 @@ async def _embedded_run(config: DemoConfig, plan: _Plan, policy: str) -> tuple[D
         actual=record.get("actual_position")[rows],
         following_error=record.get("following_error"),
     )
-    return row, record
+    return row, record, ticks
+
+
+def _drive_acceleration(record: Recorder, ticks: int) -> tuple[NDArray[np.bool_], Array]:
+    """The interpolation instants of a record, and the drive's acceleration (:func:`drive_differences`)
+    at each servo tick: computed at the instants, each value held from its instant to the next
+    (NaN before the first two instants)."""
+    period = record.time()
+    servo = float(np.median(np.diff(period))) if period.size > 1 else 1.0
+    rows = _interpolation_rows(record, servo, ticks)
+    command = record.get("command_position")
+    _, acceleration, _ = drive_differences(command[rows], servo * ticks)
+    held = np.full(command.shape, np.nan)
+    instants = np.flatnonzero(rows)
+    for k in range(acceleration.shape[0]):  # the acceleration known at instant k + 2 holds until the next
+        stop = instants[k + 3] if k + 3 < instants.size else command.shape[0]
+        held[instants[k + 2] : stop] = acceleration[k]
+    return rows, held
+
+
+def _save_trace(path: Path, record: Recorder, model: RobotModel, ticks: int) -> None:
+    """A policy's trace: the record in the trajectory layout, plus ``<joint>.drive_acceleration``
+    (the table's acceleration, see :data:`GLOSSARY`) as an extra column."""
+    buffer = io.StringIO()
+    record.to_csv(buffer, model.joint_names)
+    lines = buffer.getvalue().splitlines()
+    _, held = _drive_acceleration(record, ticks)
+    extra = ",".join(f"{name}.drive_acceleration" for name in model.joint_names)
+    rows = [f"{lines[0]},{extra}"]
+    for line, values in zip(lines[1:], held.tolist(), strict=True):
+        rows.append(line + "," + ",".join("" if np.isnan(v) else repr(v) for v in values))
+    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
 
 
 async def _external_run(driver: RobotDriver, config: DemoConfig, plan: _Plan) -> tuple[DemoRow, Array, Array]:
@@ -410,15 +467,15 @@ async def run_demo(config: DemoConfig, progress: Callable[[str], None] = print) 
         )
         progress(f"{policy}: embedded emulator ({clock}) ...")
         begun = time.perf_counter()
-        row, record = await _embedded_run(config, plan, policy)
+        row, record, ticks = await _embedded_run(config, plan, policy)
         result.rows.append(row)
         records[policy] = record
         trace = out / f"demo_{policy}.csv"
-        record.to_csv(trace, model.joint_names)
+        _save_trace(trace, record, model, ticks)
         result.files.append(trace)
         progress(f"{policy}: done in {time.perf_counter() - begun:.1f} s, trace {trace}")
     if config.plot:
-        result.figure = _figure(records, waypoints, model, out)
+        result.figure = _figure(records, waypoints, model, out, ticks)
     return result
 
 
@@ -429,7 +486,9 @@ def _save_waypoints(out: Path, waypoints: Trajectory) -> Path:
     return path
 
 
-def _figure(records: dict[str, Recorder], waypoints: Trajectory, model: RobotModel, out: Path) -> Path | None:
+def _figure(
+    records: dict[str, Recorder], waypoints: Trajectory, model: RobotModel, out: Path, ticks: int
+) -> Path | None:
     """Fig. 6 of the paper: one joint before (linear, not interpolated) and after (quintic)."""
     try:
         import matplotlib
@@ -446,13 +505,14 @@ def _figure(records: dict[str, Recorder], waypoints: Trajectory, model: RobotMod
     for label, record in (("before interpolation (linear)", before), ("after interpolation (quintic)", after)):
         command = record.get("command_position")
         t = record.time() - record.time()[_motion_start(command)]  # 0: the motion starts
-        for ax, quantity in zip(axes, ("command_position", "command_velocity", "command_acceleration"), strict=True):
-            values = record.get(quantity)[:, joint]
-            if quantity != "command_position":  # the drive's view: differences of the commanded positions
-                p = record.get("command_position")[:, joint]
-                dt = float(np.median(np.diff(t)))
-                values = np.gradient(p, dt) if quantity == "command_velocity" else np.gradient(np.gradient(p, dt), dt)
-            ax.plot(t, values, label=label, linewidth=0.8)
+        # the drive's view, as the table measures it: differences at the interpolation instants
+        rows = _interpolation_rows(record, float(np.median(np.diff(record.time()))), ticks)
+        dt = float(np.median(np.diff(t[rows])))
+        velocity, acceleration, _ = drive_differences(command[rows], dt)
+        instants = t[rows]
+        axes[0].plot(t, command[:, joint], label=label, linewidth=0.8)
+        axes[1].step(instants[1:], velocity[:, joint], where="post", label=label, linewidth=0.8)
+        axes[2].step(instants[2:], acceleration[:, joint], where="post", label=label, linewidth=0.8)
     for ax, unit in zip(axes, ("position (rad)", "velocity (rad/s)", "acceleration (rad/s²)"), strict=True):
         ax.set_ylabel(unit)
         ax.grid(True, alpha=0.3)

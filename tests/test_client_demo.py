@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from client.demo import DemoConfig, analyse, format_table, run_demo
+from client.demo import GLOSSARY, DemoConfig, analyse, format_table, run_demo
 from client.trajectory import Trajectory
 from robot_server.loader import load_model
 
@@ -47,7 +47,14 @@ async def test_short_demo_table(tmp_path: Path) -> None:
     trace = Trajectory.load(tmp_path / "demo_quintic.csv")  # the one layout: a trace loads as a trajectory
     assert trace.velocities is not None and trace.accelerations is not None
     table = format_table(result.rows)
-    assert table.splitlines()[0].startswith("policy") and len(table.splitlines()) == 5
+    assert table.splitlines()[0].startswith("policy") and len(table.splitlines()) == 5 + 1 + len(GLOSSARY)
+    # one definition of the acceleration: the table's peak is the trace's drive_acceleration column's
+    for policy in ("linear", "quintic"):
+        with (tmp_path / f"demo_{policy}.csv").open() as stream:
+            reader = csv.DictReader(stream)
+            columns = [f"{name}.drive_acceleration" for name in MODEL.joint_names]
+            peak = max(abs(float(row[c])) for row in reader for c in columns if row[c])
+        assert peak == pytest.approx(rows[policy].peak_acceleration, rel=1e-9), policy
     assert any("embedded emulator" in line for line in lines)
 
 
