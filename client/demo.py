@@ -111,6 +111,8 @@ class DemoResult:
     files: list[Path] = field(default_factory=list)
     figure: Path | None = None
     external: str | None = None  # the controller used, if not the embedded emulator
+    #: why there is no figure, when one was asked for
+    no_figure: str | None = None
 
 
 # -- planning ----------------------------------------------------------------------------------------
@@ -475,7 +477,12 @@ async def run_demo(config: DemoConfig, progress: Callable[[str], None] = print) 
         result.files.append(trace)
         progress(f"{policy}: done in {time.perf_counter() - begun:.1f} s, trace {trace}")
     if config.plot:
-        result.figure = _figure(records, waypoints, model, out, ticks)
+        if "linear" not in records or "quintic" not in records:
+            result.no_figure = "it compares the linear and quintic runs: give both in --policies"
+        else:
+            result.figure = _figure(records, waypoints, model, out, ticks)
+            if result.figure is None:
+                result.no_figure = "install the plot extra: pip install 'simple-message-stack[plot]'"
     return result
 
 
