@@ -28,10 +28,21 @@ from robot_server.control import POLICIES, policy
 from robot_server.kinematics import fk
 from robot_server.loader import load_model, shipped_models
 from robot_server.model import ModelError, RobotModel, rpy_matrix
-from simple_message.cli import add_import_argument, preimport
-from simple_message.constants import MsgType, RobotMode, TriState
+from simple_message.cliargs import (
+    ArgumentParser,
+    add_import_argument,
+    add_log_level_argument,
+    add_profile_wire_arguments,
+    add_version_argument,
+    client_port,
+    positive_float,
+    positive_int,
+    preimport,
+)
+from simple_message.constants import MsgType
 from simple_message.dialects import DIALECTS, GENERIC, dialect
 from simple_message.errors import SimpleMessageError
+from simple_message.jsonio import message_to_json, symbolic_names
 from simple_message.messages import Status
 from simple_message.wire import ByteOrder, WireFormat
 
@@ -92,58 +103,91 @@ def _run_main(main: Awaitable[None]) -> None:
     asyncio.run(guarded())
 
 
-def _positive(text: str) -> float:
-    value = float(text)
-    if not (math.isfinite(value) and value > 0.0):
-        raise argparse.ArgumentTypeError(f"must be > 0, not {text}")
-    return value
+_MODES = (
+    "how the points go to the controller: stream (one request at a time, each acknowledged) or download (every "
+    "point first, then the robot runs them); MotoROS has one way, its trajectory mode, and ignores this"
+)
 
-
-def _port(text: str) -> int:
-    value = int(text)
-    if not 1 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"a port is 1..65535, not {text}")
-    return value
+_DESCRIPTIONS = {
+    "ping": "Send PING requests on the motion port and print each round-trip time, then the minimum, median "
+    "and maximum. A motion client: refused while another client moves the robot.",
+    "status": "Wait for one joint state and STATUS on the state port and print them as one JSON object. Only "
+    "watches: connects the state port alone.",
+    "monitor": "Print the joint state and STATUS once a second, with the rate at which they arrive, for "
+    "--duration seconds or until Ctrl-C. Only watches: connects the state port alone.",
+    "move": "Plan a jerk-limited move from where the robot is to a joint configuration (--joints) or to a flange "
+    "pose along a straight line (--pose), and execute it; a progress line on a terminal, then a report. "
+    "Ctrl-C stops the robot.",
+    "run": "Execute a trajectory file (.csv or .json; a file that record wrote replays as it is), streamed or "
+    "downloaded (--mode). Ctrl-C stops the robot.",
+    "stop": "Stop the robot now and wait for the controller to acknowledge it. A motion client: refused while "
+    "another client moves the robot.",
+    "record": "Record the joint states from the state port to a CSV file (the trajectory layout: run FILE "
+    "replays it), for --duration seconds or until Ctrl-C. Only watches: connects the state port alone.",
+    "demo": "The paper's experiment: the robot draws a rectangle under each interpolation policy, and the "
+    "command prints a table of the results and writes the CSV traces and (with matplotlib) a figure to "
+    "--output. It uses the controller at --host and the ports when one answers (not with --embedded), else "
+    "an embedded emulator.",
+}
 
 
 def parser() -> argparse.ArgumentParser:
-    common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--host", default="127.0.0.1", help="controller address (default 127.0.0.1)")
-    common.add_argument("--motion-port", type=_port, help="default: the profile's (11000; motoros 50240)")
-    common.add_argument("--state-port", type=_port, help="default: the profile's (11002; motoros 50241)")
+    common = ArgumentParser(add_help=False)
+    common.add_argument("--host", default="127.0.0.1", help="controller address")
+    common.add_argument(
+        "--motion-port",
+        type=client_port,
+        metavar="PORT",
+        help="the controller's motion port, 1..65535 (default: the profile's, 11000; motoros 50240)",
+    )
+    common.add_argument(
+        "--state-port",
+        type=client_port,
+        metavar="PORT",
+        help="the controller's state port, 1..65535 (default: the profile's, 11002; motoros 50241)",
+    )
     common.add_argument(
         "--profile",
         choices=sorted(DIALECTS),
         default=GENERIC.name,
-        help="the controller family (default %(default)s): "
+        help="the controller family (default: %(default)s): "
         + "; ".join(f"{name}: {entry.description}" for name, entry in sorted(DIALECTS.items())),
     )
-    common.add_argument("--byte-order", choices=("little", "big"), help="default: the profile's (fanuc: big)")
-    common.add_argument(
-        "--float64", action="store_const", const=True, help="8-byte reals (the FLOAT64 build; default: the profile's)"
-    )
+    add_profile_wire_arguments(common, ("little", "big"), "fanuc: big")
     common.add_argument("--serial", metavar="URL", help="one serial link for motion and state (pyserial URL)")
     common.add_argument(
-        "--model", default="jibot_zxs", metavar="NAME|PATH", help=f"robot model ({', '.join(shipped_models())})"
+        "--model",
+        default="jibot_zxs",
+        metavar="NAME|PATH",
+        help=f"robot model, a shipped name or a .toml/.urdf file ({', '.join(shipped_models())})",
     )
-    common.add_argument("--timeout", type=_positive, default=5.0, metavar="SECONDS", help="connect and reply timeout")
-    common.add_argument("--log-level", default="WARNING", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    common.add_argument(
+        "--timeout", type=positive_float, default=5.0, metavar="SECONDS", help="connect and reply timeout"
+    )
+    add_log_level_argument(common)
     add_import_argument(common)  # e.g. a module that registers a dialect or an interpolation policy
 
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="robot-client",
         description="Drive a robot controller (or the emulator) over ROS-Industrial simple_message.",
-        epilog="Angles in radians, lengths in metres. Run 'robot-client COMMAND -h' for a command's options.",
+        epilog="Angles in radians, lengths in metres. Run 'robot-client COMMAND -h' for a command's options. "
+        "Exit status: 0 done, 1 the robot or the controller failed, 2 bad arguments or input, 130 interrupted, "
+        "143 terminated (the robot stopped first).",
     )
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    ping = sub.add_parser("ping", parents=[common], help="round-trip time of PING requests")
-    ping.add_argument("--count", type=int, default=5)
-    sub.add_parser("status", parents=[common], help="print the joint state and STATUS once (JSON)")
-    monitor = sub.add_parser("monitor", parents=[common], help="live joint state and STATUS, with rates")
-    monitor.add_argument("--duration", type=_positive, help="seconds (default: until Ctrl-C)")
-    move = sub.add_parser("move", parents=[common], help="move to a joint configuration or a Cartesian pose")
+    add_version_argument(p)
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", help="what to do")
+
+    def command(name: str, summary: str) -> argparse.ArgumentParser:
+        return sub.add_parser(name, parents=[common], help=summary, description=_DESCRIPTIONS[name])
+
+    ping = command("ping", "round-trip time of PING requests")
+    ping.add_argument("--count", type=positive_int, default=5, metavar="N", help="PING requests to send, at least 1")
+    command("status", "print the joint state and STATUS once (JSON)")
+    monitor = command("monitor", "live joint state and STATUS, with rates")
+    monitor.add_argument("--duration", type=positive_float, metavar="SECONDS", help="seconds (default: until Ctrl-C)")
+    move = command("move", "move to a joint configuration or a Cartesian pose")
     target = move.add_mutually_exclusive_group(required=True)
-    target.add_argument("--joints", type=float, nargs="+", metavar="Q", help="joint values (rad)")
+    target.add_argument("--joints", type=float, nargs="+", metavar="Q", help="joint values (rad), one per joint")
     target.add_argument(
         "--pose",
         type=float,
@@ -151,24 +195,39 @@ def parser() -> argparse.ArgumentParser:
         metavar="V",
         help="flange X Y Z (m) [ROLL PITCH YAW] (rad); a straight line, keeping the orientation if none given",
     )
-    move.add_argument("--speed", type=float, default=0.3, help="share of the joint limits (0..1, default 0.3)")
-    move.add_argument("--mode", choices=[m.value for m in Mode], default=Mode.STREAM.value)
-    run = sub.add_parser("run", parents=[common], help="execute a trajectory file (.csv or .json)")
-    run.add_argument("file", type=Path)
-    run.add_argument("--mode", choices=[m.value for m in Mode], default=Mode.STREAM.value)
-    sub.add_parser(
-        "stop",
-        parents=[common],
-        help="stop the robot now (a motion client: refused while another client moves the robot)",
+    move.add_argument(
+        "--speed",
+        type=float,
+        default=0.3,
+        metavar="SHARE",
+        help="share of the joint velocity, acceleration and jerk limits, in (0, 1] (default: %(default)s)",
     )
-    record = sub.add_parser("record", parents=[common], help="record the joint states to a CSV file")
-    record.add_argument("file", type=Path)
-    record.add_argument("--duration", type=_positive, help="seconds (default: until Ctrl-C)")
-    demo = sub.add_parser("demo", parents=[common], help="the paper's experiment: a rectangle under each policy")
-    demo.add_argument("--output", type=Path, default=Path("demo-output"), help="directory for CSV traces and figure")
+    move.add_argument("--mode", choices=[m.value for m in Mode], default=Mode.STREAM.value, help=_MODES)
+    run = command("run", "execute a trajectory file (.csv or .json)")
+    run.add_argument("file", type=Path, metavar="FILE", help="the trajectory file (.csv or .json)")
+    run.add_argument("--mode", choices=[m.value for m in Mode], default=Mode.STREAM.value, help=_MODES)
+    command("stop", "stop the robot now (a motion client: refused while another client moves the robot)")
+    record = command("record", "record the joint states to a CSV file")
+    record.add_argument(
+        "file",
+        type=Path,
+        metavar="FILE",
+        help="the file to write: CSV, or JSON for a .json name (replaced if it exists)",
+    )
+    record.add_argument("--duration", type=positive_float, metavar="SECONDS", help="seconds (default: until Ctrl-C)")
+    demo = command("demo", "the paper's experiment: a rectangle under each policy")
+    demo.add_argument(
+        "--output", type=Path, default=Path("demo-output"), metavar="DIR", help="directory for CSV traces and figure"
+    )
     demo.add_argument("--short", action="store_true", help="a small rectangle (quick)")
     demo.add_argument("--simulated", action="store_true", help="embedded emulator on a simulated clock (fastest)")
-    demo.add_argument("--speedup", type=_positive, default=1.0, help="embedded emulator faster than real time")
+    demo.add_argument(
+        "--speedup",
+        type=positive_float,
+        default=1.0,
+        metavar="FACTOR",
+        help="embedded emulator this many times faster than real time",
+    )
     demo.add_argument("--embedded", action="store_true", help="do not look for a controller first")
     demo.add_argument(
         "--policies",
@@ -207,37 +266,26 @@ def _driver(args: argparse.Namespace, model: RobotModel) -> RobotDriver:
     )
 
 
-def _name(kind: type[TriState] | type[RobotMode], value: int) -> str:
-    try:
-        return kind(value).name
-    except ValueError:  # a value outside the enumeration: show it as it came
-        return str(value)
-
-
 def _status_dict(status: Status | None) -> dict[str, object] | None:
+    """A STATUS as every command prints a message (``simple-message decode`` included): the
+    numbers in ``body``, their symbolic names in ``names``."""
     if status is None:
         return None
-    return {
-        "drives_powered": _name(TriState, status.drives_powered),
-        "e_stopped": _name(TriState, status.e_stopped),
-        "error_code": status.error_code,
-        "in_error": _name(TriState, status.in_error),
-        "in_motion": _name(TriState, status.in_motion),
-        "mode": _name(RobotMode, status.mode),
-        "motion_possible": _name(TriState, status.motion_possible),
-    }
+    return message_to_json(status)
 
 
 def _state_dict(state: JointState) -> dict[str, object]:
-    out: dict[str, object] = {"positions": [round(x, 6) for x in state.positions.tolist()]}
-    if state.velocities is not None:
-        out["velocities"] = [round(x, 6) for x in state.velocities.tolist()]
-    out["status"] = _status_dict(state.status)
-    return out
+    """The joint state, the same keys whatever the controller sends (``velocities`` null when it
+    sends none)."""
+    return {
+        "positions": [round(x, 6) for x in state.positions.tolist()],
+        "velocities": None if state.velocities is None else [round(x, 6) for x in state.velocities.tolist()],
+        "status": _status_dict(state.status),
+    }
 
 
 async def _ping(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
-    times = [await driver.ping() for _ in range(max(1, args.count))]
+    times = [await driver.ping() for _ in range(args.count)]
     for i, t in enumerate(times):
         print(f"PING {i + 1}: {t * 1000:.3f} ms", file=out)
     print(
@@ -268,7 +316,7 @@ async def _monitor(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -
             now = time.monotonic()
             if now - window >= 1.0:
                 rate = count / (now - window)
-                status = _status_dict(state.status) or {}
+                status = symbolic_names(state.status) if state.status is not None else {}
                 q = " ".join(f"{x:+.4f}" for x in state.positions.tolist())
                 print(
                     f"{rate:6.1f} Hz  q=[{q}]  in_motion={status.get('in_motion')} in_error={status.get('in_error')}"
@@ -422,8 +470,8 @@ async def _demo(args: argparse.Namespace, out: TextIO) -> None:
     print(f"traces: {', '.join(str(f) for f in result.files)}", file=out)
     if result.figure is not None:
         print(f"figure: {result.figure}", file=out)
-    elif config.plot and result.external is None:
-        print("figure: not drawn (install the plot extra: pip install 'simple-message-stack[plot]')", file=out)
+    elif config.plot and result.no_figure is not None:
+        print(f"figure: not drawn ({result.no_figure})", file=out)
 
 
 def _check_arguments(args: argparse.Namespace, model: RobotModel) -> None:

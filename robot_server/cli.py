@@ -23,7 +23,18 @@ import threading
 from collections.abc import Sequence
 from pathlib import Path
 
-from simple_message.cli import add_import_argument, preimport
+from simple_message.cliargs import (
+    ArgumentParser,
+    add_import_argument,
+    add_log_level_argument,
+    add_profile_wire_arguments,
+    add_version_argument,
+    non_negative_float,
+    positive_float,
+    positive_int,
+    preimport,
+    server_port,
+)
 from simple_message.endpoints import run
 
 from .control import DEFAULT_POLICY, POLICIES, Recorder
@@ -43,25 +54,11 @@ _EPILOG = "fault commands (stdin, one per line, or --fault SECONDS:COMMAND):\n" 
 )
 
 
-def _positive(text: str) -> float:
-    value = float(text)
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, not {text}")
-    return value
-
-
-def _port(text: str) -> int:
-    value = int(text)
-    if not 0 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"a port is 0..65535 (0: any free port), not {text}")
-    return value
-
-
 def _fault(text: str) -> tuple[float, str]:
     at, sep, command = text.partition(":")
     try:
-        seconds = float(at)
-    except ValueError:
+        seconds = non_negative_float(at)
+    except argparse.ArgumentTypeError:
         seconds = -1.0
     if not sep or seconds < 0.0 or not command.strip():
         raise argparse.ArgumentTypeError(f"expected SECONDS:COMMAND (e.g. 2.5:estop), not {text!r}")
@@ -69,73 +66,119 @@ def _fault(text: str) -> tuple[float, str]:
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="robot-server",
-        description="A robot controller emulator speaking ROS-Industrial simple_message.",
+        description="A robot controller emulator speaking ROS-Industrial simple_message.\n\n"
+        "It prints one line on stdout when it accepts connections, logs to stderr, and on SIGINT or SIGTERM "
+        "decelerates the robot to rest, closes every connection and exits 0. Fault commands are typed on its "
+        "standard input, one per line, or scheduled with --fault.",
         epilog=_EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    add_version_argument(p)
     p.add_argument(
         "--model",
         action="append",
         metavar="NAME|PATH",
-        help=f"robot model; repeat for more motion groups (shipped: {', '.join(shipped_models())}; default jibot_zxs)",
+        help="robot model, a shipped name or a .toml/.urdf file; repeat for more motion groups "
+        f"(shipped: {', '.join(shipped_models())}; default: jibot_zxs)",
     )
-    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
-    p.add_argument("--motion-port", type=_port, help="default: the profile's (11000 generic, 50240 motoros); 0: free")
-    p.add_argument("--state-port", type=_port, help="default: the profile's (11002 generic, 50241 motoros)")
-    p.add_argument("--io-port", type=_port, help="profiles with an IO port (motoros: default 50242)")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind")
+    p.add_argument(
+        "--motion-port",
+        type=server_port,
+        metavar="PORT",
+        help="motion port to bind, 0..65535, 0: any free port (default: the profile's, 11000 generic, 50240 motoros)",
+    )
+    p.add_argument(
+        "--state-port",
+        type=server_port,
+        metavar="PORT",
+        help="state port to bind, 0..65535, 0: any free port (default: the profile's, 11002 generic, 50241 motoros)",
+    )
+    p.add_argument(
+        "--io-port",
+        type=server_port,
+        metavar="PORT",
+        help="IO port to bind, for profiles that have one, 0..65535, 0: any free port (default: the profile's, "
+        "50242 motoros)",
+    )
     add_import_argument(p)  # e.g. a module that registers a profile or an interpolation policy
     p.add_argument(
         "--profile",
         default="generic",
-        help="the controller family played (default %(default)s; known: "
+        help="the controller family played (default: %(default)s; known: "
         + "; ".join(f"{name}: {entry.description}" for name, entry in PROFILES.items())
         + ")",
     )
-    p.add_argument("--byte-order", choices=("little", "big", "auto"), help="default: the profile's (little)")
-    p.add_argument(
-        "--float64", action="store_const", const=True, help="8-byte reals (the FLOAT64 build; default: the profile's)"
-    )
+    add_profile_wire_arguments(p, ("little", "big", "auto"), "little for both built-in profiles")
     p.add_argument(
         "--reply-style",
         choices=("echo", "header"),
-        help="generic replies echo the body (C++ library, the default) or are header-only (ABB)",
+        help="generic replies echo the body (echo: the C++ library) or are header-only (header: ABB) "
+        "(default: the profile's; echo for generic)",
     )
-    p.add_argument("--state-rate", type=_positive, default=40.0, metavar="HZ", help="state topics per second")
+    p.add_argument(
+        "--state-rate",
+        type=positive_float,
+        default=40.0,
+        metavar="HZ",
+        help=f"state topics per second, at most {MAX_STATE_RATE:g}",
+    )
     p.add_argument("--feedback", action="store_true", help="generic: JOINT_FEEDBACK to every state client")
     p.add_argument(
         "--interpolation",
         default=DEFAULT_POLICY,
-        help="how points are joined (default %(default)s): "
+        metavar="POLICY",
+        help="how points are joined (default: %(default)s): "
         + "; ".join(f"{name}: {entry.summary}" for name, entry in POLICIES.items()),
     )
-    p.add_argument("--interpolation-period", type=_positive, default=0.004, metavar="SECONDS")
-    p.add_argument("--servo-period", type=_positive, default=0.001, metavar="SECONDS")
-    p.add_argument("--queue-size", type=int, default=64, metavar="POINTS", help="streamed points the controller queues")
-    p.add_argument("--speedup", type=_positive, default=1.0, metavar="FACTOR", help="run the controller faster")
+    p.add_argument(
+        "--interpolation-period",
+        type=positive_float,
+        default=0.004,
+        metavar="SECONDS",
+        help="the controller's interpolation period: a whole multiple of --servo-period",
+    )
+    p.add_argument(
+        "--servo-period",
+        type=positive_float,
+        default=0.001,
+        metavar="SECONDS",
+        help="the servo loop's period (the drives' control tick)",
+    )
+    p.add_argument(
+        "--queue-size", type=positive_int, default=64, metavar="POINTS", help="streamed points the controller queues"
+    )
+    p.add_argument(
+        "--speedup",
+        type=positive_float,
+        default=1.0,
+        metavar="FACTOR",
+        help="run the controller this many times faster than real time",
+    )
     p.add_argument("--serial", metavar="URL", help="also serve one link on this serial port (pyserial URL)")
     p.add_argument(
         "--on-disconnect",
         choices=[o.value for o in OnDisconnect],
         default=OnDisconnect.STOP.value,
-        help="when the motion client goes away while the robot is busy: stop it (controlled, the default, as "
-        "MotoROS does) or let the queued motion run to its end",
+        help="when the motion client goes away while the robot is busy: stop it (controlled, as MotoROS does) "
+        "or let the queued motion run to its end (default: %(default)s)",
     )
     p.add_argument(
         "--max-connections",
-        type=int,
+        type=positive_int,
         default=128,
         metavar="N",
-        help="connections per port where the profile has no limit of its own (default 128); a full port closes "
-        "an idle connection (an incomplete frame, a peer that does not read, the longest silent) for a newcomer",
+        help="connections per port where the profile has no limit of its own (default: %(default)s); a full "
+        "port closes an idle connection (an incomplete frame, a peer that does not read, the longest silent) for a "
+        "newcomer",
     )
     p.add_argument(
         "--frame-timeout",
-        type=_positive,
+        type=positive_float,
         default=5.0,
         metavar="SECONDS",
-        help="close a connection that began a frame and sent nothing more for SECONDS (default 5)",
+        help="close a connection that began a frame and sent nothing more for SECONDS (default: %(default)g)",
     )
     p.add_argument(
         "--record",
@@ -145,15 +188,22 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--record-seconds",
-        type=_positive,
+        type=positive_float,
         default=120.0,
         metavar="SECONDS",
-        help=f"keep the last SECONDS of the record (default 120, at most {MAX_RECORD_SECONDS:g}: "
-        "about 0.3 MB a second for six joints at 1 ms)",
+        help=f"keep the last SECONDS of the record, at most {MAX_RECORD_SECONDS:g} (about 0.3 MB a second for six "
+        "joints at 1 ms; default: %(default)g)",
     )
-    p.add_argument("--fault", type=_fault, action="append", default=[], metavar="SECONDS:COMMAND")
+    p.add_argument(
+        "--fault",
+        type=_fault,
+        action="append",
+        default=[],
+        metavar="SECONDS:COMMAND",
+        help="apply a fault command (below) at SECONDS >= 0 of controller time from the start (repeatable)",
+    )
     p.add_argument("--no-stdin", action="store_true", help="do not read fault commands from stdin")
-    p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    add_log_level_argument(p, default="INFO")
     return p
 
 

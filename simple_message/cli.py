@@ -18,13 +18,20 @@ a vendor message set, so that its types decode and encode by name too.
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import logging
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from typing import IO, Any
 
+from .cliargs import (
+    ArgumentParser,
+    add_import_argument,
+    add_log_level_argument,
+    add_version_argument,
+    import_all,
+    preimport,
+)
 from .errors import FrameError, SimpleMessageError
 from .framing import FrameDecoder
 from .jsonio import message_from_json, message_to_json
@@ -43,7 +50,7 @@ def add_wire_arguments(parser: argparse.ArgumentParser, *, allow_auto: bool = Tr
         "--byte-order",
         choices=choices,
         default="little",
-        help="wire byte order (default: little, the ROS default build; Fanuc and FS100 use big)"
+        help="wire byte order (default: %(default)s, the ROS default build; Fanuc and FS100 use big)"
         + ("; auto detects it from the first length prefix" if allow_auto else ""),
     )
     parser.add_argument("--float64", action="store_true", help="reals are float64 (the FLOAT64 build)")
@@ -56,58 +63,13 @@ def wire_from_args(args: argparse.Namespace) -> tuple[WireFormat, bool]:
     return WireFormat(order, 8 if args.float64 else 4), auto
 
 
-def add_log_level_argument(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--log-level",
-        default="WARNING",
-        type=str.upper,
-        choices=["DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"],
-        help="logging threshold (default: WARNING)",
-    )
-
-
-def add_import_argument(parser: argparse.ArgumentParser) -> None:
-    """The ``--import MODULE`` option: modules to import first (e.g. a vendor message set)."""
-    parser.add_argument(
-        "--import",
-        dest="imports",
-        action="append",
-        default=[],
-        metavar="MODULE",
-        help="import MODULE first, e.g. one that registers a vendor message set, a dialect or a profile (repeatable)",
-    )
-
-
 def import_modules(names: list[str]) -> bool:
     """Import ``names`` in order; report the first failure on stderr and return ``False``."""
-    failure = _import_all(names)
+    failure = import_all(names)
     if failure is not None:
         _emit_error(type(failure[1]).__name__, f"cannot import {failure[0]}: {failure[1]}")
         return False
     return True
-
-
-def preimport(argv: Sequence[str] | None) -> str | None:
-    """Import the modules ``argv`` names with ``--import`` now, before a command builds its parser
-    from registries they add to (profiles, dialects, policies: so ``--help`` and the choices list
-    them). Returns what went wrong, or None."""
-    early = argparse.ArgumentParser(add_help=False)
-    add_import_argument(early)
-    known, _ = early.parse_known_args(argv)
-    failure = _import_all(known.imports)
-    if failure is None:
-        return None
-    name, exc = failure
-    return f"cannot import {name}: {type(exc).__name__}: {exc}"
-
-
-def _import_all(names: Sequence[str]) -> tuple[str, Exception] | None:
-    for name in names:
-        try:
-            importlib.import_module(name)
-        except Exception as exc:  # anything a module can raise at import, RegistrationError included
-            return name, exc
-    return None
 
 
 def _emit_error(kind: str, message: str, **extra: Any) -> None:
@@ -219,23 +181,59 @@ def _encode(args: argparse.Namespace) -> int:
     return 1 if errors else 0
 
 
+_DECODE = """Read simple_message frames and print one JSON object per message on stdout.
+
+The input is hex, one line per frame or per TCP segment: a line may be NAME HEX (as in the
+conformance vector files) or TIME SRC DST HEX (as in the capture segment files); the last token is
+the hex and the rest becomes "label"; lines starting with # and blank lines are skipped. With --raw
+the input is a binary byte stream. A malformed frame prints an error object on stderr; the command
+goes on and exits 1 at the end."""
+
+_ENCODE = """Read JSON objects, one per line (as decode prints them), and print each message's frame as a
+hex line on stdout, or with --raw as binary. Lines starting with # and blank lines are skipped. A
+line that does not encode prints an error object on stderr; the command goes on and exits 1 at the
+end."""
+
+_TYPES = """Every message type of the registry decodes and encodes by name; --import MODULE (repeatable)
+imports a module first, e.g. one that registers a vendor message set."""
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="simple-message", description="Decode and encode ROS-Industrial simple_message frames."
+    parser = ArgumentParser(
+        prog="simple-message",
+        description="Decode and encode ROS-Industrial simple_message frames.",
+        epilog="Run 'simple-message COMMAND --help' for a command's options.",
     )
+    add_version_argument(parser)
     add_log_level_argument(parser)
-    sub = parser.add_subparsers(dest="command", required=True)
-    dec = sub.add_parser("decode", help="frames (hex lines or --raw bytes) to JSON lines")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", help="what to do")
+    dec = sub.add_parser(
+        "decode",
+        help="frames (hex lines or --raw bytes) to JSON lines",
+        description=f"{_DECODE}\n\n{_TYPES}",
+    )
     add_wire_arguments(dec)
     dec.add_argument("--raw", action="store_true", help="input is a binary byte stream, not hex lines")
     add_import_argument(dec)
-    dec.add_argument("file", nargs="?", default="-", metavar="FILE", help="input file (default: stdin)")
+    dec.add_argument(
+        "file",
+        nargs="?",
+        default="-",
+        metavar="FILE",
+        help="input file: hex lines, or bytes with --raw (default: stdin)",
+    )
     dec.set_defaults(func=_decode)
-    enc = sub.add_parser("encode", help="JSON lines to frames (hex lines or --raw bytes)")
+    enc = sub.add_parser(
+        "encode",
+        help="JSON lines to frames (hex lines or --raw bytes)",
+        description=f"{_ENCODE}\n\n{_TYPES}",
+    )
     add_wire_arguments(enc, allow_auto=False)
     enc.add_argument("--raw", action="store_true", help="write binary frames instead of hex lines")
     add_import_argument(enc)
-    enc.add_argument("file", nargs="?", default="-", metavar="FILE", help="input file (default: stdin)")
+    enc.add_argument(
+        "file", nargs="?", default="-", metavar="FILE", help="input file: JSON objects, one a line (default: stdin)"
+    )
     enc.set_defaults(func=_encode)
     return parser
 

@@ -22,6 +22,7 @@ __all__ = [
     "MotoResult",
     "InvalidSubcode",
     "NotReadySubcode",
+    "moto_subcode_name",
     "IoResult",
     "Port",
     "VendorRange",

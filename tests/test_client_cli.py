@@ -52,7 +52,8 @@ async def test_commands_against_robot_server(tmp_path: Path) -> None:
         assert code == 0, err
         state = json.loads(out)
         assert state["positions"] == [0.0] * 6
-        assert state["status"]["in_motion"] == "FALSE" and state["status"]["drives_powered"] == "TRUE"
+        names = state["status"]["names"]
+        assert names["in_motion"] == "FALSE" and names["drives_powered"] == "TRUE"
 
         goal = [0.2, 0.1, -0.1, 0.0, 0.5, 0.0]
         code, out, err = await client("move", "--joints", *map(str, goal), *ports)

@@ -165,11 +165,23 @@ async def test_ping_status_stop_and_monitor(capsys: pytest.CaptureFixture[str]) 
         code, out = await client("status", *ports)
         assert code == 0
         state = json.loads(out)
-        assert state["positions"] == [0.0] * 6 and "velocities" not in state
-        assert state["status"] == {
+        assert state["positions"] == [0.0] * 6 and state["velocities"] is None  # the same keys in every profile
+        # the STATUS as simple-message decode prints it: numbers in body, symbolic names beside
+        assert state["status"]["name"] == "STATUS"
+        assert state["status"]["body"] == {
+            "drives_powered": 1,
+            "e_stopped": 0,
+            "error_code": 0,
+            "in_error": 0,
+            "in_motion": 0,
+            "mode": 2,
+            "motion_possible": 1,
+        }
+        assert state["status"]["names"] == {
+            "comm_type": "TOPIC",
+            "reply_code": "INVALID",
             "drives_powered": "TRUE",
             "e_stopped": "FALSE",
-            "error_code": 0,
             "in_error": "FALSE",
             "in_motion": "FALSE",
             "mode": "AUTO",

@@ -245,7 +245,9 @@ def test_help_and_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
     for argv in ([], ["decode", "--byte-order", "sideways"], ["encode", "--byte-order", "auto"]):
         with pytest.raises(SystemExit) as info:
             main(argv)
-        assert info.value.code == 2 and "usage: simple-message" in capsys.readouterr().err
+        err = capsys.readouterr().err  # one line, which names the help (not argparse's usage block)
+        assert info.value.code == 2 and err.startswith("simple-message") and err.count("\n") == 1, err
+        assert "error: " in err and "--help')" in err, err
 
 
 def test_python_dash_m_in_process(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:

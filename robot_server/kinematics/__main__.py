@@ -43,7 +43,11 @@ def _pose(text: str) -> np.ndarray[Any, Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m robot_server.kinematics", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m robot_server.kinematics",
+        description="Forward and inverse kinematics of the robot models, for people and for other languages. "
+        "Angles in radians, lengths in metres, JSON on stdout, errors on stderr (exit status 2).",
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     p_fk = sub.add_parser("fk", help="flange pose of a configuration")
     p_fk.add_argument("--model", required=True, help="shipped model name or a .toml/.urdf path")
