@@ -529,4 +529,12 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     except (CommandError, DriverError, PlanningError, SimpleMessageError, OSError) as exc:
         print(f"robot-client: {exc}", file=sys.stderr)
         return EXIT_FAILED
+    except Exception as exc:  # a defect of ours: still one line, never a traceback on the terminal
+        logging.getLogger("client").debug("internal error", exc_info=True)
+        print(
+            f"robot-client: internal error: {type(exc).__name__}: {exc} (please report it; --log-level debug shows "
+            "where)",
+            file=sys.stderr,
+        )
+        return EXIT_FAILED
     return EXIT_DONE

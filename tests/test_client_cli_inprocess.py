@@ -414,3 +414,16 @@ async def test_demo_runs_the_rectangle_on_a_controller_that_answers(tmp_path: Pa
     assert len(row) == 8 and row[-1] == "n/a"  # no following error from joint states alone
     lines = (tmp_path / "demo_controller.csv").read_text().splitlines()
     assert lines[0].startswith("time,") and len(lines) > 4
+
+
+async def test_an_internal_error_is_one_line_not_a_traceback(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    async def broken(*_: object) -> None:
+        raise ValueError("the record is too short to analyse")
+
+    monkeypatch.setattr(cli, "_with_driver", broken)
+    code, _ = await client("status", "--motion-port", "1", "--state-port", "1")
+    err = capsys.readouterr().err
+    assert code == 1 and err.count("\n") == 1, err
+    assert err.startswith("robot-client: internal error: ValueError: the record is too short to analyse"), err
