@@ -229,6 +229,11 @@ class Trajectory:
         return cls(times, positions, velocities, accelerations, tuple(names))
 
 
+#: states closer than this (s) are one moment in a recording: no controller publishes its state more
+#: often than every millisecond, so two states this close were read together, not sent apart
+RECORDING_RESOLUTION = 0.5e-3
+
+
 def recording(
     times: Sequence[float],
     positions: Sequence[Sequence[float]],
@@ -236,9 +241,14 @@ def recording(
     joint_names: Sequence[str] = (),
 ) -> Trajectory:
     """Joint states as received (``time.monotonic()`` stamps) as a :class:`Trajectory` in the one
-    CSV layout: times from the first state (0), a state whose time is not after the one before it
-    dropped, velocities kept when every state has them. ``robot-client run`` replays its file."""
-    keep = [k for k in range(len(times)) if k == 0 or times[k] > times[k - 1]]
+    CSV layout: times from the first state (0), velocities kept when every state has them.
+    ``robot-client run`` replays its file. A state received less than :data:`RECORDING_RESOLUTION`
+    after the one kept before it is dropped: states that a busy client read together are one
+    moment, not a segment of a few microseconds (which a controller refuses)."""
+    keep: list[int] = []
+    for k in range(len(times)):
+        if not keep or times[k] - times[keep[-1]] >= RECORDING_RESOLUTION:
+            keep.append(k)
     if not keep:
         raise TrajectoryError("no joint state was recorded")
     t = np.array([times[k] for k in keep], dtype=float)

@@ -87,3 +87,11 @@ def test_bad_files_name_the_file_and_the_place(tmp_path: Path, name: str, conten
 def test_missing_file() -> None:
     with pytest.raises(TrajectoryError, match="nosuchfile"):
         Trajectory.load("/nonexistent/nosuchfile.csv")
+
+
+def test_a_recording_keeps_one_state_of_those_read_together() -> None:
+    from client.trajectory import RECORDING_RESOLUTION, recording
+
+    stamps = [100.0, 100.01, 100.01 + RECORDING_RESOLUTION / 10, 100.02]  # the third was read with the second
+    t = recording(stamps, [[0.0], [0.1], [0.1], [0.2]])
+    assert t.times.tolist() == pytest.approx([0.0, 0.01, 0.02]) and t.positions[:, 0].tolist() == [0.0, 0.1, 0.2]
