@@ -168,28 +168,24 @@ def non_negative_int(text: str) -> int:
     return value
 
 
-def server_port(text: str) -> int:
-    """A port to bind: 0..65535, where 0 asks the system for any free port."""
-    rule = "a port is 0..65535 (0: any free port)"
+def _port(text: str, lowest: int, rule: str) -> int:
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{rule}, not {text!r}") from None
-    if not 0 <= value <= 65535:
+    if not lowest <= value <= 65535:
         raise argparse.ArgumentTypeError(f"{rule}, not {text}")
     return value
+
+
+def server_port(text: str) -> int:
+    """A port to bind: 0..65535, where 0 asks the system for any free port."""
+    return _port(text, 0, "a port is 0..65535 (0: any free port)")
 
 
 def client_port(text: str) -> int:
     """A port to connect to: 1..65535 (0 names no port to connect to)."""
-    rule = "a port is 1..65535"
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{rule}, not {text!r}") from None
-    if not 1 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"{rule}, not {text}")
-    return value
+    return _port(text, 1, "a port is 1..65535")
 
 
 def log_level(text: str) -> str:
