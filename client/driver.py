@@ -415,6 +415,17 @@ class RobotDriver:
             await self._stop_quietly()
             raise ExecutionAborted(str(exc), confirmed) from None
 
+    def _faulted(self) -> bool:
+        """The latest STATUS shows a reason the robot cannot move (see :meth:`_why`)."""
+        status = self._status
+        return status is not None and (
+            status.e_stopped == TriState.TRUE
+            or status.drives_powered == TriState.FALSE
+            or status.in_error == TriState.TRUE
+            or status.mode == RobotMode.MANUAL
+            or status.motion_possible == TriState.FALSE
+        )
+
     def _why(self) -> str:
         """Why the controller may refuse motion, as its latest STATUS says (it gives no reason with a
         FAILURE): e-stop, drives, an alarm, the mode; or that STATUS shows nothing wrong."""
@@ -589,8 +600,8 @@ class RobotDriver:
         # "at the goal and not moving" means done only once the robot has run the trajectory: a path
         # that ends where it starts is "at the goal" before it begins, and the STATUS that comes with
         # a joint state may be older than the last point. So the robot must have been seen moving
-        # (in_motion TRUE, or away from the start), unless the trajectory does not move it, or it has
-        # stood at the goal for stall_timeout s since everything was sent.
+        # (in_motion TRUE, or away from the start), unless the trajectory does not move it, or the
+        # planned duration (and stall_timeout) has passed since everything was sent.
         start = trajectory.positions[0]
         moves = bool(np.max(np.abs(trajectory.positions - start)) > self.goal_tolerance)
         seen_moving = False
@@ -613,14 +624,18 @@ class RobotDriver:
                     )
             status = state.status
             if status is not None and status.in_error == TriState.TRUE:
-                raise ExecutionAborted(f"the controller is in error {status.error_code}", confirmed)
+                raise ExecutionAborted(f"the controller is in error (code {status.error_code})", confirmed)
             at_goal = error <= self.goal_tolerance
             here = state.positions[: goal.size]
             if (status is not None and status.in_motion == TriState.TRUE) or bool(
                 np.max(np.abs(here - start)) > self.goal_tolerance
             ):
                 seen_moving = True
-            ran = seen_moving or not moves or time.monotonic() - sent > self.stall_timeout
+            waited = time.monotonic() - sent
+            if moves and not seen_moving and waited > self.stall_timeout and self._faulted():
+                # a trajectory the controller dropped before it began (a download has no replies)
+                raise ExecutionAborted(f"the robot did not move: {self._why()}", confirmed)
+            ran = seen_moving or not moves or waited > trajectory.duration + self.stall_timeout
             if at_goal and ran and status is not None and status.in_motion != TriState.TRUE:
                 if status.in_motion == TriState.UNKNOWN:
                     log.warning("goal reached, but the controller reports in_motion UNKNOWN")
@@ -634,7 +649,8 @@ class RobotDriver:
                 elif now - stalled_since > self.stall_timeout:
                     raise ExecutionAborted(
                         f"the robot stands still {error:.4g} from the goal (in_motion FALSE for "
-                        f"{self.stall_timeout} s): the controller dropped or stopped the trajectory",
+                        f"{self.stall_timeout} s): the controller dropped or stopped the trajectory"
+                        f"{f': {self._why()}' if self._faulted() else ''}",
                         confirmed,
                     )
             else:

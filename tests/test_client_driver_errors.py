@@ -52,7 +52,7 @@ async def test_an_alarm_during_the_motion_aborts_with_its_code() -> None:
         task = asyncio.create_task(driver.execute(line([0.0] * 6, TARGET, 3.0, n=8)))
         await advance_until(clock, lambda: emu.cell.groups[0].command.actual_position[5] > 0.05, what="moving")
         emu.cell.alarm(4321, "overheated")
-        with pytest.raises(ExecutionAborted, match="in error 4321") as info:
+        with pytest.raises(ExecutionAborted, match=r"in error \(code 4321\)") as info:
             await bounded(task)
         assert info.value.confirmed == 7  # every point had been acknowledged
         await settle(emu, clock)
@@ -77,6 +77,18 @@ async def test_a_dropped_download_shows_as_a_robot_standing_still() -> None:
         with pytest.raises(ExecutionAborted, match="stands still") as info:
             await bounded(driver.execute(beyond, "download"))
         assert info.value.confirmed == 2  # every point was written (a download has no acknowledgements)
+        assert emu.cell.groups[0].trajectories == 0
+
+
+@pytest.mark.parametrize("mode", ["download", "stream"])
+async def test_a_path_back_to_its_start_on_an_e_stopped_controller_is_not_done(mode: str) -> None:
+    """At the goal before it begins, and a download has no replies: 'done' would be a lie (it was,
+    after stall_timeout); the driver says why the robot did not move."""
+    async with setup(stall_timeout=0.2) as (emu, _clock, driver):
+        emu.cell.estop()
+        loop = Trajectory(np.array([0.0, 1.0, 2.0]), np.array([[0.0] * 6, [0.3] + [0.0] * 5, [0.0] * 6]))
+        with pytest.raises(ExecutionAborted, match="e-stopped"):
+            await bounded(driver.execute(loop, mode))
         assert emu.cell.groups[0].trajectories == 0
 
 
