@@ -15,6 +15,7 @@ import contextlib
 import json
 import logging
 import math
+import os
 import signal
 import sys
 import time
@@ -49,7 +50,7 @@ from simple_message.wire import ByteOrder, WireFormat
 from .demo import PAPER_POLICIES, DemoConfig, format_table, run_demo
 from .driver import DriverError, JointState, Mode, RobotDriver
 from .planner import Planner, PlanningError, pose
-from .trajectory import Trajectory, TrajectoryError, recording
+from .trajectory import Trajectory, recording
 
 __all__ = ["main", "parser"]
 
@@ -62,10 +63,6 @@ EXIT_DONE, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2,
 
 class CommandError(Exception):
     """A failure to report in one line (exit status 1: the robot or the controller)."""
-
-
-class InputError(CommandError):
-    """Bad input found before anything was sent: an unreadable or malformed file (exit status 2)."""
 
 
 class Terminated(Exception):
@@ -410,11 +407,7 @@ async def _move(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> N
 
 
 async def _run(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
-    try:
-        trajectory = Trajectory.load(args.file)
-    except (TrajectoryError, OSError) as exc:
-        raise InputError(str(exc)) from None
-    await _execute(driver, trajectory, args.mode, out)
+    await _execute(driver, args.trajectory, args.mode, out)  # read and checked before connecting
 
 
 async def _stop(driver: RobotDriver, _args: argparse.Namespace, out: TextIO) -> None:
@@ -474,11 +467,26 @@ async def _demo(args: argparse.Namespace, out: TextIO) -> None:
         print(f"figure: not drawn ({result.no_figure})", file=out)
 
 
+def _writable(path: str) -> None:
+    """Refuse, before connecting, a file that cannot be written (a missing directory...)."""
+    target = Path(path)
+    folder = target.parent
+    if not folder.is_dir():
+        raise ValueError(f"{path}: cannot write it: no directory {folder}")
+    if not os.access(target if target.exists() else folder, os.W_OK) or target.is_dir():
+        raise ValueError(f"{path}: cannot write it: permission denied or a directory")
+
+
 def _check_arguments(args: argparse.Namespace, model: RobotModel) -> None:
     """Usage errors found before connecting (exit status 2)."""
     if args.command == "demo":
         for name in args.policies:
             policy(name)  # ValueError naming the known ones
+    if args.command == "run":
+        # a TrajectoryError (a ValueError) names the file; columns are matched to the joints by name
+        args.trajectory = Trajectory.load(args.file).for_joints(model.joint_names)
+    if args.command == "record":
+        _writable(args.file)
     if args.command != "move":
         return
     if not 0.0 < args.speed <= 1.0:
@@ -523,9 +531,6 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     except Terminated:
         print("robot-client: terminated", file=sys.stderr)
         return EXIT_TERMINATED
-    except InputError as exc:
-        print(f"robot-client: {exc}", file=sys.stderr)
-        return EXIT_USAGE
     except (CommandError, DriverError, PlanningError, SimpleMessageError, OSError) as exc:
         print(f"robot-client: {exc}", file=sys.stderr)
         return EXIT_FAILED

@@ -200,6 +200,8 @@ GLOSSARY = (
     "jerk limit allows in one period",
     "path deviation: the largest distance of the actual flange position from the rectangle's edges",
     "following error: the largest |command - actual| joint position at any servo tick",
+    "controller's own (an external controller, not the embedded emulator): the same formulas on the joint states "
+    "it publishes (about 40 Hz), taken as both command and actual; no following error",
 )
 
 

@@ -314,7 +314,10 @@ class RobotDriver:
                     if self._latest is not None and self._status is not None:
                         return self._latest
         except TimeoutError:
-            raise DriverError(f"no joint state and STATUS from {self.address}") from None
+            client = self.state
+            if client.state is not ConnectionState.CONNECTED:
+                raise DriverError(self._no_state()) from None
+            raise DriverError(f"no joint state and STATUS from {client.name}") from None
 
     async def states(self) -> AsyncIterator[JointState]:
         """Every joint-state sample once, as it arrives (raises DriverError when none comes for the
@@ -415,6 +418,17 @@ class RobotDriver:
             await self._stop_quietly()
             raise ExecutionAborted(str(exc), confirmed) from None
 
+    async def _why_now(self) -> str:
+        """:meth:`_why` from a STATUS that came after the refusal (the controller may have replied
+        before publishing the change that made it refuse, e.g. an e-stop), waiting at most a
+        watchdog period for it."""
+        with contextlib.suppress(DriverError, TimeoutError):
+            seen = self._latest.received if self._latest is not None else None
+            async with asyncio.timeout(self.watchdog):
+                while self._latest is None or self._latest.received == seen:
+                    await self.wait_state()
+        return self._why()
+
     def _faulted(self) -> bool:
         """The latest STATUS shows a reason the robot cannot move (see :meth:`_why`)."""
         status = self._status
@@ -486,7 +500,9 @@ class RobotDriver:
             try:
                 await self._request(self._point(trajectory, k, k, CommType.SERVICE_REQUEST))
             except RequestFailed:
-                raise ExecutionAborted(f"the controller refused point {k}: {self._why()}", confirmed) from None
+                raise ExecutionAborted(
+                    f"the controller refused point {k}: {await self._why_now()}", confirmed
+                ) from None
             except _NotSent as exc:
                 await self._reconnected(k, confirmed, exc)
                 continue  # point k was never written: send it on the new connection
@@ -536,7 +552,8 @@ class RobotDriver:
             enable = await self._moto(MotoCommand.START_TRAJ_MODE)
             if enable.result != MotoResult.SUCCESS:
                 raise ExecutionAborted(
-                    f"START_TRAJ_MODE refused: {moto_reason(enable.result, enable.subcode)}; {self._why()}", -1
+                    f"START_TRAJ_MODE refused: {moto_reason(enable.result, enable.subcode)}; {await self._why_now()}",
+                    -1,
                 )
             ready = await self._moto(MotoCommand.CHECK_MOTION_READY)
             if ready.result != MotoResult.TRUE:
@@ -568,9 +585,10 @@ class RobotDriver:
                 if reply.result == MotoResult.SUCCESS:
                     break
                 if reply.result != MotoResult.BUSY:
+                    why = await self._why_now() if reply.result == MotoResult.NOT_READY else ""
                     raise ExecutionAborted(
                         f"the controller refused point {k}: {moto_reason(reply.result, reply.subcode)}"
-                        f"{'' if reply.result != MotoResult.NOT_READY else f'; {self._why()}'}",
+                        f"{f'; {why}' if why else ''}",
                         confirmed,
                     )
                 if waited > self.goal_timeout:

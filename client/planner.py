@@ -361,7 +361,11 @@ class Planner:
             if goal.shape != (4, 4) or not np.all(np.isfinite(goal)):
                 raise PlanningError(f"pose {i} is not a finite 4x4 matrix")
             if not self._ik.solve_all(goal):
-                raise PlanningError(f"pose {i} is out of reach within the joint limits")
+                where = "the target pose" if len(poses) == 1 else f"pose {i + 1} of {len(poses)}"
+                raise PlanningError(
+                    f"{where} (flange at {np.round(goal[:3, 3], 4).tolist()} m) is out of reach within the joint "
+                    "limits: try a point nearer the robot's base, or another orientation"
+                )
             piece = self._line_piece(current, goal, q, time, i)
             pieces.append(piece)
             time += piece.duration
@@ -388,7 +392,13 @@ class Planner:
         if values.size != self.model.dof or not np.all(np.isfinite(values)):
             raise PlanningError(f"the {what} configuration must be {self.model.dof} finite values, not {q!r}")
         if not self.model.within_limits(values, 1e-9):
-            raise PlanningError(f"the {what} configuration {values.round(4).tolist()} is outside the joint limits")
+            model = self.model
+            j = int(np.argmax(np.maximum(model.lower - values, values - model.upper)))
+            side, bound = ("lower", model.lower[j]) if values[j] < model.lower[j] else ("upper", model.upper[j])
+            raise PlanningError(
+                f"the {what} configuration is outside the joint limits: joint {j + 1} ({model.joint_names[j]}) at "
+                f"{values[j]:.4g} is beyond its {side} limit {bound:.4g}"
+            )
         return values
 
     def _joint_piece(self, q0: Array, q1: Array, start: float) -> _Piece:

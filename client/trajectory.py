@@ -99,6 +99,30 @@ class Trajectory:
     def duration(self) -> float:
         return float(self.times[-1])
 
+    def for_joints(self, names: Sequence[str]) -> Trajectory:
+        """This trajectory for a robot whose joints are ``names``, in that order: its columns taken
+        by name when it names them (in any order), by position when they are the defaults ``q1``...
+        Raises :class:`TrajectoryError` when the count differs or a name is not one of ``names``."""
+        defaults = tuple(f"q{j + 1}" for j in range(self.dof))
+        if self.dof != len(names):
+            raise TrajectoryError(f"the trajectory has {self.dof} joints, the robot {len(names)} ({', '.join(names)})")
+        if self.joint_names == defaults or tuple(self.joint_names) == tuple(names):
+            return self
+        unknown = [n for n in self.joint_names if n not in names]
+        if unknown:
+            raise TrajectoryError(
+                f"the trajectory names joints the robot does not have: {', '.join(unknown)} (its joints: "
+                f"{', '.join(names)}; or q1...q{len(names)} for the robot's order)"
+            )
+        order = [self.joint_names.index(n) for n in names]
+
+        def pick(values: Array | None) -> Array | None:
+            return None if values is None else values[:, order]
+
+        return Trajectory(
+            self.times, self.positions[:, order], pick(self.velocities), pick(self.accelerations), tuple(names)
+        )
+
     # -- files -------------------------------------------------------------------------------------
 
     @classmethod
@@ -109,6 +133,8 @@ class Trajectory:
             text = path.read_text(encoding="utf-8")
         except OSError as exc:
             raise TrajectoryError(f"{path}: {exc.strerror or exc}") from None
+        except UnicodeDecodeError as exc:
+            raise TrajectoryError(f"{path}: not a text file in UTF-8 (byte {exc.start})") from None
         try:
             if path.suffix.lower() == ".json":
                 return cls._from_json(text)
@@ -229,32 +255,38 @@ class Trajectory:
         return cls(times, positions, velocities, accelerations, tuple(names))
 
 
-#: states closer than this (s) are one moment in a recording: no controller publishes its state more
-#: often than every millisecond, so two states this close were read together, not sent apart
-RECORDING_RESOLUTION = 0.5e-3
-
-
 def recording(
     times: Sequence[float],
     positions: Sequence[Sequence[float]],
     velocities: Sequence[Sequence[float] | None] | None = None,
     joint_names: Sequence[str] = (),
 ) -> Trajectory:
-    """Joint states as received (``time.monotonic()`` stamps) as a :class:`Trajectory` in the one
-    CSV layout: times from the first state (0), velocities kept when every state has them.
-    ``robot-client run`` replays its file. A state received less than :data:`RECORDING_RESOLUTION`
-    after the one kept before it is dropped: states that a busy client read together are one
-    moment, not a segment of a few microseconds (which a controller refuses)."""
-    keep: list[int] = []
-    for k in range(len(times)):
-        if not keep or times[k] - times[keep[-1]] >= RECORDING_RESOLUTION:
-            keep.append(k)
-    if not keep:
+    """Joint states as received (``time.monotonic()`` stamps) of a controller that publishes them
+    periodically (every ROS-Industrial controller does), as a :class:`Trajectory` in the one CSV
+    layout, velocities kept when every state has them; ``robot-client run`` replays its file.
+
+    Receipt times are not send times: a busy client reads a late state together with the next one,
+    microseconds apart, which would make a segment no controller runs. So each state gets a slot of
+    the publishing period P (the span over the count): a state received at t was sent in the last
+    period before it, slot ``ceil(t / P - 1)``, and at least one slot after the state before it
+    (a state received more than a period late pushes the ones after it by a slot). Times from 0."""
+    if not times:
         raise TrajectoryError("no joint state was recorded")
-    t = np.array([times[k] for k in keep], dtype=float)
+    keep = list(range(len(times)))
+    stamps = np.array(times, dtype=float)
+    t = stamps - stamps[0]
+    if len(t) > 1 and t[-1] > 0.0:
+        period = float(t[-1]) / (len(t) - 1)
+        slots = np.maximum(np.ceil(t / period - 1.0), 0.0)
+        slots[0] = 0.0
+        for k in range(1, slots.size):
+            slots[k] = max(slots[k], slots[k - 1] + 1.0)
+        t = slots * period
+    elif len(t) > 1:  # every state at one instant: one state
+        keep, t = [len(t) - 1], np.zeros(1)
     with_velocity = velocities is not None and all(velocities[k] is not None for k in keep)
     return Trajectory(
-        t - t[0],
+        t,
         np.array([positions[k] for k in keep], dtype=float),
         np.array([velocities[k] for k in keep], dtype=float) if with_velocity and velocities is not None else None,
         joint_names=tuple(joint_names),

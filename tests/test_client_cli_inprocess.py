@@ -427,3 +427,28 @@ async def test_an_internal_error_is_one_line_not_a_traceback(
     err = capsys.readouterr().err
     assert code == 1 and err.count("\n") == 1, err
     assert err.startswith("robot-client: internal error: ValueError: the record is too short to analyse"), err
+
+
+async def test_watching_commands_say_when_the_controller_closed_the_connection(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    async with controller() as (emu, ports):
+        recording = asyncio.create_task(client("monitor", "--duration", "30", *ports))
+        await asyncio.wait_for(_until(lambda: bool(emu.state_server.sessions)), 10.0)
+        await emu.state_server.close()  # the controller goes away
+        code, _ = await recording
+    err = capsys.readouterr().err
+    assert code == 1 and "the controller closed the state connection" in err, err
+
+
+async def test_run_takes_the_columns_by_joint_name(tmp_path: Path) -> None:
+    async with controller() as (emu, ports):
+        path = tmp_path / "named.csv"
+        names = [f"joint_{j}" for j in range(6, 0, -1)]  # the robot's joints, in reverse order
+        path.write_text("time," + ",".join(names) + "\n0,0,0,0,0,0,0\n1,0.3,0,0,0,0,0\n")
+        code, out = await client("run", str(path), *ports)
+        assert code == 0, out
+        assert np.allclose(positions(emu), [0, 0, 0, 0, 0, 0.3], atol=2e-3)  # joint_6 moved, not joint_1
+        bad = tmp_path / "bad.csv"
+        bad.write_text("time,a,b,c,d,e,f\n0,0,0,0,0,0,0\n")
+        assert (await client("run", str(bad), *ports))[0] == 2  # names no joint of the robot: bad input

@@ -111,7 +111,7 @@ async def test_estop_during_execution_aborts() -> None:
         task = asyncio.create_task(driver.execute(line([0.0] * 6, TARGET, 3.0, n=8)))
         await emu.wait_until(lambda: emu.cell.in_motion, 10.0)
         emu.cell.estop()
-        with pytest.raises(ExecutionAborted):
+        with pytest.raises(ExecutionAborted, match="e-stopped"):  # it says why the robot stopped
             await asyncio.wait_for(task, 80.0)
 
 

@@ -89,9 +89,13 @@ def test_missing_file() -> None:
         Trajectory.load("/nonexistent/nosuchfile.csv")
 
 
-def test_a_recording_keeps_one_state_of_those_read_together() -> None:
-    from client.trajectory import RECORDING_RESOLUTION, recording
+def test_a_recording_puts_states_read_late_back_in_their_period() -> None:
+    from client.trajectory import recording
 
-    stamps = [100.0, 100.01, 100.01 + RECORDING_RESOLUTION / 10, 100.02]  # the third was read with the second
-    t = recording(stamps, [[0.0], [0.1], [0.1], [0.2]])
-    assert t.times.tolist() == pytest.approx([0.0, 0.01, 0.02]) and t.positions[:, 0].tolist() == [0.0, 0.1, 0.2]
+    # a 100 Hz publisher; the third state was read late, with the fourth
+    stamps = [100.0, 100.01, 100.0299, 100.03, 100.04]
+    t = recording(stamps, [[0.0], [0.1], [0.2], [0.3], [0.4]])
+    assert t.times.tolist() == pytest.approx([0.0, 0.01, 0.02, 0.03, 0.04])
+    assert t.positions[:, 0].tolist() == [0.0, 0.1, 0.2, 0.3, 0.4]
+    single = recording([5.0, 5.0], [[0.1], [0.2]])  # two states at one instant: the later one
+    assert single.times.tolist() == [0.0] and single.positions[:, 0].tolist() == [0.2]
