@@ -136,35 +136,36 @@ def _integer(text: str, rule: str) -> int:
         raise argparse.ArgumentTypeError(f"must be an integer {rule}, not {text!r}") from None
 
 
+def _at_least(value: float, text: str, lowest: float, strict: bool) -> None:
+    if value < lowest or (strict and value == lowest):
+        raise argparse.ArgumentTypeError(f"must be {'>' if strict else '>='} {lowest:g}, not {text}")
+
+
 def positive_float(text: str) -> float:
     """A finite number > 0: a duration, a period, a rate, a factor."""
     value = _number(text, "> 0")
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, not {text}")
+    _at_least(value, text, 0.0, strict=True)
     return value
 
 
 def non_negative_float(text: str) -> float:
     """A finite number >= 0: a time from the start, where 0 is the start itself."""
     value = _number(text, ">= 0")
-    if value < 0.0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, not {text}")
+    _at_least(value, text, 0.0, strict=False)
     return value
 
 
 def positive_int(text: str) -> int:
     """An integer >= 1: a count, a capacity."""
     value = _integer(text, ">= 1")
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, not {text}")
+    _at_least(value, text, 1, strict=False)
     return value
 
 
 def non_negative_int(text: str) -> int:
     """An integer >= 0, for a count where 0 means something (none, no limit: the help says which)."""
     value = _integer(text, ">= 0")
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, not {text}")
+    _at_least(value, text, 0, strict=False)
     return value
 
 
