@@ -1,9 +1,12 @@
 """Load robot models: TOML D-H files, URDF files (:mod:`.urdf`) and the models shipped with the package.
 
-A TOML model states its units (``[units] length = "m" | "mm"``, ``angle = "rad" | "deg"``) and its
-D-H convention (``[dh] convention = "standard" | "modified"``); see ``models/jibot_zxs.toml`` for a
-complete, commented example. Every value is converted to SI on load. Every error names the file and
-the field (:class:`~.model.ModelError`).
+A TOML model states its units (``[units] length = "m" | "mm"``, ``angle = "rad" | "deg"``), its
+optional ``[base]`` and ``[tool]`` frames (``xyz``, ``rpy``: where the robot stands in the cell, and
+the TCP from the flange; identity by default) and its D-H convention (``[dh] convention =
+"standard" | "modified"``); see ``models/jibot_zxs.toml`` for a complete, commented example. A URDF
+model takes its base and tool frames from a sidecar file of the same name, ``<name>.frames.toml``
+(``[units]``, ``[base]``, ``[tool]`` as above; no sidecar: identity). Every value is converted to SI
+on load. Every error names the file and the field (:class:`~.model.ModelError`).
 """
 
 from __future__ import annotations
@@ -58,7 +61,7 @@ def load_model(name_or_path: str | Path) -> RobotModel:
     if suffix == ".toml":
         return load_toml(path)
     if suffix == ".urdf":
-        return load_urdf(path)
+        return _with_frames(load_urdf(path), path.with_suffix(".frames.toml"))
     raise ModelError(f"{path}: unknown model file type {path.suffix!r} (expected .toml or .urdf)")
 
 
@@ -207,6 +210,26 @@ def _default_limits(n: int, angle: float) -> dict[str, list[float]]:
         "acceleration": [10.0 / angle] * n,
         "jerk": [500.0 / angle] * n,
     }
+
+
+def _with_frames(model: RobotModel, frames: Path) -> RobotModel:
+    """A URDF model with the frames of its sidecar file ``<name>.frames.toml``, if there is one:
+    ``[base]`` (where the robot stands in the cell: put before the URDF's root) and ``[tool]`` (the
+    TCP: put after the chain's tip), each ``xyz`` and ``rpy``, in the file's ``[units]`` (default
+    ``m`` and ``rad``). A URDF carries neither; the sidecar keeps the URDF itself untouched."""
+    if not frames.exists():
+        return model
+    try:
+        data = tomllib.loads(frames.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ModelError(f"{frames}: {exc}") from None
+    top = _Fields(frames, data, "")
+    units = top.sub("units", required=False)
+    length = _LENGTH[units.text("length", "m", choices=_LENGTH)] if units is not None else 1.0
+    angle = _ANGLE[units.text("angle", "rad", choices=_ANGLE)] if units is not None else 1.0
+    base = _pose(top.sub("base", required=False), length, angle)
+    tool = _pose(top.sub("tool", required=False), length, angle)
+    return dataclasses.replace(model, base=base @ model.base, tool=model.tool @ tool)
 
 
 def _pose(table: _Fields | None, length: float, angle: float) -> Matrix:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -131,6 +132,24 @@ def test_urdf_of_the_dh_robot_gives_the_same_flange_poses() -> None:
     assert np.allclose(urdf.lower, dh.lower) and np.allclose(urdf.upper, dh.upper)
     q = np.random.default_rng(5).uniform(dh.lower, dh.upper, size=(1000, 6))
     assert np.max(np.abs(fk_batch(urdf, q) - fk_batch(dh, q))) < 1e-12
+
+
+def test_a_urdf_takes_its_base_and_tool_frames_from_a_sidecar_file(tmp_path: Path) -> None:
+    # the robot 1 m up on a pedestal turned 90 degrees, a 100 mm tool along the flange's z
+    shutil.copy(DATA / "jibot_zxs.urdf", tmp_path / "arm.urdf")
+    (tmp_path / "arm.frames.toml").write_text(
+        '[units]\nlength = "mm"\nangle = "deg"\n[base]\nxyz = [0, 0, 1000]\nrpy = [0, 0, 90]\n'
+        "[tool]\nxyz = [0, 0, 100]\n"
+    )
+    plain, framed = load_model(DATA / "jibot_zxs.urdf"), load_model(tmp_path / "arm.urdf")
+    q = np.random.default_rng(7).uniform(plain.lower, plain.upper, size=(100, 6))
+    base = np.array([[0.0, -1, 0, 0], [1, 0, 0, 0], [0, 0, 1, 1.0], [0, 0, 0, 1]])
+    tool = np.eye(4)
+    tool[2, 3] = 0.1
+    assert np.allclose(fk_batch(framed, q), base @ fk_batch(plain, q) @ tool, atol=1e-12)
+    (tmp_path / "arm.frames.toml").write_text('[units]\nlength = "furlong"\n')
+    with pytest.raises(ModelError, match=r"arm.frames.toml.*length"):
+        load_model(tmp_path / "arm.urdf")
 
 
 def test_shipped_urdf_model_kuka() -> None:
