@@ -354,12 +354,12 @@ async def _embedded_run(config: DemoConfig, plan: _Plan, policy: str) -> tuple[D
     return row, record, ticks
 
 
-def _drive_acceleration(record: Recorder, ticks: int) -> tuple[NDArray[np.bool_], Array]:
-    """The interpolation instants of a record, and the drive's acceleration (:func:`drive_differences`)
-    at each servo tick: computed at the instants, each value held from its instant to the next
-    (NaN before the first two instants)."""
-    period = record.time()
-    servo = float(np.median(np.diff(period))) if period.size > 1 else 1.0
+def _drive_acceleration(record: Recorder, ticks: int) -> Array:
+    """The drive's acceleration (:func:`drive_differences`) at each servo tick of a record: computed
+    at the interpolation instants, each value held from its instant to the next (NaN before the
+    first two instants)."""
+    times = record.time()
+    servo = float(np.median(np.diff(times))) if times.size > 1 else 1.0
     rows = _interpolation_rows(record, servo, ticks)
     command = record.get("command_position")
     _, acceleration, _ = drive_differences(command[rows], servo * ticks)
@@ -368,7 +368,7 @@ def _drive_acceleration(record: Recorder, ticks: int) -> tuple[NDArray[np.bool_]
     for k in range(acceleration.shape[0]):  # the acceleration known at instant k + 2 holds until the next
         stop = instants[k + 3] if k + 3 < instants.size else command.shape[0]
         held[instants[k + 2] : stop] = acceleration[k]
-    return rows, held
+    return held
 
 
 def _save_trace(path: Path, record: Recorder, model: RobotModel, ticks: int) -> None:
@@ -377,7 +377,7 @@ def _save_trace(path: Path, record: Recorder, model: RobotModel, ticks: int) -> 
     buffer = io.StringIO()
     record.to_csv(buffer, model.joint_names)
     lines = buffer.getvalue().splitlines()
-    _, held = _drive_acceleration(record, ticks)
+    held = _drive_acceleration(record, ticks)
     extra = ",".join(f"{name}.drive_acceleration" for name in model.joint_names)
     rows = [f"{lines[0]},{extra}"]
     for line, values in zip(lines[1:], held.tolist(), strict=True):

@@ -429,23 +429,11 @@ class RobotDriver:
                     await self.wait_state()
         return self._why()
 
-    def _faulted(self) -> bool:
-        """The latest STATUS shows a reason the robot cannot move (see :meth:`_why`)."""
-        status = self._status
-        return status is not None and (
-            status.e_stopped == TriState.TRUE
-            or status.drives_powered == TriState.FALSE
-            or status.in_error == TriState.TRUE
-            or status.mode == RobotMode.MANUAL
-            or status.motion_possible == TriState.FALSE
-        )
-
-    def _why(self) -> str:
-        """Why the controller may refuse motion, as its latest STATUS says (it gives no reason with a
-        FAILURE): e-stop, drives, an alarm, the mode; or that STATUS shows nothing wrong."""
+    def _faults(self) -> list[str]:
+        """The reasons the latest STATUS gives for the robot not to move (none: nothing wrong)."""
         status = self._status
         if status is None:
-            return "no STATUS received to say why"
+            return []
         reasons = []
         if status.e_stopped == TriState.TRUE:
             reasons.append("the controller is e-stopped")
@@ -457,6 +445,18 @@ class RobotDriver:
             reasons.append("it is in MANUAL mode (motion from a PC needs AUTO)")
         if not reasons and status.motion_possible == TriState.FALSE:
             reasons.append("STATUS says motion is not possible")
+        return reasons
+
+    def _faulted(self) -> bool:
+        """The latest STATUS shows a reason the robot cannot move (see :meth:`_why`)."""
+        return bool(self._faults())
+
+    def _why(self) -> str:
+        """Why the controller may refuse motion, as its latest STATUS says (it gives no reason with a
+        FAILURE): e-stop, drives, an alarm, the mode; or that STATUS shows nothing wrong."""
+        if self._status is None:
+            return "no STATUS received to say why"
+        reasons = self._faults()
         if reasons:
             return "; ".join(reasons)
         return "STATUS shows nothing wrong, so the point itself was refused (beyond a limit, or not where the robot is)"

@@ -113,7 +113,7 @@ def symbolic_names(msg: Message) -> dict[str, str]:
     """The symbolic name of each of ``msg``'s numbers that the protocol names (see the module doc)."""
     names: dict[str, str] = {}
     for key, kind in (("comm_type", CommType), ("reply_code", ReplyCode)):
-        name = _enum_name(kind, msg.__getattribute__(key))
+        name = _enum_name(kind, getattr(msg, key))
         if name is not None:
             names[key] = name
     body = msg.body_dict()

@@ -29,6 +29,7 @@ from robot_server.emulator import Emulator, EmulatorConfig
 from simple_message.constants import RobotMode
 from tests.fakecontroller import JOINT_TRAJ_PT, FakeController, Reply
 from tests.rawpeer import Frame
+from tests.stepped import poll
 
 #: bound of one command (s of wall time): the moves below take well under a second
 COMMAND_TIMEOUT = 60.0
@@ -72,7 +73,7 @@ async def test_the_watching_commands_never_take_the_motion_port_from_its_client(
     async with controller(profile=profile) as (emu, ports):
         _, writer = await asyncio.open_connection("127.0.0.1", emu.ports["motion"])
         try:
-            await asyncio.wait_for(_until(lambda: emu.owner.owner is not None), 10.0)
+            await poll(lambda: emu.owner.owner is not None, 10.0)
             owner = emu.owner.owner
             for argv in (
                 ["status"],
@@ -84,11 +85,6 @@ async def test_the_watching_commands_never_take_the_motion_port_from_its_client(
                 assert emu.owner.owner is owner and not owner.connection.closed, argv
         finally:
             writer.close()
-
-
-async def _until(predicate: Any) -> None:
-    while not predicate():  # noqa: ASYNC110 - nothing to wait on: the caller bounds it
-        await asyncio.sleep(0.01)
 
 
 REFUSALS = [
@@ -434,7 +430,7 @@ async def test_watching_commands_say_when_the_controller_closed_the_connection(
 ) -> None:
     async with controller() as (emu, ports):
         recording = asyncio.create_task(client("monitor", "--duration", "30", *ports))
-        await asyncio.wait_for(_until(lambda: bool(emu.state_server.sessions)), 10.0)
+        await poll(lambda: bool(emu.state_server.sessions), 10.0)
         await emu.state_server.close()  # the controller goes away
         code, _ = await recording
     err = capsys.readouterr().err
