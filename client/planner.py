@@ -43,7 +43,16 @@ from robot_server.control import (
     RuckigSegment,
 )
 from robot_server.control import PlanningError as SegmentPlanningError
-from robot_server.kinematics import ClosedFormIK, Singularity, closed_form, fk_batch
+from robot_server.kinematics import (
+    ClosedFormIK,
+    Singularity,
+    closed_form,
+    fk_batch,
+    quaternion_angle,
+    quaternion_to_rotation,
+    rotation_to_quaternion,
+    slerp,
+)
 
 from .trajectory import Trajectory
 
@@ -87,60 +96,6 @@ def pose(position: ArrayLike, rotation: ArrayLike | None = None) -> Array:
     if rotation is not None:
         t[:3, :3] = np.asarray(rotation, dtype=float).reshape(3, 3)
     return t
-
-
-def rotation_to_quaternion(r: ArrayLike) -> Array:
-    """Unit quaternion ``(w, x, y, z)`` of a rotation matrix (w >= 0)."""
-    m = np.asarray(r, dtype=float)[:3, :3]
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    if trace > 0.0:
-        s = 2.0 * math.sqrt(trace + 1.0)
-        q = np.array([0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s])
-    else:
-        i = int(np.argmax([m[0, 0], m[1, 1], m[2, 2]]))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * math.sqrt(max(1.0 + m[i, i] - m[j, j] - m[k, k], 0.0))
-        q = np.empty(4)
-        q[0] = (m[k, j] - m[j, k]) / s
-        q[1 + i] = 0.25 * s
-        q[1 + j] = (m[j, i] + m[i, j]) / s
-        q[1 + k] = (m[k, i] + m[i, k]) / s
-    q /= np.linalg.norm(q)
-    return q if q[0] >= 0.0 else -q
-
-
-def quaternion_to_rotation(q: ArrayLike) -> Array:
-    """Rotation matrices of unit quaternions ``(..., 4)`` -> ``(..., 3, 3)``."""
-    w, x, y, z = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
-        ],
-        axis=-2,
-    )
-
-
-def slerp(q0: ArrayLike, q1: ArrayLike, u: ArrayLike) -> Array:
-    """Spherical linear interpolation of unit quaternions at fractions ``u`` (shortest way)."""
-    a = np.asarray(q0, dtype=float)
-    b = np.asarray(q1, dtype=float)
-    f = np.asarray(u, dtype=float)[..., None]
-    dot = float(np.dot(a, b))
-    if dot < 0.0:
-        b, dot = -b, -dot
-    if dot > 1.0 - 1e-12:
-        out = a + f * (b - a)
-    else:
-        theta = math.acos(dot)
-        out = (np.sin((1.0 - f) * theta) * a + np.sin(f * theta) * b) / math.sin(theta)
-    norm: Array = out / np.linalg.norm(out, axis=-1, keepdims=True)
-    return norm
-
-
-def _angle_between(q0: Array, q1: Array) -> float:
-    return 2.0 * math.acos(min(1.0, abs(float(np.dot(q0, q1)))))
 
 
 # -- planned motion --------------------------------------------------------------------------------
@@ -417,7 +372,7 @@ class Planner:
         p0, p1 = t0[:3, 3], t1[:3, 3]
         r0, r1 = rotation_to_quaternion(t0), rotation_to_quaternion(t1)
         # the path parameter is the flange's travel; a rotation counts as travel of a point 0.1 m away
-        length = max(float(np.linalg.norm(p1 - p0)), 0.1 * _angle_between(r0, r1))
+        length = max(float(np.linalg.norm(p1 - p0)), 0.1 * quaternion_angle(r0, r1))
         if length < 1e-9:
             return _Piece.still(seed, start)
         m = max(2, math.ceil(length / self.step) + 1)

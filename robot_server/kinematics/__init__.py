@@ -14,12 +14,15 @@ from .fk import (
     fk,
     fk_batch,
     jacobian,
+    jacobian_batch,
     link_frames,
     manipulability,
     singularity_measure,
+    singularity_measure_batch,
 )
 from .ik import BatchSolutions, Branch, ClosedFormIK, IKSolution, NotApplicable, Singularity, closed_form
 from .numeric import NumericIKResult, ik_numeric, rotation_error
+from .rotations import quaternion_angle, quaternion_of, quaternion_to_rotation, rotation_to_quaternion, slerp
 
 __all__ = [
     "Ops",
@@ -30,9 +33,11 @@ __all__ = [
     "fk",
     "fk_batch",
     "jacobian",
+    "jacobian_batch",
     "link_frames",
     "manipulability",
     "singularity_measure",
+    "singularity_measure_batch",
     "ClosedFormIK",
     "IKSolution",
     "Branch",
@@ -43,6 +48,11 @@ __all__ = [
     "NumericIKResult",
     "ik_numeric",
     "rotation_error",
+    "quaternion_angle",
+    "quaternion_of",
+    "quaternion_to_rotation",
+    "rotation_to_quaternion",
+    "slerp",
     "ik",
     "IKFailed",
 ]

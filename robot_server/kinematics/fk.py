@@ -28,6 +28,8 @@ __all__ = [
     "jacobian",
     "manipulability",
     "singularity_measure",
+    "jacobian_batch",
+    "singularity_measure_batch",
     "chain_functions",
     "ChainFunctions",
 ]
@@ -37,12 +39,13 @@ Matrix = NDArray[np.float64]
 
 class ChainFunctions(NamedTuple):
     """A model's generated chain functions, ``f(q0, ..., q(dof-1), ops)`` (compiled once per
-    model): the flange pose, the pose with the geometric Jacobian, and the pose on numpy columns
-    (``ops`` = :data:`._ops.ARRAY_OPS`)."""
+    model): the flange pose, the pose with the geometric Jacobian, and both again on numpy
+    columns (``ops`` = :data:`._ops.ARRAY_OPS`)."""
 
     pose: Generated[PoseBlock[float]]
     pose_and_jacobian: Generated[PoseJacobian[float]]
     pose_batch: Generated[PoseBlock[NDArray[np.float64]]]
+    pose_and_jacobian_batch: Generated[PoseJacobian[NDArray[np.float64]]]
 
 
 def _compile(
@@ -64,6 +67,7 @@ def _build(model: RobotModel) -> ChainFunctions:
         _compile(model, lambda ops, q: chain(ops, model, q, with_axes=False).flange),
         _compile(model, lambda ops, q: pose_and_jacobian(ops, model, q)),
         _compile(model, lambda ops, q: chain(ops, model, q, with_axes=False).flange, batch=True),
+        _compile(model, lambda ops, q: pose_and_jacobian(ops, model, q), batch=True),
     )
 
 
@@ -121,6 +125,31 @@ def jacobian(model: RobotModel, q: ArrayLike) -> Matrix:
     linear velocity (m/s) then the angular velocity (rad/s) per unit joint velocity."""
     result = chain_functions(model).pose_and_jacobian(*_values(model, q), SCALAR_OPS)
     return np.array(result.jacobian, dtype=float)
+
+
+def jacobian_batch(model: RobotModel, q: ArrayLike) -> NDArray[np.float64]:
+    """Geometric Jacobians for N configurations: ``(N, dof)`` in, ``(N, 6, dof)`` out, no loop over N."""
+    values = np.asarray(q, dtype=float)
+    if values.ndim != 2 or values.shape[1] != model.dof:
+        raise ValueError(f"jacobian_batch takes an (N, {model.dof}) array for {model.name}, not shape {values.shape}")
+    n = values.shape[0]
+    out = np.empty((n, 6, model.dof))
+    function = chain_functions(model).pose_and_jacobian_batch
+    for start in range(0, n, _CHUNK):
+        stop = min(n, start + _CHUNK)
+        rows = function(*np.ascontiguousarray(values[start:stop].T), ARRAY_OPS).jacobian
+        for r, row in enumerate(rows):
+            for c, value in enumerate(row):
+                out[start:stop, r, c] = value  # a constant entry (a float) broadcasts
+    return out
+
+
+def singularity_measure_batch(model: RobotModel, q: ArrayLike) -> NDArray[np.float64]:
+    """:func:`singularity_measure` for N configurations ``(N, dof)``: ``(N,)`` values in [0, 1]."""
+    sv = np.linalg.svd(jacobian_batch(model, q), compute_uv=False)
+    largest = sv[:, 0]
+    out: NDArray[np.float64] = np.divide(sv[:, -1], largest, out=np.zeros_like(largest), where=largest > 0)
+    return out
 
 
 def manipulability(model: RobotModel, q: ArrayLike) -> float:

@@ -458,10 +458,13 @@ class ClosedFormIK:
             return None
         return min(solutions, key=lambda sol: sum((a - b) ** 2 for a, b in zip(sol.q, s, strict=True)))
 
-    def solve_batch(self, poses: ArrayLike, seeds: ArrayLike | None = None) -> BatchSolutions:
+    def solve_batch(self, poses: ArrayLike, seeds: ArrayLike | None = None, *, limits: bool = True) -> BatchSolutions:
         """N poses ``(N, 4, 4)`` -> solutions ``q (N, 8, 6)``, ``valid (N, 8)``, singularity
         ``flags (N, 8)``; no Python loop over N. Invalid slots (unreachable, outside the limits,
-        or repeats of an earlier slot) hold NaN."""
+        or repeats of an earlier slot) hold NaN. With ``limits=False`` the joint limits are not
+        applied: every joint is within pi of its seed, and a slot is invalid only where the
+        branch does not reach the pose (or repeats another), so that a caller can tell a pose
+        out of reach from one beyond a joint's limits."""
         t = np.asarray(poses, dtype=float)
         if t.ndim != 3 or t.shape[1:] != (4, 4):
             raise ValueError(f"solve_batch takes (N, 4, 4) poses, not shape {t.shape}")
@@ -473,8 +476,8 @@ class ClosedFormIK:
         q = np.empty((n, 8, 6))
         valid = np.empty((n, 8), dtype=bool)
         flags = np.empty((n, 8), dtype=np.int64)
-        lower = self.model.lower[None, :, None]
-        upper = self.model.upper[None, :, None]
+        lower = (self.model.lower if limits else np.full(6, -np.inf))[None, :, None]
+        upper = (self.model.upper if limits else np.full(6, np.inf))[None, :, None]
         # chunks small enough for the intermediates to stay in cache; (branch, joint, pose) layout
         for a in range(0, n, _CHUNK):
             z = slice(a, min(n, a + _CHUNK))
