@@ -41,7 +41,7 @@ from .control import DEFAULT_POLICY, POLICIES, Recorder
 from .emulator import FAULT_COMMANDS, PROFILES, Emulator, EmulatorConfig, FaultError, apply_fault_command
 from .emulator.owner import OnDisconnect
 from .emulator.server import MAX_STATE_RATE
-from .loader import load_model, shipped_models
+from .loader import load_model, shipped_cells, shipped_models
 from .model import ModelError
 
 log = logging.getLogger("robot_server.cli")
@@ -125,6 +125,18 @@ def parser() -> argparse.ArgumentParser:
         help=f"state topics per second, at most {MAX_STATE_RATE:g}",
     )
     p.add_argument("--feedback", action="store_true", help="generic: JOINT_FEEDBACK to every state client")
+    p.add_argument(
+        "--cell",
+        metavar="NAME|PATH",
+        help="a cell file whose [supervision] (TCP speed limits, workspace zones) replaces the models' own "
+        f"(shipped: {', '.join(shipped_cells())})",
+    )
+    p.add_argument(
+        "--manual-motion",
+        action="store_true",
+        help="MANUAL mode accepts motion at the reduced TCP speed (ABB, Fanuc T1, the enabling device held) "
+        "instead of refusing points",
+    )
     p.add_argument(
         "--interpolation",
         default=DEFAULT_POLICY,
@@ -248,6 +260,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             on_disconnect=args.on_disconnect,
             max_connections=args.max_connections,
             frame_timeout=args.frame_timeout,
+            cell=args.cell,
+            manual_motion=args.manual_motion,
         )
         models = [load_model(m) for m in config.models]
         emulator = Emulator(config, models)

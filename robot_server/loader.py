@@ -5,8 +5,12 @@ optional ``[base]`` and ``[tool]`` frames (``xyz``, ``rpy``: where the robot sta
 the TCP from the flange; identity by default) and its D-H convention (``[dh] convention =
 "standard" | "modified"``); see ``models/jibot_zxs.toml`` for a complete, commented example. A URDF
 model takes its base and tool frames from a sidecar file of the same name, ``<name>.frames.toml``
-(``[units]``, ``[base]``, ``[tool]`` as above; no sidecar: identity). Every value is converted to SI
-on load. Every error names the file and the field (:class:`~.model.ModelError`).
+(``[units]``, ``[base]``, ``[tool]`` as above; no sidecar: identity). Either file may hold a
+``[supervision]`` table, the TCP speed limits and workspace zones of :mod:`.workspace`, in the cell
+frame and the file's length unit. A *cell file* (:func:`load_supervision`) holds such a table on
+its own, with optional ``[units]``: the cell's zones, apart from any robot (``models/cell_*.toml``
+are shipped examples, not models). Every value is converted to SI on load. Every error names the
+file and the field (:class:`~.model.ModelError`).
 """
 
 from __future__ import annotations
@@ -23,8 +27,9 @@ from numpy.typing import NDArray
 
 from .model import Joint, JointType, ModelError, MotorParameters, RobotModel, rot_x, rot_z, trans, transform
 from .urdf import load_urdf
+from .workspace import Supervision, parse_supervision
 
-__all__ = ["load_model", "load_toml", "shipped_models", "model_from_dh"]
+__all__ = ["load_model", "load_toml", "shipped_models", "model_from_dh", "load_supervision", "shipped_cells"]
 
 Matrix = NDArray[np.float64]
 _LENGTH = {"m": 1.0, "mm": 1e-3}
@@ -33,13 +38,19 @@ _DH_KEYS = {"name", "alpha", "a", "d", "theta", "type"}
 
 
 _SUFFIXES = (".toml", ".urdf")
+#: shipped files that are not models: cell files (``cell_*.toml``) and URDF sidecars
+_CELL_PREFIX = "cell_"
+_SIDECAR_SUFFIX = ".frames.toml"
 
 
-def _shipped() -> dict[str, Path]:
+def _shipped(cells: bool = False) -> dict[str, Path]:
+    """Shipped models by name, or (``cells``) the shipped cell files ``cell_*.toml``."""
     folder = resources.files("robot_server") / "models"
     found: dict[str, Path] = {}
     for entry in folder.iterdir():
-        for suffix in _SUFFIXES:
+        if entry.name.endswith(_SIDECAR_SUFFIX) or entry.name.startswith(_CELL_PREFIX) != cells:
+            continue
+        for suffix in _SUFFIXES[:1] if cells else _SUFFIXES:
             if entry.name.endswith(suffix):
                 found[entry.name[: -len(suffix)]] = Path(str(entry))
     return found
@@ -48,6 +59,11 @@ def _shipped() -> dict[str, Path]:
 def shipped_models() -> list[str]:
     """Names of the models shipped in the package (``robot_server/models/*.toml`` and ``*.urdf``)."""
     return sorted(_shipped())
+
+
+def shipped_cells() -> list[str]:
+    """Names of the example cell files shipped in the package (``robot_server/models/cell_*.toml``)."""
+    return sorted(_shipped(cells=True))
 
 
 def load_model(name_or_path: str | Path) -> RobotModel:
@@ -176,9 +192,13 @@ def load_toml(path: Path) -> RobotModel:
         source=robot.text("source", ""),
     )
     motors = top.sub("motors", required=False)
-    if motors is None:
-        return model
-    return dataclasses.replace(model, motors=_motors(motors, n))
+    if motors is not None:
+        model = dataclasses.replace(model, motors=_motors(motors, n))
+    if "supervision" in data:
+        model = dataclasses.replace(
+            model, supervision=parse_supervision(data["supervision"], length_scale=length, where=str(path))
+        )
+    return model
 
 
 _MOTOR_FIELDS = tuple(f.name for f in dataclasses.fields(MotorParameters))
@@ -229,7 +249,39 @@ def _with_frames(model: RobotModel, frames: Path) -> RobotModel:
     angle = _ANGLE[units.text("angle", "rad", choices=_ANGLE)] if units is not None else 1.0
     base = _pose(top.sub("base", required=False), length, angle)
     tool = _pose(top.sub("tool", required=False), length, angle)
-    return dataclasses.replace(model, base=base @ model.base, tool=model.tool @ tool)
+    model = dataclasses.replace(model, base=base @ model.base, tool=model.tool @ tool)
+    if "supervision" in data:
+        model = dataclasses.replace(
+            model, supervision=parse_supervision(data["supervision"], length_scale=length, where=str(frames))
+        )
+    return model
+
+
+def load_supervision(name_or_path: str | Path) -> Supervision:
+    """A cell file's supervision settings: a TOML file with a ``[supervision]`` table (see
+    :func:`~.workspace.parse_supervision`) in the length unit of its optional ``[units]``
+    (``length = "m" | "mm"``, default ``m``), or a shipped cell file by name (``cell_example``).
+    Other tables are ignored (a cell file may describe more than the supervision)."""
+    text = str(name_or_path)
+    shipped = _shipped(cells=True)
+    path = shipped.get(text, Path(text))
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        names = ", ".join(sorted(shipped)) or "none"
+        raise ModelError(f"{text}: no such cell file, and not a shipped cell ({names})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ModelError(f"{path}: cannot read: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ModelError(f"{path}: not valid TOML: {exc}") from None
+    top = _Fields(path, data, "")
+    units = top.sub("units", required=False)
+    length = _LENGTH[units.text("length", "m", choices=_LENGTH)] if units is not None else 1.0
+    if units is not None and "angle" in units.table:
+        units.text("angle", choices=_ANGLE)
+    if "supervision" not in data:
+        raise ModelError(f"{path}: missing table [supervision] (a cell file's TCP speed limits and zones)")
+    return parse_supervision(data["supervision"], length_scale=length, where=str(path))
 
 
 def _pose(table: _Fields | None, length: float, angle: float) -> Matrix:

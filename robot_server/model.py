@@ -27,6 +27,8 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
+from .workspace import Supervision
+
 __all__ = [
     "JointType",
     "Joint",
@@ -154,7 +156,7 @@ class MotorParameters:
 
 @dataclass(frozen=True, eq=False)
 class RobotModel:
-    """A serial manipulator: joints, base and tool transforms, and where it came from."""
+    """A serial manipulator: joints, base and tool transforms, TCP supervision, and where it came from."""
 
     name: str
     joints: tuple[Joint, ...]
@@ -166,10 +168,15 @@ class RobotModel:
     convention: str = "urdf"
     #: Per-joint servo drives; empty if the file gives none (then :meth:`motor` gives defaults).
     motors: tuple[MotorParameters, ...] = ()
+    #: Cartesian supervision of the TCP (speed limits, workspace zones; :mod:`.workspace`): from the
+    #: model file's ``[supervision]`` table, or the defaults (250 mm/s in MANUAL mode, no zones).
+    supervision: Supervision = field(default_factory=Supervision)
 
     def __post_init__(self) -> None:
         if not self.joints:
             raise ModelError(f"model {self.name!r} has no joints")
+        if not isinstance(self.supervision, Supervision):
+            raise ModelError(f"model {self.name!r}: supervision must be a Supervision, not {self.supervision!r}")
         for matrix in (self.base, self.tool):
             matrix.setflags(write=False)
         for joint in self.joints:

@@ -2,8 +2,10 @@
 
 Values come from the reference C++ library (``simple_message.h``, ``joint_traj_pt.h``,
 ``robot_status.h``), REP-I0004/I0006 and the Yaskawa MotoROS sources; see
-``simple-message.md`` §2.1, §3, §4.1, §5 and §8.1. No other module of the project writes a
-protocol number as a literal.
+``simple-message.md`` §2.1, §3, §4.1, §5 and §8.1. The project's own extension messages
+(CARTESIAN_LINE, TOOL_POSE and :class:`LineResult`) use numbers of the range REP-I0004 leaves
+freely assignable (65000-65535); ``docs/protocol.md`` describes them. No other module of the
+project writes a protocol number as a literal.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ __all__ = [
     "NotReadySubcode",
     "moto_subcode_name",
     "IoResult",
+    "LineResult",
     "Port",
     "VendorRange",
     "MAX_JOINTS",
@@ -43,12 +46,15 @@ HEADER_SIZE = 12
 
 
 class MsgType(IntEnum):
-    """Message type IDs (§2.1 standard registry and §8.1 Motoman extensions).
+    """Message type IDs (§2.1 standard registry, §8.1 Motoman extensions and this project's own
+    extensions).
 
-    This enum names the numbers of the standard and MotoROS messages only. Which class decodes a
-    number is the message registry's business (:func:`simple_message.messages.register`): a vendor
-    message set registers its own numbers and names without being added here, and
-    :func:`simple_message.messages.type_name` names any number, registered or listed here.
+    This enum names the numbers of the standard and MotoROS messages and of this project's two
+    extension messages (CARTESIAN_LINE and TOOL_POSE, in the freely assignable range 65000-65535)
+    only. Which class decodes a number is the message registry's business
+    (:func:`simple_message.messages.register`): a vendor message set registers its own numbers and
+    names without being added here, and :func:`simple_message.messages.type_name` names any number,
+    registered or listed here.
     """
 
     INVALID = 0
@@ -82,6 +88,15 @@ class MsgType(IntEnum):
     JOINT_FEEDBACK_EX = 2017
     SELECT_TOOL = 2018
     GET_DH_PARAMETERS = 2020
+
+    # This project's extensions. REP-I0004 leaves 65000-65535 freely assignable: no vendor block
+    # and no REP number lives there (1000-2999 are the vendor blocks, 3000-64999 are reserved).
+    # A peer that does not know them answers FAILURE or its own "unknown type" reply (docs/protocol.md).
+    #: A Cartesian straight line of the TCP (request :class:`~.messages.CartesianLine`, reply
+    #: :class:`~.messages.CartesianLineReply` with a :class:`LineResult`).
+    CARTESIAN_LINE = 65000
+    #: The actual TCP pose, a state-port topic sent only to clients that asked for it.
+    TOOL_POSE = 65001
 
     # Aliases used in the REPs, the C++ library and the MotoROS sources.
     JOINT = 10
@@ -250,6 +265,32 @@ class IoResult(IntEnum):
     WRITE_VALUE_INVALID = 1003
     READ_API_ERROR = 1004
     WRITE_API_ERROR = 1005
+
+
+class LineResult(IntEnum):
+    """``result`` of a CARTESIAN_LINE (65000) reply (a project extension). 0 means accepted, like
+    ``MotoResult``; 1-4 refuse the request itself, 10 and up the line's geometry or speed."""
+
+    #: The line was accepted: queued, or for sequence -4 the stop was obeyed.
+    ACCEPTED = 0
+    #: The robot cannot move now: alarm, e-stop, drives off or the wrong mode.
+    NOT_READY = 1
+    #: A joint trajectory is under way.
+    BUSY = 2
+    #: A bad field: NaN or inf, quaternion norm not 1 within 1e-3, speed <= 0, blend radius < 0, unknown robot_id.
+    INVALID = 3
+    #: A sequence number the controller does not accept (out of order, or a negative other than -4).
+    SEQUENCE = 4
+    #: No inverse kinematics solution reaches the target (or a point of the line).
+    UNREACHABLE = 10
+    #: The line passes through or too near a singularity.
+    SINGULAR = 11
+    #: The line would take a joint beyond its position limits.
+    JOINT_LIMIT = 12
+    #: The line leaves the allowed workspace of the cell.
+    WORKSPACE = 13
+    #: The requested TCP speed is more than the controller allows.
+    TCP_SPEED = 14
 
 
 class Port(IntEnum):

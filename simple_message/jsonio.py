@@ -17,7 +17,10 @@ keys (nested parts as objects). Special bodies:
 Where the protocol names a number, the object also has ``"names"``: the symbolic name of each such
 field, header included (``{"comm_type": "TOPIC", "reply_code": "INVALID", "drives_powered": "TRUE",
 "mode": "AUTO", ...}``; tri-states, modes, special sequence numbers, valid-field bits joined by
-``|``, MotoROS commands, results and subcodes, IO result codes). The numbers stay where they are and
+``|``, MotoROS commands, results and subcodes, IO result codes). A field that the message registry
+gives an enum converter (:func:`~.messages.register`) is named by that enum, e.g. the ``result`` of
+a CARTESIAN_LINE reply by :class:`~.constants.LineResult`; other fields are named by their field
+name, which means the same thing in every message that has it. The numbers stay where they are and
 decide; ``"names"`` is ignored when a message is built from JSON.
 
 Reals that are not finite are written as the strings ``"NaN"``, ``"Infinity"`` and ``"-Infinity"``
@@ -30,8 +33,9 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Mapping
 from dataclasses import fields
-from enum import IntEnum
+from enum import Enum, Flag, IntEnum
 from typing import Any
 
 from .constants import (
@@ -55,6 +59,7 @@ from .messages import (
     Message,
     RawMessage,
     encode,
+    lookup,
     message_class,
     type_for_name,
 )
@@ -88,7 +93,8 @@ def _plain(value: Any, real_size: int) -> Any:
 
 
 #: body fields whose numbers the protocol names, and the names' enum (by field name: the same field
-#: name means the same thing in every message that has it)
+#: name means the same thing in every message that has it, unless the message's registration gives
+#: the field a converter of its own, as CARTESIAN_LINE does for ``result``)
 _NAMED: dict[str, type[IntEnum]] = {
     "drives_powered": TriState,
     "e_stopped": TriState,
@@ -109,6 +115,11 @@ def _enum_name(kind: type[IntEnum], value: int) -> str | None:
         return None
 
 
+def _is_flag_table(table: Mapping[int, Any]) -> bool:
+    """Whether a registered converter table is an ``IntFlag``'s (named below as ``valid_fields``)."""
+    return any(isinstance(member, Flag) for member in table.values())
+
+
 def symbolic_names(msg: Message) -> dict[str, str]:
     """The symbolic name of each of ``msg``'s numbers that the protocol names (see the module doc)."""
     names: dict[str, str] = {}
@@ -117,11 +128,17 @@ def symbolic_names(msg: Message) -> dict[str, str]:
         if name is not None:
             names[key] = name
     body = msg.body_dict()
+    spec = lookup(msg.msg_type)
+    converters = spec.converters if spec is not None and type(msg) in spec.classes else {}
     for key, value in body.items():
         if not isinstance(value, int) or isinstance(value, bool):
             continue
         name = None
-        if key in _NAMED:
+        table = converters.get(key)
+        if table is not None and not _is_flag_table(table):  # the registered enum decides, named or not
+            member = table.get(value)
+            name = member.name if isinstance(member, Enum) else None
+        elif key in _NAMED:
             name = _enum_name(_NAMED[key], value)
         elif key == "sequence" and value < 0:
             name = _enum_name(SpecialSeq, value)

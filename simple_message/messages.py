@@ -3,6 +3,9 @@
 Each message type is a frozen dataclass whose fields are its body fields in wire order (names as in
 simple-message.md §2.2 and §8.1, in snake_case), followed by the keyword-only header fields
 ``comm_type`` and ``reply_code``. The class knows its ``MSG_TYPE``; the length prefix is computed.
+Besides the standard and MotoROS messages there are the project's own two extension messages,
+CARTESIAN_LINE (65000) and TOOL_POSE (65001), in the range REP-I0004 leaves freely assignable
+(``docs/protocol.md``, "Project extensions").
 
 Decoding is exact: for every accepted frame, :func:`encode` of the decoded message gives back the
 same bytes (data in fields that ``valid_fields`` marks invalid is kept, not zeroed; the one exception,
@@ -18,10 +21,11 @@ A known type whose body fits none of its layouts raises :class:`~.errors.Malform
 
 Which classes decode which ``msg_type`` is kept in a public registry (:func:`register`,
 :func:`unregister`, :func:`lookup`, :func:`type_name`, :func:`type_for_name`). The standard and
-MotoROS messages are registered at the end of this module, each with the converters that turn its
-enum fields into enum members; a vendor message set is one module of classes plus :func:`register`
-calls (see ``CONTRIBUTING.md`` and ``tests/test_sm_registry.py``). Encoding, decoding, the JSON
-form (:mod:`.jsonio`) and the ``simple-message`` command all consult the registry.
+MotoROS messages and the project's extensions are registered at the end of this module, each with
+the converters that turn its enum fields into enum members; a vendor message set is one module of
+classes plus :func:`register` calls (see ``CONTRIBUTING.md`` and ``tests/test_sm_registry.py``).
+Encoding, decoding, the JSON form (:mod:`.jsonio`) and the ``simple-message`` command all consult
+the registry.
 
 One bit pattern does not survive before CPython 3.14: a float32 *signalling* NaN (exponent all ones,
 bit 22 clear, nonzero payload, e.g. ``0x7FA00000``) comes back quieted, with bit 22 set and every
@@ -55,6 +59,7 @@ from .constants import (
     MAX_JOINTS,
     MOTO_MAX_GROUPS,
     CommType,
+    LineResult,
     MotoResult,
     MsgType,
     ReplyCode,
@@ -99,6 +104,9 @@ __all__ = [
     "GetDhParameters",
     "GetDhParametersReply",
     "DhLink",
+    "CartesianLine",
+    "CartesianLineReply",
+    "ToolPose",
     "HeaderOnly",
     "DummyReply",
     "RawMessage",
@@ -1126,6 +1134,104 @@ class GetDhParametersReply(Message):
 
 
 # ---------------------------------------------------------------------------------------------
+# Project extensions, in the freely assignable range 65000-65535 of REP-I0004 (docs/protocol.md)
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class CartesianLine(Message):
+    """CARTESIAN_LINE (65000) request: move the TCP of ``robot_id`` in a straight line to a pose.
+
+    The target is ``x, y, z`` (m, in the cell frame) and the orientation ``qx, qy, qz, qw`` (a unit
+    quaternion, Hamilton convention, in the x y z w order of ROS ``geometry_msgs``), reached at the
+    TCP linear speed ``speed`` (m/s). ``blend_radius`` (m) lets the TCP leave this line that close
+    to its end for the next one; 0 stops exactly at the end. ``sequence`` 0 starts a new series of
+    lines, 1, 2, ... continue it, -4 (``SpecialSeq.STOP_TRAJECTORY``) stops, as for JOINT_TRAJ_PT.
+    44 bytes in float32, 80 in float64. A TOPIC decodes with this class too; the SERVICE_REPLY is a
+    :class:`CartesianLineReply`. Nothing is checked here (NaN included); the controller checks.
+    """
+
+    robot_id: int = 0
+    sequence: int = 0
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    qx: float = 0.0
+    qy: float = 0.0
+    qz: float = 0.0
+    qw: float = 1.0
+    speed: float = 0.0
+    blend_radius: float = 0.0
+    MSG_TYPE: ClassVar[int] = MsgType.CARTESIAN_LINE
+    LAYOUT: ClassVar[tuple[tuple[str, str], ...]] = (
+        ("robot_id", "i"),
+        ("sequence", "i"),
+        ("x", "r"),
+        ("y", "r"),
+        ("z", "r"),
+        ("qx", "r"),
+        ("qy", "r"),
+        ("qz", "r"),
+        ("qw", "r"),
+        ("speed", "r"),
+        ("blend_radius", "r"),
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class CartesianLineReply(Message):
+    """CARTESIAN_LINE (65000) SERVICE_REPLY: the request's ``robot_id`` and ``sequence`` and the
+    outcome ``result`` (:class:`~.constants.LineResult`, 0 = accepted); 12 bytes. The header
+    reply_code is SUCCESS when the line was accepted, FAILURE otherwise."""
+
+    robot_id: int = 0
+    sequence: int = 0
+    result: int = LineResult.ACCEPTED
+    comm_type: int = field(default=CommType.SERVICE_REPLY, kw_only=True)
+    reply_code: int = field(default=ReplyCode.SUCCESS, kw_only=True)
+    MSG_TYPE: ClassVar[int] = MsgType.CARTESIAN_LINE
+    LAYOUT: ClassVar[tuple[tuple[str, str], ...]] = (("robot_id", "i"), ("sequence", "i"), ("result", "i"))
+
+
+@dataclass(frozen=True, slots=True)
+class ToolPose(Message):
+    """TOOL_POSE (65001) topic: the actual TCP pose of ``robot_id`` at controller time ``time`` (s).
+
+    ``tool`` is the active tool number (0 = the model's own tool); ``x, y, z`` (m) and ``qx, qy,
+    qz, qw`` (unit quaternion, as in :class:`CartesianLine`) are the TCP pose in the cell frame and
+    ``speed`` the TCP's actual linear speed (m/s). 44 bytes in float32, 80 in float64. Sent on the
+    state port only to clients that asked for it by sending a TOOL_POSE (docs/protocol.md).
+    """
+
+    robot_id: int = 0
+    tool: int = 0
+    time: float = 0.0
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    qx: float = 0.0
+    qy: float = 0.0
+    qz: float = 0.0
+    qw: float = 1.0
+    speed: float = 0.0
+    comm_type: int = field(default=CommType.TOPIC, kw_only=True)
+    MSG_TYPE: ClassVar[int] = MsgType.TOOL_POSE
+    LAYOUT: ClassVar[tuple[tuple[str, str], ...]] = (
+        ("robot_id", "i"),
+        ("tool", "i"),
+        ("time", "r"),
+        ("x", "r"),
+        ("y", "r"),
+        ("z", "r"),
+        ("qx", "r"),
+        ("qy", "r"),
+        ("qz", "r"),
+        ("qw", "r"),
+        ("speed", "r"),
+    )
+
+
+# ---------------------------------------------------------------------------------------------
 # Shapes that do not follow a type's own layout
 # ---------------------------------------------------------------------------------------------
 
@@ -1563,7 +1669,7 @@ def decode(frame: bytes, wire: WireFormat = DEFAULT_FORMAT) -> Message:
 
 
 # ---------------------------------------------------------------------------------------------
-# The standard and MotoROS messages, with their enum fields' converters
+# The standard and MotoROS messages and the project's extensions, with their enum fields' converters
 # ---------------------------------------------------------------------------------------------
 
 _SHAPES = (HeaderOnly, DummyReply, RawMessage)
@@ -1603,3 +1709,7 @@ register(GetVersion, GetVersionReply)
 register(ReadMRegister, ReadMRegisterReply)
 register(WriteMRegister, WriteMRegisterReply)
 register(GetDhParameters, GetDhParametersReply)
+
+# The project's extensions (65000-65535, freely assignable)
+register(CartesianLine, CartesianLineReply, converters={"result": LineResult})
+register(ToolPose)

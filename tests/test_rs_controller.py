@@ -562,10 +562,18 @@ def test_recorder_is_bounded_and_exports_csv() -> None:
     lines = out.getvalue().splitlines()
     assert len(lines) == 101
     assert lines[0].startswith("time,joint_1,") and f",joint_{N}.velocity," in lines[0]
-    assert lines[0].endswith(",record.controller_time,record.points")
-    assert len(lines[1].split(",")) == 1 + 7 * N + 2
-    assert lines[1].startswith("0.0,") and lines[1].split(",")[-2] == repr(float(rec.time()[0]))
-    assert lines[1].endswith(",2") and list(rec.points()) == [2] * 100  # both points arrived before
+    assert ",record.controller_time,record.points,tool.command_x," in lines[0]
+    assert lines[0].endswith(",tool.actual_speed,tool.time")
+    header = lines[0].split(",")
+    assert len(lines[1].split(",")) == len(header) == 1 + 7 * N + 2 + 17
+    row = lines[1].split(",")
+    assert lines[1].startswith("0.0,") and row[header.index("record.controller_time")] == repr(float(rec.time()[0]))
+    assert row[header.index("record.points")] == "2" and list(rec.points()) == [2] * 100  # both arrived before
+    # the tool as of the last interpolation instant (every 4 ms): the TCP of the commanded joints
+    tool_time = float(row[header.index("tool.time")])
+    assert rec.time()[0] - 0.004 < tool_time <= rec.time()[0]
+    tcp = [float(row[header.index(f"tool.command_{a}")]) for a in "xyz"]
+    assert all(np.isfinite(tcp))
     every_tenth = Recorder(N, capacity=100, decimation=10)
     ctl.run_for(0.1, every_tenth)
     assert len(every_tenth) == 10

@@ -256,10 +256,11 @@ async def test_record_writes_every_servo_tick_on_exit(tmp_path: Path) -> None:
         assert await server.exited() == 0
     lines = record.read_text().splitlines()
     header = lines[0].split(",")
-    assert header[0] == "time" and header[-1] == "record.points" and len(header) == 1 + 7 * MODEL.dof + 2
+    assert header[0] == "time" and header[-1] == "tool.time" and len(header) == 1 + 7 * MODEL.dof + 2 + 17
     rows = np.array([line.split(",") for line in lines[1:]], dtype=float)
     assert rows[0, 0] == 0.0 and np.allclose(np.diff(rows[:, 0]), 0.001)  # every servo tick, from 0
-    assert rows[0, -1] == 0 and rows[-1, -1] == 10  # the points column counts the arrivals
+    points = header.index("record.points")
+    assert rows[0, points] == 0 and rows[-1, points] == 10  # the points column counts the arrivals
     command = header.index(f"{MODEL.joint_names[0]}.command_position")
     assert np.allclose(rows[-1, command : command + MODEL.dof], target, atol=1e-6)  # the command reached the end
     assert "ticks written to" in server.log.read_text()

@@ -136,7 +136,8 @@ def acme() -> Iterator[None]:
         yield
 
 
-BUILTIN_TYPES = 25
+#: the standard and MotoROS types (25) and the project's extensions CARTESIAN_LINE and TOOL_POSE
+BUILTIN_TYPES = 27
 
 GRIP = AcmeGrip(2, 0.25, 40.0)
 GRIP_FRAMES = {

@@ -4,12 +4,14 @@ drives, the control loop.
 Independent of sockets and of the wire: points arrive in SI units (:mod:`.points`), and
 :mod:`robot_server.emulator` turns messages into the controller's verbs. See the module docs of
 :mod:`.points`, :mod:`.policies`, :mod:`.blend`, :mod:`.motion`, :mod:`.segments`, :mod:`.peaks`,
-:mod:`.servo`, :mod:`.controller` (sans-I/O), :mod:`.loop` (asyncio) and :mod:`.clock`.
+:mod:`.servo`, :mod:`.tool` (where the TCP is), :mod:`.cartesian` (straight lines run by the
+controller), :mod:`.controller` (sans-I/O), :mod:`.loop` (asyncio) and :mod:`.clock`.
 
 The names in ``__all__`` are this layer's public API (clients, such as :mod:`client`, import them
 from here, never from its modules).
 """
 
+from .cartesian import LineLimits, LineTarget
 from .clock import Clock, RealTimeClock, SimulatedClock, SteppedClock
 from .controller import (
     FOLLOWING_ERROR_ALARM,
@@ -46,8 +48,13 @@ from .segments import (
     quintic_hermite,
 )
 from .servo import ServoDrives
+from .tool import TOOL_FIELDS, ToolState
 
 __all__ = [
+    "LineLimits",
+    "LineTarget",
+    "TOOL_FIELDS",
+    "ToolState",
     "Clock",
     "RealTimeClock",
     "SimulatedClock",

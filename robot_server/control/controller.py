@@ -41,20 +41,26 @@ at full torque under their own loops) and new points are refused until :meth:`Co
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import NDArray
 
 from simple_message.lograte import lane
 
+from ..kinematics import fk_batch
 from ..model import RobotModel
+from ..workspace import TCP_SPEED_ALARM, Supervision, Violation, densify, first_violation, point_violation
+from .cartesian import LineLimits, LineMotion, LineTarget
 from .motion import MotionQueue, Plan
 from .points import Limits, Point, PointRejected, Reason, State, check_point
 from .policies import DEFAULT_POLICY, policy
 from .recorder import Recorder
 from .servo import ServoDrives
+from .tool import ToolMeter, ToolState
 
 __all__ = [
     "Controller",
@@ -103,6 +109,13 @@ class ControllerConfig:
     settle_velocity: float = 1e-3
     #: where the robot starts (default: 0, moved into the limits)
     initial_position: tuple[float, ...] | None = None
+    #: controller straight lines: TCP acceleration and jerk, tool rotation limits, check density
+    line: LineLimits = field(default_factory=LineLimits)
+    #: the Cartesian supervision (TCP speed limits, workspace zones); None: the model's own
+    supervision: Supervision | None = None
+    #: a motion is planned to at most this share of the TCP speed limit in force, so that the
+    #: drives' overshoot does not trip the supervision of the actual speed
+    speed_margin: float = 0.95
 
     def __post_init__(self) -> None:
         ratio = self.interpolation_period / self.servo_period
@@ -133,6 +146,8 @@ class Tick(NamedTuple):
     actual_acceleration: list[float]
     following_error: list[float]
     points: int = 0
+    #: the TCP at the last interpolation instant (commanded and actual pose and speed)
+    tool: ToolState | None = None
 
 
 class Controller:
@@ -169,7 +184,24 @@ class Controller:
         zeros = [0.0] * n
         self._previous = (hold, zeros, zeros)  # setpoint at the last interpolation instant
         self._next = (hold, zeros, zeros)  # setpoint at the next one
-        self.command = Tick(0.0, hold, zeros, zeros, list(hold), list(zeros), list(zeros), list(zeros))
+        #: the Cartesian supervision in force (TCP speed limits, workspace zones)
+        self.supervision = config.supervision if config.supervision is not None else model.supervision
+        #: MANUAL (teach) mode: the TCP speed limit is the supervision's manual speed
+        self.manual = False
+        self.tool_meter = ToolMeter(model)
+        #: the TCP at the last interpolation instant
+        self.tool = self.tool_meter.measure(0.0, hold, zeros, hold, zeros)
+        self._zone_clear = point_violation(self.supervision, *self.tool.actual_position) is None
+        #: straight lines run by the controller (:mod:`.cartesian`)
+        self.lines = LineMotion(
+            model,
+            self.limits,
+            config.line,
+            config.interpolation_period,
+            capacity=config.queue_capacity,
+            path_check=self._check_path,
+        )
+        self.command = Tick(0.0, hold, zeros, zeros, list(hold), list(zeros), list(zeros), list(zeros), 0, self.tool)
         self.error_code = 0
         self.error_message = ""
         #: points accepted so far (first points and downloaded points included)
@@ -193,8 +225,8 @@ class Controller:
 
     @property
     def queue_fill(self) -> int:
-        """Points queued and not yet reached (the running one included)."""
-        return self.queue.fill
+        """Points (or lines) queued and not yet reached (the running one included)."""
+        return self.queue.fill + self.lines.fill
 
     @property
     def queue_capacity(self) -> int:
@@ -212,14 +244,14 @@ class Controller:
     @property
     def moving(self) -> bool:
         """Commanded motion is queued or under way (a stop included)."""
-        return self.queue.moving
+        return self.queue.moving or self.lines.active
 
     @property
     def in_motion(self) -> bool:
         """TRUE from the first commanded motion until the robot has settled after the last point
         (every joint within ``settle_position`` of the command and slower than ``settle_velocity``),
         then FALSE until the next motion: a drive's residual ringing does not flip it back."""
-        return self.queue.moving or not self._settled
+        return self.moving or not self._settled
 
     def _check_settled(self, tick: Tick) -> None:
         cfg = self.config
@@ -239,7 +271,12 @@ class Controller:
     @property
     def remaining(self) -> float:
         """Seconds of queued motion still to run (0 when nothing is queued)."""
-        return self.queue.remaining
+        return self.queue.remaining + self.lines.remaining(self.time)
+
+    @property
+    def speed_limit(self) -> float | None:
+        """The TCP speed limit in force (m/s): the manual speed in MANUAL, else the optional AUTO one."""
+        return self.supervision.speed_limit(self.manual)
 
     # -- commands ------------------------------------------------------------------------------
 
@@ -273,7 +310,17 @@ class Controller:
         it, before the next step): several controllers can accept points all together or not at
         all. ``min_scale``: slow the trajectory down to at least this time scale."""
         self._check_ready()
-        return self.queue.plan(point, first=first, min_scale=min_scale)
+        if self.lines.active:
+            raise PointRejected(Reason.BUSY, "a straight line is under way: joint points wait until it ends")
+        plan = self.queue.plan(point, first=first, min_scale=min_scale)
+        if self.speed_limit is None and not self.supervision.has_zones:
+            return plan
+        for _ in range(_SLOWING_ROUNDS):
+            slower = self._supervise_path(*self.queue.path(plan, self.config.interpolation_period))
+            if slower is None:
+                return plan
+            plan = self.queue.plan(point, first=first, min_scale=plan.scale * slower)
+        raise PointRejected(Reason.TCP_SPEED, "the trajectory could not be slowed down to the TCP speed limit")
 
     def commit(self, plan: Plan) -> None:
         """Apply a plan of :meth:`prepare` (before the next :meth:`step`)."""
@@ -281,6 +328,35 @@ class Controller:
         self.points_accepted += 1
         if self.queue.moving:
             self._settled = False
+
+    def add_line(self, target: LineTarget) -> None:
+        """A straight line of the tool to ``target`` (:mod:`.cartesian`), after the lines queued,
+        or from where the robot rests. Raises :class:`PointRejected` (nothing moves then)."""
+        self._check_ready()
+        if self.queue.moving or self._download is not None:
+            raise PointRejected(Reason.BUSY, "a joint trajectory is under way: lines wait until it ends")
+        values = (*target.position, *target.orientation, target.speed, target.blend_radius)
+        if not all(math.isfinite(v) for v in values):
+            raise PointRejected(Reason.NOT_FINITE, "the line's target contains NaN or infinity")
+        norm = math.sqrt(sum(x * x for x in target.orientation))
+        if abs(norm - 1.0) > 1e-3:
+            raise PointRejected(Reason.INVALID, f"the orientation is not a unit quaternion (norm {norm:.6g})")
+        if target.speed <= 0.0 or target.blend_radius < 0.0:
+            raise PointRejected(
+                Reason.INVALID,
+                f"a line needs a speed > 0 and a blend radius >= 0, not {target.speed:g} and {target.blend_radius:g}",
+            )
+        limit = self.speed_limit
+        if limit is not None and not self.manual and target.speed > limit:
+            raise PointRejected(
+                Reason.TCP_SPEED, f"the line's speed {target.speed:.4g} m/s is over the AUTO limit {limit:.4g} m/s"
+            )
+        cap = None if limit is None else limit * self.config.speed_margin
+        rest = np.array(self._next[0], dtype=float)
+        line = self.lines.plan(target, now=self.time, rest=rest, speed_cap=cap)
+        self.lines.commit(line)
+        self.points_accepted += 1
+        self._settled = False
 
     @staticmethod
     def plan_scale(plan: Plan) -> float:
@@ -304,8 +380,16 @@ class Controller:
             raise PointRejected(Reason.SEQUENCE, "the end of a download that was never started")
         self.add(point)
         points, self._download = self._download, None
+        slower = 1.0
         try:
-            self.queue.add_all(points)
+            for _ in range(_SLOWING_ROUNDS):
+                try:
+                    self.queue.add_all(points, min_scale=slower, check=self._check_download)
+                    break
+                except _SlowDown as slow:
+                    slower *= slow.factor
+            else:
+                raise PointRejected(Reason.TCP_SPEED, "the trajectory could not be slowed down to the TCP speed limit")
         except PointRejected as exc:
             self._drop_download(exc)
             raise
@@ -329,14 +413,32 @@ class Controller:
             raise PointRejected(Reason.NOT_READY, f"the controller is in alarm {self.error_code}: {self.error_message}")
 
     def stop(self) -> float:
-        """Abort: decelerate to rest (jerk-limited, within the limits) and empty the queue.
-        Returns the time the deceleration takes (0 if already at rest)."""
-        had = self.queue.fill
+        """Abort: decelerate to rest (jerk-limited, within the limits) and empty the queue; a
+        straight line brakes along its path. Returns the time the deceleration takes (0 if
+        already at rest). A braking path that would take the tool into a zone raises the zone's
+        alarm with the e-stop reaction (:meth:`safety_stop`)."""
+        had = self.queue.fill + self.lines.fill
         self._download = None
-        duration = self.queue.stop()
+        if self.lines.active:
+            duration = self.lines.stop(self.time)
+        else:
+            duration = self.queue.stop()
+            if duration and self.supervision.has_zones:
+                positions = self._tcp(*self.queue.path(None, self.config.interpolation_period))[0]
+                violation = first_violation(self.supervision, densify(positions, self.supervision.tolerance))
+                if violation is not None and self._zone_clear:
+                    self.safety_stop(violation, "the stop's braking path")
+                    return 0.0
         if had or duration:
             log.info("stop: %d queued points dropped, decelerating for %.3f s", had, duration)
         return duration
+
+    def safety_stop(self, violation: Violation, what: str) -> None:
+        """A zone violation: its alarm, with the e-stop reaction (motion abandoned, drives off,
+        brakes on: category 0)."""
+        self._zone_clear = False
+        self.raise_alarm(violation.code, f"{what}: {violation.message} (e-stop reaction: drives off)")
+        self.power_off()
 
     def raise_alarm(self, code: int, message: str) -> None:
         """Enter alarm ``code``: motion is abandoned where the robot actually is, points are refused."""
@@ -376,7 +478,16 @@ class Controller:
             p = list(self.servo.position)
             zeros = [0.0] * self.dof
             self.command = tick = Tick(
-                self._tick * self.config.servo_period, p, zeros, zeros, p, zeros, zeros, zeros, self.points_accepted
+                self._tick * self.config.servo_period,
+                p,
+                zeros,
+                zeros,
+                p,
+                zeros,
+                zeros,
+                zeros,
+                self.points_accepted,
+                self.tool,
             )
             self._settled = True
             return tick
@@ -384,7 +495,14 @@ class Controller:
         if i == 0:
             self._previous = self._next
             try:
-                state = self.queue.sample((self._tick + self._sub) * self.config.servo_period)
+                at = (self._tick + self._sub) * self.config.servo_period
+                if self.lines.active:
+                    state = self.lines.sample(at)
+                    self.queue.sample(at)  # the joint queue's clock runs on
+                    if self.lines.fill == 0:  # the last line ended: joints start from there
+                        self.queue.abandon(state.position)
+                else:
+                    state = self.queue.sample(at)
             except Exception:  # a defect must not end the control loop: the motion stops with an alarm
                 log.exception("the motion could not be sampled")
                 state = State.rest(np.array(self.servo.position))
@@ -412,6 +530,10 @@ class Controller:
         servo.step(cmd_p, cmd_v)
         actual = list(servo.position)
         error = [c - a for c, a in zip(cmd_p, actual, strict=True)]
+        if i + 1 == self._sub:  # an interpolation instant: where the tool is, and is it allowed
+            now = self._tick * self.config.servo_period
+            self.tool = self.tool_meter.measure(now, cmd_p, cmd_v, actual, servo.velocity)
+            self._supervise(self.tool)
         tick = self.command = Tick(
             self._tick * self.config.servo_period,
             cmd_p,
@@ -422,8 +544,9 @@ class Controller:
             list(servo.acceleration),
             error,
             self.points_accepted,
+            self.tool,
         )
-        if not self._settled and not self.queue.moving:
+        if not self._settled and not self.moving and cmd_p == self._next[0]:  # the last setpoint reached
             self._check_settled(tick)
         for j, (e, limit) in enumerate(zip(error, servo.following_error_limit, strict=True)):
             if abs(e) > limit:
@@ -441,17 +564,111 @@ class Controller:
             if recorder is not None:
                 recorder.add(tick)
 
-    # -- internals -----------------------------------------------------------------------------
+    # -- Cartesian supervision -------------------------------------------------------------------
+
+    def _supervise(self, tool: ToolState) -> None:
+        """Every interpolation instant: the actual TCP speed against the limit in force (its alarm,
+        the alarm reaction) and the commanded and actual TCP against the zones (the zone's alarm,
+        the e-stop reaction). A zone alarm is raised when the tool gets into a violation, not
+        again while it stays there (so that it can be moved out after a reset)."""
+        limit = self.supervision.speed_limit(self.manual)
+        if limit is not None and tool.actual_speed > limit and not self.in_error:
+            self.raise_alarm(
+                TCP_SPEED_ALARM,
+                f"TCP speed {tool.actual_speed * 1e3:.0f} mm/s over the "
+                f"{'MANUAL' if self.manual else 'AUTO'} limit {limit * 1e3:.0f} mm/s",
+            )
+        sup = self.supervision
+        if not sup.has_zones:
+            return
+        violation = point_violation(sup, *tool.command_position) or point_violation(sup, *tool.actual_position)
+        if violation is None:
+            self._zone_clear = True
+        elif self._zone_clear:
+            commanded = point_violation(sup, *tool.command_position) is not None
+            self.safety_stop(violation, "commanded TCP" if commanded else "actual TCP")
+
+    def _tcp(self, times: NDArray[np.float64], q: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
+        """TCP positions along a joint path (times ``(m,)``, positions ``(m, dof)``, a few ms
+        apart) and its peak speed. Where two positions are more than the supervision's tolerance
+        apart, the joint path is subdivided (linearly: over a few ms the joints move on a
+        straight line to well within the tolerance) until they are not."""
+        tolerance = self.supervision.tolerance
+        positions = fk_batch(self.model, q)[:, :3, 3]
+        gaps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+        if gaps.size and float(gaps.max()) > tolerance:
+            n = np.maximum(np.ceil(gaps / tolerance).astype(np.int64), 1)
+            interval = np.repeat(np.arange(gaps.size), n)
+            f = (np.arange(interval.size) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n, n)
+            q = np.concatenate([q[interval] + (q[interval + 1] - q[interval]) * f[:, None], q[-1:]])
+            times = np.concatenate([times[interval] + (times[interval + 1] - times[interval]) * f, times[-1:]])
+            positions = fk_batch(self.model, q)[:, :3, 3]
+        dt = np.diff(times)
+        moved = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+        speeds = np.divide(moved, dt, out=np.zeros_like(moved), where=dt > 1e-9)
+        return positions, float(speeds.max()) if speeds.size else 0.0
+
+    def _check_path(self, positions: NDArray[np.float64]) -> None:
+        """Refuse (WORKSPACE) a TCP path that breaks a zone rule. A path that starts in a
+        violation (after an alarm) is checked from where it first gets clear: it may lead out."""
+        sup = self.supervision
+        if not sup.has_zones:
+            return
+        positions = densify(positions, sup.tolerance)
+        violation = first_violation(sup, positions)
+        if violation is not None and violation.sample == 0:
+            clear = next(
+                (i for i, p in enumerate(positions.tolist()) if point_violation(sup, *p) is None), positions.shape[0]
+            )
+            violation = first_violation(sup, positions[clear:])
+        if violation is not None:
+            raise PointRejected(Reason.WORKSPACE, f"the motion would violate a zone: {violation.message}")
+
+    def _supervise_path(self, times: NDArray[np.float64], q: NDArray[np.float64]) -> float | None:
+        """Check a planned joint path: the zones (refused: WORKSPACE) and the TCP speed limit in
+        force (AUTO: refused, TCP_SPEED; MANUAL: returns by how much to slow it down). None: fine."""
+        limit = self.speed_limit
+        if limit is None and not self.supervision.has_zones:
+            return None
+        positions, peak = self._tcp(times, q)
+        self._check_path(positions)
+        if limit is None or peak <= limit * self.config.speed_margin:
+            return None
+        if not self.manual:
+            raise PointRejected(
+                Reason.TCP_SPEED, f"the trajectory moves the TCP at {peak:.4g} m/s, over the AUTO limit {limit:.4g} m/s"
+            )
+        return peak / (limit * self.config.speed_margin) * 1.01
+
+    def _check_download(self) -> None:
+        if self.speed_limit is None and not self.supervision.has_zones:
+            return
+        slower = self._supervise_path(*self.queue.path(None, self.config.interpolation_period))
+        if slower is not None:
+            raise _SlowDown(slower)
 
     def _abandon(self) -> None:
         """Drop all motion and command the actual position (alarm, emergency stop)."""
         self._download = None
+        self.lines.abandon()
         actual = list(self.servo.position)
         zeros = [0.0] * self.dof
         self._previous = self._next = (actual, zeros, zeros)
         self._settled = False  # the drives still brake the joints to a halt
         self.servo.hold()
         self.queue.abandon(np.array(actual))
+
+
+class _SlowDown(Exception):
+    """A downloaded trajectory must be slowed down by ``factor`` for the TCP speed limit."""
+
+    def __init__(self, factor: float) -> None:
+        super().__init__(f"slow down x{factor:.3g}")
+        self.factor = factor
+
+
+#: how many times a trajectory is slowed down further for the TCP speed limit before it is refused
+_SLOWING_ROUNDS = 6
 
 
 def submit_together(pairs: Sequence[tuple[Controller, Point]], *, first: bool = False) -> None:

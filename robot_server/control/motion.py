@@ -355,20 +355,26 @@ class MotionQueue:
         for level, message in plan.messages:
             log.log(level, message)
 
-    def add_all(self, points: Sequence[Point]) -> None:
+    def add_all(
+        self, points: Sequence[Point], *, min_scale: float = 1.0, check: Callable[[], None] | None = None
+    ) -> None:
         """A downloaded trajectory: its first point starts it, the others follow; all are accepted
         or none is (and nothing changes). The trajectory is slowed down, if it must be, once at
-        the end (not at every point that asks for more, which re-plans everything each time)."""
+        the end (not at every point that asks for more, which re-plans everything each time), to
+        at least ``min_scale``. ``check`` runs on the queued result: an exception it raises undoes
+        everything (and propagates)."""
         saved = (self._running, self._started, self._pending, self._trajectory)
         try:
             with _typed():
-                self._add_all(points)
+                self._add_all(points, min_scale)
+            if check is not None:
+                check()
         except BaseException:
             self._running, self._started, self._pending, self._trajectory = saved
             raise
 
-    def _add_all(self, points: Sequence[Point]) -> None:
-        needed = 1.0
+    def _add_all(self, points: Sequence[Point], min_scale: float) -> None:
+        needed = min_scale
         for i, point in enumerate(points):
             plan = self._plan(point, first=i == 0, bounded=False, defer=True)
             self.commit(plan)
@@ -389,6 +395,39 @@ class MotionQueue:
     def check_start(self, point: Point) -> None:
         """Refuse ``point`` as the first point of a trajectory starting now (PointRejected)."""
         self._check_start(check_point(point, self.limits, self.max_duration), self.planned_end())
+
+    def path(self, plan: Plan | None = None, step: float = 0.004) -> tuple[Array, Array]:
+        """The joint path still to run (of ``plan`` if given, else of the queue): controller times
+        ``(m,)`` and positions ``(m, dof)``, every ``step`` seconds or closer, each segment's ends
+        included. A point whose segment is not decided yet (it waits for the next point) counts
+        as it would run if it started now (to rest, when it is the last one)."""
+        if plan is None:
+            running, started, pending, at = self._running, self._started, self._pending, self._t
+        else:
+            running, started, pending, at = plan.running, plan.started, plan.pending, plan.at
+        pieces = ([(running, at - started)] if running is not None else []) + [(e, 0.0) for e in pending]
+        times: list[Array] = [np.array([at])]
+        positions: list[Array] = [self._state.position[None, :]]
+        clock = at
+        for entry, begin in pieces:
+            left = max(entry.duration - begin, 0.0)
+            local = np.linspace(begin, begin + left, max(2, math.ceil(left / step) + 1))
+            segment = entry.segment
+            if segment is None:  # not decided yet: as it would be if it started now
+                if entry.end is None:
+                    segment = self._to_rest(entry, []).segment
+                else:
+                    segment = _connect(entry.start, entry.start_order, entry.end, entry.end_order, entry.duration)
+            if segment is not None:
+                q = segment.sample(local).position
+            else:
+                a, b = entry.start.position, _knot(entry).position
+                f = (local - begin) / left if left > 0.0 else np.ones_like(local)
+                q = a[None, :] + (b - a)[None, :] * f[:, None]
+            times.append(clock + local - begin)
+            positions.append(q)
+            clock += left
+        return np.concatenate(times), np.concatenate(positions)
 
     # -- stop, abandon, sampling -----------------------------------------------------------------
 

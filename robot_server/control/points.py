@@ -53,6 +53,18 @@ class Reason(StrEnum):
     SEQUENCE = "sequence"
     QUEUE_FULL = "queue_full"
     NOT_READY = "not_ready"
+    #: another kind of motion is under way (a straight line while joints move, or the reverse)
+    BUSY = "busy"
+    #: a malformed target (not a unit quaternion, a speed <= 0, a negative blend radius)
+    INVALID = "invalid"
+    #: a straight line leaves the reachable space
+    UNREACHABLE = "unreachable"
+    #: a straight line passes a singularity (the configuration's branch cannot be continued)
+    SINGULAR = "singular"
+    #: the tool would leave the allowed space (a workspace zone, the floor)
+    WORKSPACE = "workspace"
+    #: the tool would be faster than the active TCP speed limit
+    TCP_SPEED = "tcp_speed"
 
 
 class PointRejected(ValueError):

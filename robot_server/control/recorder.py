@@ -7,9 +7,13 @@ The CSV is the project's one layout for joint motion (``client.trajectory``), so
 trajectory: ``time`` (s from the first tick written), the actual position of each joint under its
 name, ``<joint>.velocity`` and ``<joint>.acceleration`` (actual), then extra columns:
 ``<joint>.command_position``, ``<joint>.command_velocity``, ``<joint>.command_acceleration``,
-``<joint>.following_error`` (SI units), ``record.controller_time`` (the controller's clock, s) and
+``<joint>.following_error`` (SI units), ``record.controller_time`` (the controller's clock, s),
 ``record.points`` (how many points the controller had accepted by that tick: it steps where points
-arrived).
+arrived), then the tool centre point as of the last interpolation instant (the controller computes
+it once per interpolation period, so it holds between them): ``tool.command_x``, ``_y``, ``_z`` (m,
+cell frame), ``tool.command_qw``, ``_qx``, ``_qy``, ``_qz`` (orientation quaternion),
+``tool.command_speed`` (m/s), the same for ``tool.actual_...``, and ``tool.time`` (the controller
+time of that instant).
 """
 
 from __future__ import annotations
@@ -22,6 +26,8 @@ from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
+
+from .tool import TOOL_FIELDS
 
 if TYPE_CHECKING:
     from .controller import Tick
@@ -54,6 +60,7 @@ _COLUMN = {
 }
 _ORDER = tuple(_COLUMN)
 _TAIL = ["record.controller_time", "record.points"]
+_TOOL = [f"tool.{name}" for name in TOOL_FIELDS] + ["tool.time"]
 
 
 class Recorder:
@@ -68,6 +75,7 @@ class Recorder:
         self._time = np.zeros(capacity)
         self._data = np.zeros((capacity, len(QUANTITIES), dof))
         self._points = np.zeros(capacity, dtype=np.int64)
+        self._tool = np.full((capacity, len(_TOOL)), np.nan)
         self._count = 0  # ticks stored so far (including overwritten ones)
         self._seen = 0
 
@@ -88,6 +96,12 @@ class Recorder:
             tick.following_error,
         )
         self._points[row] = tick.points
+        tool = tick.tool
+        if tool is not None:
+            self._tool[row, :-1] = tool.values()
+            self._tool[row, -1] = tool.time
+        else:
+            self._tool[row] = np.nan
         self._count += 1
 
     def __len__(self) -> int:
@@ -109,6 +123,11 @@ class Recorder:
         """Points accepted by each recorded tick, oldest first."""
         return self._ordered(self._points)
 
+    def tool(self) -> NDArray[np.float64]:
+        """``(ticks, 17)``: the TCP as of each recorded tick (:data:`~.tool.TOOL_FIELDS`, then the
+        controller time of the interpolation instant it was computed at); NaN without one."""
+        return self._ordered(self._tool)
+
     def get(self, quantity: str) -> NDArray[np.float64]:
         """``(ticks, dof)`` array of one of :data:`QUANTITIES`, oldest first."""
         return self._ordered(self._data[:, QUANTITIES.index(quantity), :])
@@ -122,7 +141,7 @@ class Recorder:
 
     def header(self, joint_names: Sequence[str] | None = None) -> list[str]:
         names = list(joint_names) if joint_names is not None else [f"j{i + 1}" for i in range(self.dof)]
-        return ["time"] + [_COLUMN[q].format(name) for q in _ORDER for name in names] + _TAIL
+        return ["time"] + [_COLUMN[q].format(name) for q in _ORDER for name in names] + _TAIL + _TOOL
 
     def to_csv(self, target: str | Path | io.TextIOBase, joint_names: Sequence[str] | None = None) -> None:
         """CSV with a header row (see the module doc)."""
@@ -138,5 +157,6 @@ class Recorder:
         times = self.time()
         start = float(times[0]) if times.size else 0.0
         data = np.concatenate([self.get(q) for q in _ORDER], axis=1)
-        for t, row, n in zip(times.tolist(), data.tolist(), self.points().tolist(), strict=True):
-            writer.writerow([repr(t - start)] + [repr(x) for x in row] + [repr(t), n])
+        tool = self.tool()
+        for t, row, n, tcp in zip(times.tolist(), data.tolist(), self.points().tolist(), tool.tolist(), strict=True):
+            writer.writerow([repr(t - start)] + [repr(x) for x in row] + [repr(t), n] + [repr(x) for x in tcp])

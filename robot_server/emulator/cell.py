@@ -14,7 +14,10 @@ never stale. The fault injector of the tests and of the ``robot-server`` command
 ``alarm(code, text)``     an alarm: motion abandoned where the robot is, in_error TRUE, error_code
 ``reset()``               the operator's reset: releases the e-stop, clears alarms, powers the drives
 ``stop()``                a controlled stop: jerk-limited deceleration to rest, queue emptied
-``set_mode(mode)``        MANUAL (teach) stops the motion and refuses points; AUTO allows them
+``set_mode(mode)``        MANUAL (teach) stops the motion; it then refuses points, or, in a cell
+                          made with ``manual_motion`` (ABB, Fanuc T1: the operator holds the
+                          enabling device), accepts them at the reduced TCP speed of the
+                          supervision (250 mm/s by default); AUTO allows them at full speed
 ========================  =========================================================================
 
 Until the cause is cleared, new points are refused (:attr:`~..control.Reason.NOT_READY`). Every
@@ -31,7 +34,7 @@ from simple_message.constants import RobotMode, SpecialSeq, TriState
 from simple_message.lograte import lane
 from simple_message.messages import Status
 
-from ..control import Controller, ControllerConfig, Point, PointRejected, Reason, submit_together
+from ..control import Controller, ControllerConfig, LineTarget, Point, PointRejected, Reason, submit_together
 from ..model import RobotModel
 from .points import STREAM_STARTS, dispatch
 
@@ -49,13 +52,19 @@ class FaultError(ValueError):
 class RobotCell:
     """The motion groups of one controller and its safety state (see the module doc)."""
 
-    def __init__(self, models: Sequence[RobotModel], config: ControllerConfig | None = None) -> None:
+    def __init__(
+        self, models: Sequence[RobotModel], config: ControllerConfig | None = None, *, manual_motion: bool = False
+    ) -> None:
         if not models:
             raise ValueError("a robot cell needs at least one motion group")
         self.config = config if config is not None else ControllerConfig()
         self.groups = [Controller(model, self.config) for model in models]
         self.e_stopped = False
         self.mode = RobotMode.AUTO
+        #: MANUAL accepts motion at the reduced TCP speed (else it refuses points)
+        self.manual_motion = manual_motion
+        #: the last line sequence number accepted per group (None: no series of lines open)
+        self._line_sequence: list[int | None] = [None] * len(self.groups)
         #: counts stops and faults: a point that waited for queue room across one is not run
         self.interruptions = 0
         self._waiters: list[asyncio.Future[None]] = []
@@ -87,8 +96,10 @@ class RobotCell:
 
     @property
     def motion_possible(self) -> bool:
-        """A new trajectory could run now (drives on, no e-stop, no alarm, AUTO)."""
-        return self.drives_powered and not self.e_stopped and not self.in_error and self.mode == RobotMode.AUTO
+        """A new trajectory could run now (drives on, no e-stop, no alarm, AUTO or MANUAL with
+        ``manual_motion``)."""
+        mode_allows = self.mode == RobotMode.AUTO or (self.manual_motion and self.mode == RobotMode.MANUAL)
+        return self.drives_powered and not self.e_stopped and not self.in_error and mode_allows
 
     def status(self, *, motion_possible: bool | None = None) -> Status:
         """STATUS as of now (``motion_possible`` may be narrowed by a profile, e.g. MotoROS's
@@ -114,7 +125,7 @@ class RobotCell:
     def check_ready(self) -> None:
         if self.e_stopped:
             raise PointRejected(Reason.NOT_READY, "the emergency stop is engaged")
-        if self.mode != RobotMode.AUTO:
+        if self.mode != RobotMode.AUTO and not (self.manual_motion and self.mode == RobotMode.MANUAL):
             raise PointRejected(Reason.NOT_READY, "the controller is in MANUAL (teach) mode")
 
     def submit(self, group: int, sequence: int, point: Point) -> None:
@@ -140,6 +151,25 @@ class RobotCell:
         submit_together(pairs, first=sequence in STREAM_STARTS)
         for (g, _), n in zip(points, before, strict=True):
             self._count(g, n)
+
+    def submit_line(self, group: int, sequence: int, target: LineTarget) -> None:
+        """A straight line for a group's controller (:meth:`~..control.Controller.add_line`):
+        sequence 0 starts a series of lines, each next one is the last + 1, -4 stops. Raises
+        :class:`PointRejected`."""
+        controller = self.group(group)
+        if sequence == SpecialSeq.STOP_TRAJECTORY:
+            self._interrupted()
+            controller.stop()
+            return
+        last = self._line_sequence[group]
+        if sequence < 0 or (sequence > 0 and (last is None or sequence != last + 1)):
+            expected = "0" if last is None else f"0 or {last + 1}"
+            raise PointRejected(Reason.SEQUENCE, f"line sequence {sequence}: expected {expected}")
+        self.check_ready()
+        controller.add_line(target._replace(sequence=sequence))
+        self._line_sequence[group] = sequence
+        if sequence == 0:
+            log.info("group %d: straight lines started", group)
 
     def _count(self, group: int, trajectories_before: int) -> None:
         controller = self.groups[group]
@@ -207,10 +237,13 @@ class RobotCell:
             for g in self.groups:
                 g.stop()
         self.mode = mode
+        for g in self.groups:
+            g.manual = mode == RobotMode.MANUAL
         self._interrupted()
 
     def _interrupted(self) -> None:
         self.interruptions += 1
+        self._line_sequence = [None] * len(self.groups)  # the next line starts a series (0)
         self.notify()
 
     # -- waiting -----------------------------------------------------------------------------------
@@ -252,7 +285,7 @@ FAULT_COMMANDS = {
     "alarm CODE [TEXT]": "raise an alarm (motion abandoned, in_error TRUE, error_code CODE)",
     "reset": "release the e-stop, clear alarms, power the drives",
     "stop": "controlled stop (decelerate to rest)",
-    "mode auto|manual": "operating mode; MANUAL refuses points",
+    "mode auto|manual": "operating mode; MANUAL refuses points (or, with --manual-motion, slows them to its TCP speed)",
 }
 
 

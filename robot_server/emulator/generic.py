@@ -13,6 +13,12 @@
   flow control is possible without replies).
 * STOP (sequence -4): obeyed the moment it is read, ahead of anything queued, also while an
   earlier point waits for room; then acknowledged in order (§10 pitfall 5).
+* CARTESIAN_LINE (65000, this project's extension, docs/protocol.md) as SERVICE_REQUEST: a
+  straight line of the tool run by the controller (``robot_server.control.cartesian``), streamed
+  like JOINT_TRAJ_PT: sequence 0 starts a series, each next line is the last + 1, -4 stops at once
+  (braking along the line). Each is answered with a CARTESIAN_LINE reply whose ``result`` says why
+  a refused line was refused (LineResult); SUCCESS/FAILURE in the header as for points. A full line
+  queue delays the reply, as for points.
 * PING: SUCCESS with an empty body. Other requests: FAILURE, header-only (the C++ library's reply).
 
 Replies echo the request body (the C++ library's style, the ``generic`` dialect) or are header-only
@@ -21,7 +27,10 @@ Replies echo the request body (the C++ library's style, the ``generic`` dialect)
 **State port**: JOINT_POSITION and STATUS at the state rate to every client. JOINT_FEEDBACK (time,
 positions, velocities, accelerations of each group, all four valid bits set) goes to every client
 with ``feedback=True``, and otherwise to the clients that ask for it by sending a JOINT_FEEDBACK
-message (any body; as a SERVICE_REQUEST it is answered SUCCESS) on the state port.
+message (any body; as a SERVICE_REQUEST it is answered SUCCESS) on the state port. TOOL_POSE
+(65001, this project's extension: the actual TCP pose and speed of each group, as of the last
+interpolation instant) goes only to the clients that ask for it the same way, by sending a
+TOOL_POSE: a client that never asks never receives a message it does not know.
 """
 
 from __future__ import annotations
@@ -29,12 +38,20 @@ from __future__ import annotations
 import logging
 from collections.abc import Awaitable, Iterable, Mapping
 
-from simple_message.constants import CommType, MsgType, ReplyCode, SpecialSeq, ValidFields
+from simple_message.constants import CommType, LineResult, MsgType, ReplyCode, SpecialSeq, ValidFields
 from simple_message.dialects import GENERIC
 from simple_message.endpoints import Server, Session
-from simple_message.messages import JointFeedback, JointPosition, JointTrajPtFull, Message
+from simple_message.messages import (
+    CartesianLine,
+    CartesianLineReply,
+    JointFeedback,
+    JointPosition,
+    JointTrajPtFull,
+    Message,
+    ToolPose,
+)
 
-from ..control import Point, PointRejected, Reason
+from ..control import LineTarget, Point, PointRejected, Reason
 from .cell import RobotCell
 from .points import point_from_message
 from .profiles import EmulatorProfile, ProfileContext, register_profile
@@ -45,6 +62,21 @@ log = logging.getLogger(__name__)
 
 FEEDBACK_FIELDS = ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY | ValidFields.ACCELERATION
 _WANTS_FEEDBACK = "joint_feedback"
+_WANTS_TOOL = "tool_pose"
+
+#: the reply's result for each reason the controller gives
+_LINE_RESULTS = {
+    Reason.NOT_READY: LineResult.NOT_READY,
+    Reason.BUSY: LineResult.BUSY,
+    Reason.SEQUENCE: LineResult.SEQUENCE,
+    Reason.UNREACHABLE: LineResult.UNREACHABLE,
+    Reason.SINGULAR: LineResult.SINGULAR,
+    Reason.POSITION_LIMIT: LineResult.JOINT_LIMIT,
+    Reason.VELOCITY_LIMIT: LineResult.JOINT_LIMIT,
+    Reason.ACCELERATION_LIMIT: LineResult.JOINT_LIMIT,
+    Reason.WORKSPACE: LineResult.WORKSPACE,
+    Reason.TCP_SPEED: LineResult.TCP_SPEED,
+}
 
 
 class GenericMotion:
@@ -56,6 +88,45 @@ class GenericMotion:
     def install(self, server: Server) -> None:
         for msg_type in (MsgType.JOINT_TRAJ_PT, MsgType.JOINT_TRAJ_PT_FULL):
             server.handle(msg_type, self.on_point, on_arrival=self.on_arrival)
+        server.handle(MsgType.CARTESIAN_LINE, self.on_line, on_arrival=self.on_arrival)
+
+    def on_line(self, msg: Message, session: Session) -> Message | Awaitable[Message] | None:
+        """A CARTESIAN_LINE: queued, refused with the reason, or (queue full) answered when there is room."""
+        assert isinstance(msg, CartesianLine)
+        if msg.comm_type != CommType.SERVICE_REQUEST:
+            session.log(log, logging.WARNING, "CARTESIAN_LINE %d as a TOPIC ignored (lines are requests)", msg.sequence)
+            return None
+        if msg.sequence == SpecialSeq.STOP_TRAJECTORY:  # obeyed on arrival
+            return _line_reply(msg, LineResult.ACCEPTED)
+        target = LineTarget((msg.x, msg.y, msg.z), (msg.qw, msg.qx, msg.qy, msg.qz), msg.speed, msg.blend_radius)
+        try:
+            self.cell.submit_line(msg.robot_id, msg.sequence, target)
+        except PointRejected as exc:
+            if exc.reason is Reason.QUEUE_FULL:
+                return self._line_when_room(msg, target, session)
+            return self._line_refused(msg, session, exc)
+        return _line_reply(msg, LineResult.ACCEPTED)
+
+    @staticmethod
+    def _line_refused(msg: CartesianLine, session: Session, exc: PointRejected) -> Message:
+        session.log(log, logging.WARNING, "CARTESIAN_LINE %d refused: %s", msg.sequence, exc)
+        return _line_reply(msg, _LINE_RESULTS.get(exc.reason, LineResult.INVALID))
+
+    async def _line_when_room(self, msg: CartesianLine, target: LineTarget, session: Session) -> Message:
+        cell = self.cell
+        epoch = cell.interruptions
+        while True:
+            await cell.changed()
+            if cell.interruptions != epoch:
+                session.log(log, logging.WARNING, "line %d waited for room across a stop or fault", msg.sequence)
+                return _line_reply(msg, LineResult.NOT_READY)
+            try:
+                cell.submit_line(msg.robot_id, msg.sequence, target)
+            except PointRejected as exc:
+                if exc.reason is Reason.QUEUE_FULL:
+                    continue
+                return self._line_refused(msg, session, exc)
+            return _line_reply(msg, LineResult.ACCEPTED)
 
     def on_arrival(self, msg: Message, session: Session) -> None:
         """A STOP acts the moment it is read, before the requests queued ahead of it."""
@@ -125,11 +196,13 @@ class GenericState:
 
     def install(self, server: Server) -> None:
         server.handle(MsgType.JOINT_FEEDBACK, self._subscribe)
+        server.handle(MsgType.TOOL_POSE, self._subscribe)
 
     def _subscribe(self, msg: Message, session: Session) -> None:
-        if not session.data.get(_WANTS_FEEDBACK):
-            session.log(log, logging.INFO, "JOINT_FEEDBACK requested")
-        session.data[_WANTS_FEEDBACK] = True
+        key = _WANTS_TOOL if msg.msg_type == MsgType.TOOL_POSE else _WANTS_FEEDBACK
+        if not session.data.get(key):
+            session.log(log, logging.INFO, "%s requested", msg.name)
+        session.data[key] = True
 
     def publish(self, server: Server, sessions: Iterable[Session]) -> None:
         cell = self.cell
@@ -152,6 +225,20 @@ class GenericState:
                     ),
                     wanting,
                 )
+        wanting = [s for s in recipients if s.data.get(_WANTS_TOOL)]
+        if wanting:
+            for index, controller in enumerate(cell.groups):
+                tool = controller.tool
+                w, x, y, z = tool.actual_orientation
+                pose = ToolPose(index, 0, tool.time, *tool.actual_position, x, y, z, w, tool.actual_speed)
+                server.broadcast(pose, wanting)
+
+
+def _line_reply(msg: CartesianLine, result: LineResult) -> CartesianLineReply:
+    code = ReplyCode.SUCCESS if result is LineResult.ACCEPTED else ReplyCode.FAILURE
+    return CartesianLineReply(
+        msg.robot_id, msg.sequence, int(result), comm_type=CommType.SERVICE_REPLY, reply_code=code
+    )
 
 
 class GenericBehaviour:

@@ -43,7 +43,7 @@ from ..control import (
     SimulatedClock,
     policy,
 )
-from ..loader import load_model
+from ..loader import load_model, load_supervision
 from ..model import ModelError, RobotModel
 from . import motoros  # noqa: F401 - registers the MotoROS profile
 from .cell import RobotCell
@@ -123,6 +123,13 @@ class EmulatorConfig:
     on_disconnect: OnDisconnect | str = OnDisconnect.STOP
     #: close a connection that began a frame and sent nothing more for this long (s)
     frame_timeout: float = 5.0
+    #: a cell file (shipped name or path) whose [supervision] replaces the models' own: TCP speed
+    #: limits and workspace zones (:mod:`robot_server.workspace`)
+    cell: str | Path | None = None
+    #: MANUAL mode accepts motion at the reduced TCP speed (ABB; Fanuc T1), instead of refusing it
+    manual_motion: bool = False
+    #: where every motion group starts (joint values, SI; default: 0, moved into the limits)
+    initial_position: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         dialect = profile_named(self.profile).dialect
@@ -268,10 +275,12 @@ class Emulator:
             interpolation_period=config.interpolation_period,
             servo_period=config.servo_period,
             queue_capacity=config.queue_capacity,
+            supervision=None if config.cell is None else load_supervision(config.cell),
+            initial_position=config.initial_position,
         )
         if profile.start_tolerance is not None:
             controller_config = dataclasses.replace(controller_config, start_tolerance=profile.start_tolerance)
-        self.cell = RobotCell(models, controller_config)
+        self.cell = RobotCell(models, controller_config, manual_motion=config.manual_motion)
         self.io_table = IoTable()
         #: one server per port the profile serves, by role, made with the profile's rules
         self.servers: dict[str, Server] = {}

@@ -80,6 +80,10 @@ def slerp(q0: ArrayLike, q1: ArrayLike, u: ArrayLike) -> Array:
 
 
 def quaternion_angle(q0: ArrayLike, q1: ArrayLike) -> float:
-    """The angle (rad, 0..pi) of the rotation from ``q0`` to ``q1``."""
-    dot = abs(float(np.dot(np.asarray(q0, dtype=float), np.asarray(q1, dtype=float))))
-    return 2.0 * math.acos(min(1.0, dot))
+    """The angle (rad, 0..pi) of the rotation from ``q0`` to ``q1``, accurate near 0 (from the
+    relative rotation's vector part, not the acos of a dot product)."""
+    a = np.asarray(q0, dtype=float)
+    b = np.asarray(q1, dtype=float)
+    w = float(np.dot(a, b))
+    vector = a[0] * b[1:] - b[0] * a[1:] - np.cross(a[1:], b[1:])
+    return 2.0 * math.atan2(float(np.linalg.norm(vector)), abs(w))
