@@ -157,7 +157,12 @@ class _Line:
         return np.where(t >= self.start, u, self.offset / self.span)
 
     def fraction_at(self, t: float) -> float:
-        return float(self.fraction(np.array([t]))[0])
+        """:meth:`fraction` at one time, in floats (ruckig's own evaluation: half a microsecond)."""
+        if self.profile is None or self.span <= 0.0:
+            return 1.0 if t >= self.start else 0.0
+        local = min(max(t - self.start, 0.0), self.profile.duration)
+        s = float(self.profile.trajectory.at_time(local)[0][0])
+        return min(max((self.offset + s) / self.span, 0.0), 1.0)
 
     def relative(self) -> Array:
         """The turn of the whole line relative to its start, as a quaternion."""
@@ -394,13 +399,37 @@ class LineMotion:
             assert self._base is not None
             value = tuple(self._base[2].tolist())
         else:
-            pose = self._poses(np.array([t]))[0]
-            solution = solver.solve(pose, seed)
+            solution = solver.solve(self._pose_at(t), seed)
             if solution is None:
                 raise RuntimeError(f"the line's pose at t = {t:.4f} s has no solution (it was checked)")
             value = solution.q
         self._cache[key] = value
         return value
+
+    def _pose_at(self, t: float) -> NDArray[np.float64]:
+        """The tool pose of the running lines at one controller time, in floats (what the control
+        loop asks every period; :meth:`_poses` is the batch form the checks use)."""
+        assert self._base is not None
+        px, py, pz = self._base[0].tolist()
+        rotation: Quaternion = tuple(self._base[1].tolist())
+        for line in self._lines:
+            if line.start > t:
+                break  # the lines start in order; one not started yet adds nothing
+            u = line.fraction_at(t)
+            dx, dy, dz = (line.p1 - line.p0).tolist()
+            px, py, pz = px + dx * u, py + dy * u, pz + dz * u
+            r0: Quaternion = tuple(line.r0.tolist())
+            turn = _product(_conjugated(r0), _slerp(r0, tuple(line.r1.tolist()), u))
+            rotation = _product(rotation, turn)
+        w, x, y, z = rotation
+        return np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y), px],
+                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x), py],
+                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y), pz],
+                [0.0, 0.0, 0.0, 1.0],
+            ]
+        )
 
     def _poses(self, times: Array, lines: Sequence[_Line] | None = None) -> NDArray[np.float64]:
         """Tool poses (m, 4, 4) of the queued lines (or ``lines``) at controller ``times``."""
@@ -596,6 +625,37 @@ def _point(line: _Line, u: float) -> tuple[Array, Array]:
 
 def _at(position: Array) -> str:
     return "({:.4f}, {:.4f}, {:.4f}) m".format(*(float(x) for x in position))
+
+
+def _conjugated(q: Quaternion) -> Quaternion:
+    return (q[0], -q[1], -q[2], -q[3])
+
+
+def _product(a: Quaternion, b: Quaternion) -> Quaternion:
+    """The Hamilton product of two quaternions (w first), in floats."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+def _slerp(a: Quaternion, b: Quaternion, u: float) -> Quaternion:
+    """:func:`~..kinematics.slerp` of two unit quaternions at one fraction, in floats."""
+    dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]
+    if dot < 0.0:
+        b, dot = (-b[0], -b[1], -b[2], -b[3]), -dot
+    if dot > 1.0 - 1e-12:
+        out = tuple(x + u * (y - x) for x, y in zip(a, b, strict=True))
+    else:
+        theta = math.acos(dot)
+        k0, k1 = math.sin((1.0 - u) * theta) / math.sin(theta), math.sin(u * theta) / math.sin(theta)
+        out = tuple(k0 * x + k1 * y for x, y in zip(a, b, strict=True))
+    n = math.sqrt(sum(x * x for x in out))
+    return (out[0] / n, out[1] / n, out[2] / n, out[3] / n)
 
 
 def _conjugate(q: Array) -> Array:
