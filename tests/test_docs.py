@@ -22,7 +22,7 @@ pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the pages with examples, in the order docs/README.md lists them
-PAGES = ["protocol.md", "emulator.md", "kinematics.md", "demo.md", "ros.md", "troubleshooting.md"]
+PAGES = ["protocol.md", "emulator.md", "kinematics.md", "cartesian.md", "demo.md", "ros.md", "troubleshooting.md"]
 BLOCK = re.compile(r"^```(bash|python)\n(.*?)^```\s*$", re.MULTILINE | re.DOTALL)
 #: one block's bound (s): the longest, the demo, takes a few seconds
 TIMEOUT = 120.0
