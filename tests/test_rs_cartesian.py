@@ -354,6 +354,26 @@ def test_manual_mode_holds_the_reduced_tcp_speed() -> None:
     assert 0.2 < float(tool[:, 7].max()) <= 0.25 and float(tool[:, 15].max()) <= 0.25
 
 
+def test_switching_to_manual_while_moving_fast_stops_without_a_speed_alarm() -> None:
+    goal = tuple(np.array(START) + np.array([0.8, 0.0, 0.0, 0.0, 0.0, 0.0]))
+    ctl = controller()
+    ctl.start(Point(np.array(START), velocity_ratio=1.0, duration=0.0))
+    ctl.add(Point(np.array(goal), velocity_ratio=1.0, duration=0.0))
+    ctl.run_for(0.3)
+    assert ctl.tool.actual_speed > 0.3
+    ctl.stop()  # what the cell does on "mode manual"
+    ctl.manual = True
+    run_until_rest(ctl)
+    assert not ctl.in_error
+    # the next motion is supervised again
+    ctl.supervision = Supervision(manual_speed=0.01)
+    here = tuple(ctl.command.command_position)
+    ctl.start(Point(np.array(here), velocity_ratio=1.0, duration=0.0))
+    ctl.add(Point(np.array(START), velocity_ratio=1.0, duration=0.0))
+    ctl.run_for(0.2)
+    assert ctl.tool.actual_speed <= 0.01 and not ctl.in_error
+
+
 def test_auto_mode_refuses_a_trajectory_over_its_maximum_and_alarms_on_an_actual_excursion() -> None:
     goal = tuple(np.array(START) + np.array([0.8, 0.0, 0.0, 0.0, 0.0, 0.0]))
     ctl = controller(supervision=Supervision(auto_speed=0.3))

@@ -192,6 +192,9 @@ class Controller:
         #: the TCP at the last interpolation instant
         self.tool = self.tool_meter.measure(0.0, hold, zeros, hold, zeros)
         self._zone_clear = point_violation(self.supervision, *self.tool.actual_position) is None
+        #: a stop is braking the robot: the TCP speed limit is not supervised until the next motion
+        #: (switching to MANUAL stops a fast motion: its braking is not an excursion)
+        self._stopping = False
         #: straight lines run by the controller (:mod:`.cartesian`)
         self.lines = LineMotion(
             model,
@@ -326,6 +329,7 @@ class Controller:
         """Apply a plan of :meth:`prepare` (before the next :meth:`step`)."""
         self.queue.commit(plan)
         self.points_accepted += 1
+        self._stopping = False
         if self.queue.moving:
             self._settled = False
 
@@ -356,6 +360,7 @@ class Controller:
         line = self.lines.plan(target, now=self.time, rest=rest, speed_cap=cap)
         self.lines.commit(line)
         self.points_accepted += 1
+        self._stopping = False
         self._settled = False
 
     @staticmethod
@@ -393,6 +398,7 @@ class Controller:
         except PointRejected as exc:
             self._drop_download(exc)
             raise
+        self._stopping = False
         if self.queue.moving:
             self._settled = False
         log.info("downloaded trajectory of %d points queued", len(points))
@@ -419,6 +425,7 @@ class Controller:
         alarm with the e-stop reaction (:meth:`safety_stop`)."""
         had = self.queue.fill + self.lines.fill
         self._download = None
+        self._stopping = True
         if self.lines.active:
             duration = self.lines.stop(self.time)
         else:
@@ -568,11 +575,12 @@ class Controller:
 
     def _supervise(self, tool: ToolState) -> None:
         """Every interpolation instant: the actual TCP speed against the limit in force (its alarm,
-        the alarm reaction) and the commanded and actual TCP against the zones (the zone's alarm,
-        the e-stop reaction). A zone alarm is raised when the tool gets into a violation, not
-        again while it stays there (so that it can be moved out after a reset)."""
+        the alarm reaction; not while a stop brakes the robot) and the commanded and actual TCP
+        against the zones (the zone's alarm, the e-stop reaction). A zone alarm is raised when the
+        tool gets into a violation, not again while it stays there (so that it can be moved out
+        after a reset)."""
         limit = self.supervision.speed_limit(self.manual)
-        if limit is not None and tool.actual_speed > limit and not self.in_error:
+        if limit is not None and tool.actual_speed > limit and not self.in_error and not self._stopping:
             self.raise_alarm(
                 TCP_SPEED_ALARM,
                 f"TCP speed {tool.actual_speed * 1e3:.0f} mm/s over the "
