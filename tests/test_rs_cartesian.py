@@ -40,6 +40,15 @@ def target(position: object, orientation: object, speed: float = 0.25, blend: fl
     return LineTarget(p, r, speed, blend, seq)  # type: ignore[arg-type]
 
 
+def joint_move(offset: list[float], ratio: float) -> tuple[Controller, tuple[float, ...]]:
+    """A controller at START with a streamed joint move by ``offset`` at ``ratio`` of the top speed."""
+    goal = tuple(np.array(START) + np.array(offset))
+    ctl = controller()
+    ctl.start(Point(np.array(START), velocity_ratio=ratio, duration=0.0))
+    ctl.add(Point(np.array(goal), velocity_ratio=ratio, duration=0.0))
+    return ctl, goal
+
+
 def run_until_rest(ctl: Controller, recorder: Recorder | None = None, limit: float = 30.0) -> None:
     steps = 0
     while ctl.in_motion:
@@ -276,10 +285,7 @@ def test_a_joint_trajectory_that_cuts_a_forbidden_box_is_refused() -> None:
 
 
 def test_a_stop_whose_braking_path_enters_a_zone_raises_the_alarm_and_cuts_the_drives() -> None:
-    goal = tuple(np.array(START) + np.array([0.8, 0.0, 0.0, 0.0, 0.0, 0.0]))
-    ctl = controller()
-    ctl.start(Point(np.array(START), velocity_ratio=1.0, duration=0.0))
-    ctl.add(Point(np.array(goal), velocity_ratio=1.0, duration=0.0))
+    ctl, goal = joint_move([0.8, 0.0, 0.0, 0.0, 0.0, 0.0], 1.0)
     ctl.run_for(0.25)
     assert ctl.moving
     # a zone just ahead of the TCP, which the braking path reaches (a fixture put down mid-move)
@@ -297,10 +303,7 @@ def test_a_stop_whose_braking_path_enters_a_zone_raises_the_alarm_and_cuts_the_d
 
 
 def test_an_actual_zone_excursion_raises_the_alarm_with_the_e_stop_reaction() -> None:
-    goal = tuple(np.array(START) + np.array([0.5, 0.0, 0.0, 0.0, 0.0, 0.0]))
-    ctl = controller()
-    ctl.start(Point(np.array(START), velocity_ratio=0.5, duration=0.0))
-    ctl.add(Point(np.array(goal), velocity_ratio=0.5, duration=0.0))
+    ctl, goal = joint_move([0.5, 0.0, 0.0, 0.0, 0.0, 0.0], 0.5)
     ctl.run_for(0.2)
     z = ctl.tool.actual_position[2]
     ctl.supervision = Supervision(floor=z + 0.5)  # the floor rises above the tool (a wrong cell file)
@@ -355,10 +358,7 @@ def test_manual_mode_holds_the_reduced_tcp_speed() -> None:
 
 
 def test_switching_to_manual_while_moving_fast_stops_without_a_speed_alarm() -> None:
-    goal = tuple(np.array(START) + np.array([0.8, 0.0, 0.0, 0.0, 0.0, 0.0]))
-    ctl = controller()
-    ctl.start(Point(np.array(START), velocity_ratio=1.0, duration=0.0))
-    ctl.add(Point(np.array(goal), velocity_ratio=1.0, duration=0.0))
+    ctl, _ = joint_move([0.8, 0.0, 0.0, 0.0, 0.0, 0.0], 1.0)
     ctl.run_for(0.3)
     assert ctl.tool.actual_speed > 0.3
     ctl.stop()  # what the cell does on "mode manual"
