@@ -186,6 +186,20 @@ def test_a_run_takes_faults_from_stdin_and_the_command_line_and_writes_one_recor
     assert len(first) == len(second) > 1
 
 
+def test_a_cell_file_sets_the_supervision_and_manual_motion_allows_motion_in_manual(run: Run) -> None:
+    argv = [*PORTS, "--cell", "cell_example", "--manual-motion", "--no-stdin", "--log-level", "WARNING"]
+    seen: list[object] = []
+
+    def user(run: Run) -> None:
+        cell = run.emulator.cell
+        supervision = cell.groups[0].supervision
+        seen.extend([supervision.floor, supervision.manual_speed, [b.name for b in supervision.forbidden]])
+        seen.append(cell.manual_motion)  # (what MANUAL then does: tests/test_rs_lines_emulator.py)
+
+    assert serve(run, argv, user) == 0
+    assert seen == [-0.2, 0.25, ["fixture"], True]
+
+
 def test_sigint_ends_a_motoros_run_and_the_state_port_publishes_until_then(run: Run) -> None:
     argv = [*PORTS, "--io-port", "0", "--profile", "motoros", "--byte-order", "big", "--no-stdin"]
     argv += ["--state-rate", "200", "--log-level", "WARNING"]
@@ -243,6 +257,8 @@ def test_a_taken_port_fails_with_one_line(capsys: pytest.CaptureFixture[str]) ->
         (["--interpolation", "nosuch"], "nosuch"),
         (["--import", "tests.no_such_module"], "cannot import tests.no_such_module"),
         (["--model", "{tmp}/bad.toml"], "bad.toml"),
+        (["--cell", "nosuch"], "no such cell file"),
+        (["--cell", "{tmp}/bad.toml"], "bad.toml"),
     ],
 )
 def test_bad_values_fail_with_one_line_naming_the_problem(
