@@ -395,3 +395,21 @@ def test_auto_mode_refuses_a_trajectory_over_its_maximum_and_alarms_on_an_actual
     assert ctl.error_code == TCP_SPEED_ALARM and "over the AUTO limit" in ctl.error_message
     assert ctl.drives_powered  # the alarm reaction: the drives brake the robot under their loops
     run_until_rest(ctl)
+
+
+@pytest.mark.parametrize("after", [0.0, 0.002, 0.02])
+def test_a_stop_right_after_a_line_is_accepted_holds_the_robot_where_it_is(after: float) -> None:
+    ctl = controller()
+    p0, r0 = pose_of(START)
+    recorder = Recorder(MODEL.dof)
+    ctl.add_line(target(p0 + np.array([0.05, 0.0, 0.0]), r0, 0.2))
+    ctl.run_for(after, recorder)
+    ctl.stop()
+    run_until_rest(ctl, recorder)
+    ctl.run_for(0.05, recorder)
+    assert not ctl.in_error, ctl.error_message
+    command = recorder.get("command_position")
+    assert float(np.abs(np.diff(command, axis=0)).max()) < 1e-3  # no jump of the command
+    tool = recorder.tool()[interpolation_ticks(recorder)]
+    assert float(line_distance(tool[:, 0:3], p0, p0 + np.array([0.05, 0.0, 0.0])).max()) < 1e-5
+    assert float(np.linalg.norm(tool[-1, 0:3] - p0)) < 0.01

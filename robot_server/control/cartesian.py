@@ -337,6 +337,8 @@ class LineMotion:
                 continue
             sample = line.profile.sample(now - line.start)
             s, v, a = (float(x[0]) for x in sample[:3])
+            if s == 0.0 and v == 0.0 and a == 0.0:  # it has not set off: dropped like the later ones
+                continue
             top, acceleration, jerk = line.rates
             brake = RuckigSegment.plan(
                 ([0.0], [v], [a]),
@@ -373,9 +375,9 @@ class LineMotion:
             if u >= 1.0 - 1e-12:
                 q_end = done.q_end
                 position, rotation = done.p1, done.r1
-            else:  # braked short of its end
+            else:  # braked short of its end: where the braking left it
                 position, rotation = _point(done, u)
-                q_end = np.array(self._last[1]) if self._last is not None else done.q_end
+                q_end = self._solve_one(position, rotation, self._last[1] if self._last is not None else done.q_end)
             if self._lines:  # a blended successor: the base moves by this line's share
                 self._base = (
                     self._base[0] + (position - done.p0),
@@ -385,6 +387,17 @@ class LineMotion:
             else:
                 self._base = (position, rotation, q_end)
             self.lines_run += 1
+
+    def _solve_one(self, position: Array, rotation: Array, seed: Sequence[float] | Array) -> Array:
+        solver = self._solver
+        assert solver is not None
+        pose = np.eye(4)
+        pose[:3, :3] = quaternion_to_rotation(rotation)
+        pose[:3, 3] = position
+        solution = solver.solve(pose, np.asarray(seed, dtype=float))
+        if solution is None:
+            raise RuntimeError("a braked line's pose has no solution (it was on the checked line)")
+        return np.array(solution.q)
 
     def _solution(self, t: float, seed: tuple[float, ...] | None) -> tuple[float, ...]:
         key = round(t, 9)
