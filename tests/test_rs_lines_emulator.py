@@ -6,6 +6,8 @@ The controller runs on a clock the test advances (tests/stepped.py)."""
 
 from __future__ import annotations
 
+import contextlib
+import os
 import struct
 
 import numpy as np
@@ -15,8 +17,9 @@ from robot_server.kinematics import fk, rotation_to_quaternion
 from robot_server.loader import load_model
 from robot_server.workspace import FORBIDDEN_ZONE_ALARM, Box, Supervision
 from simple_message.constants import RobotMode
+from simple_message.transport import open_fd
 from tests.rawpeer import Frame, RawPeer, status
-from tests.stepped import advance_until, settle, step, stepped_emulator
+from tests.stepped import advance_until, poll, settle, step, stepped_emulator
 
 MODEL = load_model("jibot_zxs")
 LINE, TOOL_POSE, STATUS, JOINT_POSITION, PING = 65000, 65001, 13, 10, 1
@@ -161,3 +164,40 @@ async def test_manual_mode_refuses_points_or_slows_them_to_the_reduced_speed(man
         assert 0.2 < float(np.nanmax(tool[:, 7])) <= 0.25 and float(np.nanmax(tool[:, 15])) <= 0.25
         for peer in (motion, state):
             await peer.close()
+
+
+async def test_a_serial_link_subscribes_to_tool_pose_and_runs_lines() -> None:
+    master, slave = os.openpty()
+    try:
+        async with stepped_emulator(serial=os.ttyname(slave), state_rate=50.0, initial_position=START) as (emu, clock):
+            await poll(lambda: bool(emu.motion_server.sessions))
+            reader, writer = await open_fd(master, close_fd=False, name="pty master")
+            link = RawPeer(reader, writer)
+            subscribe = struct.pack("<iiii", 12 + 44, TOOL_POSE, REQUEST, 0) + struct.pack("<ii9f", *[0] * 11)
+            await link.send(subscribe)
+            reply = await link.next_of(TOOL_POSE)
+            assert (reply.comm_type, reply.reply_code) == (REPLY, SUCCESS)
+            p0, r0 = pose_of(START)
+            await link.send(line(0, p0 + np.array([0.02, 0.0, 0.0]), r0))
+            answer = await link.next_of(LINE)
+            assert line_reply(answer) == (SUCCESS, 0, 0, 0)
+            await settle(emu, clock)
+            await step(clock, 0.1)
+            while True:  # the poses published before the line ended are skipped
+                pose = await link.next_of(TOOL_POSE)
+                if pose.comm_type == TOPIC and abs(pose.reals(1, 12)[0] - (p0[0] + 0.02)) < 1e-5:
+                    break
+            writer.close()
+    finally:
+        for fd in (master, slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+async def test_a_tcp_motion_client_cannot_subscribe_on_the_motion_port() -> None:
+    async with stepped_emulator() as (emu, _):
+        motion = await RawPeer.connect(emu.ports["motion"])
+        subscribe = struct.pack("<iiii", 12 + 44, TOOL_POSE, REQUEST, 0) + struct.pack("<ii9f", *[0] * 11)
+        reply = await motion.request(subscribe)
+        assert (reply.msg_type, reply.comm_type, reply.reply_code, reply.body) == (TOOL_POSE, REPLY, FAILURE, b"")
+        await motion.close()

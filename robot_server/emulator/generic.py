@@ -44,6 +44,7 @@ from simple_message.endpoints import Server, Session
 from simple_message.messages import (
     CartesianLine,
     CartesianLineReply,
+    HeaderOnly,
     JointFeedback,
     JointPosition,
     JointTrajPtFull,
@@ -54,7 +55,7 @@ from simple_message.messages import (
 from ..control import LineTarget, Point, PointRejected, Reason
 from .cell import RobotCell
 from .points import point_from_message
-from .profiles import EmulatorProfile, ProfileContext, register_profile
+from .profiles import STATE_LINK, EmulatorProfile, ProfileContext, register_profile
 
 __all__ = ["GenericMotion", "GenericState", "GenericBehaviour", "GENERIC_PROFILE", "FEEDBACK_FIELDS"]
 
@@ -194,9 +195,20 @@ class GenericState:
         self.cell = cell
         self.feedback = feedback
 
-    def install(self, server: Server) -> None:
-        server.handle(MsgType.JOINT_FEEDBACK, self._subscribe)
-        server.handle(MsgType.TOOL_POSE, self._subscribe)
+    def install(self, server: Server, motion: Server | None = None) -> None:
+        """The subscriptions on the state port, and on the motion server for the links that carry
+        the state topics too (a serial link); a TCP motion client gets FAILURE for them."""
+        for msg_type in (MsgType.JOINT_FEEDBACK, MsgType.TOOL_POSE):
+            server.handle(msg_type, self._subscribe)
+            if motion is not None:
+                motion.handle(msg_type, self._subscribe_on_link)
+
+    def _subscribe_on_link(self, msg: Message, session: Session) -> Message | None:
+        if not session.data.get(STATE_LINK):  # what an unknown request gets: a header-only FAILURE
+            is_request = msg.comm_type == CommType.SERVICE_REQUEST
+            return HeaderOnly(msg.msg_type, reply_code=ReplyCode.FAILURE) if is_request else None
+        self._subscribe(msg, session)
+        return None  # answered SUCCESS in the server's reply style
 
     def _subscribe(self, msg: Message, session: Session) -> None:
         key = _WANTS_TOOL if msg.msg_type == MsgType.TOOL_POSE else _WANTS_FEEDBACK
@@ -250,7 +262,7 @@ class GenericBehaviour:
 
     def install(self, servers: Mapping[str, Server]) -> None:
         self.motion.install(servers["motion"])
-        self.state.install(servers["state"])
+        self.state.install(servers["state"], servers["motion"])
 
     def publish(self, server: Server, sessions: Iterable[Session]) -> None:
         self.state.publish(server, sessions)

@@ -35,10 +35,15 @@ __all__ = [
     "EmulatorProfile",
     "PortRules",
     "ProfileContext",
+    "STATE_LINK",
     "profile_named",
     "register_profile",
     "unregister_profile",
 ]
+
+#: ``Session.data`` key of a link that carries the state topics as well as motion (a serial link):
+#: it gets what the state port's clients get, subscriptions included
+STATE_LINK = "carries_state"
 
 #: the roles a profile may serve, in the order they are bound
 ROLES = ("motion", "state", "io")

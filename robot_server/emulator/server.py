@@ -50,7 +50,7 @@ from .cell import RobotCell
 from .generic import GENERIC_PROFILE
 from .io_table import IoTable
 from .owner import MotionOwner, OnDisconnect
-from .profiles import ROLES, Behaviour, EmulatorProfile, ProfileContext, profile_named
+from .profiles import ROLES, STATE_LINK, Behaviour, EmulatorProfile, ProfileContext, profile_named
 
 __all__ = ["Emulator", "EmulatorConfig", "PeriodStats"]
 
@@ -78,7 +78,6 @@ SAFETY_LOG_BURST = 20
 SAFETY_LOG_RATE = 5.0
 
 ByteOrderChoice = Literal["little", "big", "auto"]
-_STATE_LINK = "carries_state"
 MAX_STATE_RATE = 1000.0
 
 
@@ -354,12 +353,12 @@ class Emulator:
         self._tasks.append(loop.create_task(self._run_control(), name="emulator control loop"))
         self._tasks.append(loop.create_task(self._run_state(), name="emulator state topics"))
         if cfg.serial is not None:
-            self.motion_server.start_serving(self.motion_server.serve_serial(cfg.serial, data={_STATE_LINK: True}))
+            self.motion_server.start_serving(self.motion_server.serve_serial(cfg.serial, data={STATE_LINK: True}))
         return self
 
     async def serve_fd(self, fd: int, name: str = "pty") -> None:
         """Serve one link over an open descriptor (a pty), carrying motion and state like ``--serial``."""
-        await self.motion_server.serve_fd(fd, name=name, data={_STATE_LINK: True})
+        await self.motion_server.serve_fd(fd, name=name, data={STATE_LINK: True})
 
     async def _run_control(self) -> None:
         try:
@@ -401,7 +400,7 @@ class Emulator:
 
     def state_sessions(self) -> list[Session]:
         """Everyone who gets state topics: state-port clients and serial links."""
-        extra = [s for s in self.motion_server.sessions if s.data.get(_STATE_LINK)]
+        extra = [s for s in self.motion_server.sessions if s.data.get(STATE_LINK)]
         return [*self.state_server.sessions, *extra]
 
     def publish_state(self) -> None:
