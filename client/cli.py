@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import dataclasses
 import json
 import logging
 import math
@@ -44,11 +45,11 @@ from simple_message.constants import MsgType
 from simple_message.dialects import DIALECTS, GENERIC, dialect
 from simple_message.errors import SimpleMessageError
 from simple_message.jsonio import message_to_json, symbolic_names
-from simple_message.messages import Status
+from simple_message.messages import Status, ToolPose
 from simple_message.wire import ByteOrder, WireFormat
 
 from .demo import PAPER_POLICIES, DemoConfig, format_table, run_demo
-from .driver import DriverError, JointState, Mode, RobotDriver
+from .driver import DriverError, JointState, LineGoal, Mode, RobotDriver
 from .planner import Planner, PlanningError, pose
 from .trajectory import Trajectory, recording
 
@@ -59,6 +60,9 @@ log = logging.getLogger("client.cli")
 
 #: robot-client's exit statuses (README, "Exit status")
 EXIT_DONE, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
+
+#: ``move --linear``'s TCP speed (m/s) when --tcp-speed is not given (the planner's own top speed)
+DEFAULT_TCP_SPEED = 0.25
 
 
 class CommandError(Exception):
@@ -108,20 +112,24 @@ _MODES = (
 _DESCRIPTIONS = {
     "ping": "Send PING requests on the motion port and print each round-trip time, then the minimum, median "
     "and maximum. A motion client: refused while another client moves the robot.",
-    "status": "Wait for one joint state and STATUS on the state port and print them as one JSON object. Only "
-    "watches: connects the state port alone.",
-    "monitor": "Print the joint state and STATUS once a second, with the rate at which they arrive, for "
-    "--duration seconds or until Ctrl-C. Only watches: connects the state port alone.",
+    "status": "Wait for one joint state and STATUS on the state port and print them as one JSON object, with the "
+    'tool centre point under "tool" when the controller sends TOOL_POSE (this project\'s extension; null '
+    "otherwise). Only watches: connects the state port alone.",
+    "monitor": "Print the joint state and STATUS once a second, with the rate at which they arrive, and the tool "
+    "centre point's position (mm) and speed (mm/s) when the controller sends TOOL_POSE, for --duration seconds or "
+    "until Ctrl-C. Only watches: connects the state port alone.",
     "move": "Plan a jerk-limited move from where the robot is to a joint configuration (--joints) or to a flange "
-    "pose along a straight line (--pose), and execute it; a progress line on a terminal, then a report. "
-    "Ctrl-C stops the robot.",
+    "pose along a straight line (--pose), and execute it; a progress line on a terminal, then a report. With "
+    "--linear the controller runs the straight line itself (CARTESIAN_LINE, this project's extension) when it "
+    "can, at --tcp-speed; otherwise it is planned on the PC as without --linear. Ctrl-C stops the robot.",
     "run": "Execute a trajectory file (.csv or .json; a file that record wrote replays as it is), streamed or "
     "downloaded (--mode). Ctrl-C stops the robot.",
     "stop": "Stop the robot now and wait for the controller to acknowledge it. A motion client: refused while "
     "another client moves the robot.",
     "record": "Record the joint states from the state port to a CSV file (the trajectory layout: run FILE "
     "replays it), for --duration seconds or until Ctrl-C. Only watches: connects the state port alone.",
-    "demo": "The paper's experiment: the robot draws a rectangle under each interpolation policy, and the "
+    "demo": "The paper's experiment: the robot draws a rectangle under each interpolation policy, then as four "
+    "straight lines run by the controller (the 'controller MOVL' row, unless --no-movl), and the "
     "command prints a table of the results and writes the CSV traces and (with matplotlib) a figure to "
     "--output. It uses the controller at --host and the ports when one answers (not with --embedded), else "
     "an embedded emulator.",
@@ -179,8 +187,8 @@ def parser() -> argparse.ArgumentParser:
 
     ping = command("ping", "round-trip time of PING requests")
     ping.add_argument("--count", type=positive_int, default=5, metavar="N", help="PING requests to send, at least 1")
-    command("status", "print the joint state and STATUS once (JSON)")
-    monitor = command("monitor", "live joint state and STATUS, with rates")
+    command("status", "print the joint state, STATUS and tool pose once (JSON)")
+    monitor = command("monitor", "live joint state, STATUS and tool pose, with rates")
     monitor.add_argument("--duration", type=positive_float, metavar="SECONDS", help="seconds (default: until Ctrl-C)")
     move = command("move", "move to a joint configuration or a Cartesian pose")
     target = move.add_mutually_exclusive_group(required=True)
@@ -200,6 +208,24 @@ def parser() -> argparse.ArgumentParser:
         help="share of the joint velocity, acceleration and jerk limits, in (0, 1] (default: %(default)s)",
     )
     move.add_argument("--mode", choices=[m.value for m in Mode], default=Mode.STREAM.value, help=_MODES)
+    move.add_argument(
+        "--linear",
+        action="store_true",
+        help="with --pose: let the controller run the straight line (CARTESIAN_LINE) if it can; else it is planned "
+        "on the PC, as without --linear",
+    )
+    move.add_argument(
+        "--tcp-speed",
+        type=float,
+        metavar="M/S",
+        help=f"with --linear: the tool's speed along the line, > 0 (default: {DEFAULT_TCP_SPEED})",
+    )
+    move.add_argument(
+        "--blend",
+        type=float,
+        metavar="M",
+        help="with --linear: the blend radius at the line's end, >= 0 (default: 0, an exact stop)",
+    )
     run = command("run", "execute a trajectory file (.csv or .json)")
     run.add_argument("file", type=Path, metavar="FILE", help="the trajectory file (.csv or .json)")
     run.add_argument("--mode", choices=[m.value for m in Mode], default=Mode.STREAM.value, help=_MODES)
@@ -234,6 +260,11 @@ def parser() -> argparse.ArgumentParser:
         help=f"controller policies to compare (default: {' '.join(PAPER_POLICIES)}; known: {', '.join(POLICIES)})",
     )
     demo.add_argument("--no-plot", action="store_true", help="no figure even if matplotlib is installed")
+    demo.add_argument(
+        "--no-movl",
+        action="store_true",
+        help="no 'controller MOVL' row (the rectangle as four straight lines run by the controller)",
+    )
     return p
 
 
@@ -292,9 +323,22 @@ async def _ping(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> N
     )
 
 
+def _tool_dict(pose: ToolPose | None) -> dict[str, object] | None:
+    """A TOOL_POSE as ``status`` prints it (null when the controller sends none)."""
+    if pose is None:
+        return None
+    fields = ("x", "y", "z", "qx", "qy", "qz", "qw", "speed", "time")
+    return {name: round(float(getattr(pose, name)), 6) + 0.0 for name in fields}  # + 0.0: no -0.0
+
+
 async def _status(driver: RobotDriver, _args: argparse.Namespace, out: TextIO) -> None:
-    state = await driver.wait_state()
-    print(json.dumps(_state_dict(state)), file=out)
+    await driver.wait_state()
+    # a controller with the extension sends TOOL_POSE with its next state round; the wait is a
+    # few rounds at most, so a controller without it costs no more than that
+    tool = await driver.subscribe_tool_pose()
+    state = driver.joint_state
+    assert state is not None
+    print(json.dumps({**_state_dict(state), "tool": _tool_dict(tool)}), file=out)
 
 
 async def _for(seconds: float | None, body: Callable[[], Awaitable[None]]) -> None:
@@ -304,6 +348,7 @@ async def _for(seconds: float | None, body: Callable[[], Awaitable[None]]) -> No
 
 
 async def _monitor(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
+    await driver.subscribe_tool_pose(wait=False)
     count, window = 0, time.monotonic()
 
     async def body() -> None:
@@ -315,9 +360,17 @@ async def _monitor(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -
                 rate = count / (now - window)
                 status = symbolic_names(state.status) if state.status is not None else {}
                 q = " ".join(f"{x:+.4f}" for x in state.positions.tolist())
+                tool = driver.tool_pose
+                tcp = (
+                    ""
+                    if tool is None
+                    else f"  tcp=[{tool.x * 1000:+.1f} {tool.y * 1000:+.1f} {tool.z * 1000:+.1f}] mm "
+                    f"{tool.speed * 1000:.1f} mm/s"
+                )
                 print(
-                    f"{rate:6.1f} Hz  q=[{q}]  in_motion={status.get('in_motion')} in_error={status.get('in_error')}"
-                    f" e_stopped={status.get('e_stopped')} drives={status.get('drives_powered')}",
+                    f"{rate:6.1f} Hz  q=[{q}]{tcp}  in_motion={status.get('in_motion')} "
+                    f"in_error={status.get('in_error')} e_stopped={status.get('e_stopped')} "
+                    f"drives={status.get('drives_powered')}",
                     file=out,
                     flush=True,
                 )
@@ -394,16 +447,61 @@ async def _move(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> N
         acceleration_scale=args.speed,
         jerk_scale=args.speed,
         joint_spacing=2 * math.pi,  # JOINT_TRAJ_PT points are joined at rest: one segment
+        # --linear planned on the PC (no straight lines in the controller): the same top TCP speed
+        **({"max_speed": _tcp_speed(args)} if args.linear else {}),
     )
     if args.joints is not None:
         motion = planner.joint_move(here, args.joints)
     else:
         values = args.pose
         rotation = fk(model, here)[:3, :3] if len(values) == 3 else rpy_matrix(*values[3:])
-        motion = planner.linear_moves(here, [pose(values[:3], rotation)])
+        target = pose(values[:3], rotation)
+        if args.linear:
+            if await driver.supports_lines():
+                print("the controller runs the straight line (CARTESIAN_LINE)", file=out, flush=True)
+                await _move_line(driver, LineGoal.from_pose(target), args, out)
+                return
+            print("the controller has no straight-line motion: planned on the PC", file=out, flush=True)
+        motion = planner.linear_moves(here, [target])
     # JOINT_TRAJ_PT points are joined at rest by the controllers that take them
     rest_to_rest = driver.dialect.point_type == MsgType.JOINT_TRAJ_PT
     await _execute(driver, motion.sparse(rest_to_rest=rest_to_rest), args.mode, out)
+
+
+def _tcp_speed(args: argparse.Namespace) -> float:
+    return float(args.tcp_speed) if args.tcp_speed is not None else DEFAULT_TCP_SPEED
+
+
+async def _move_line(driver: RobotDriver, goal: LineGoal, args: argparse.Namespace, out: TextIO) -> None:
+    """One straight line run by the controller, with a progress line (on a terminal) and a report."""
+    start = time.monotonic()
+    target = np.asarray(goal.position, dtype=float)
+
+    async def progress() -> None:
+        async for _ in driver.states():
+            tool = driver.tool_pose
+            if tool is None:
+                continue
+            away = float(np.linalg.norm(np.array([tool.x, tool.y, tool.z]) - target))
+            out.write(
+                f"\r{time.monotonic() - start:6.2f} s  {tool.speed * 1000:7.1f} mm/s  {away * 1000:8.2f} mm from goal"
+            )
+            out.flush()
+
+    shown = out.isatty()
+    task = asyncio.get_running_loop().create_task(progress()) if shown else None
+    try:
+        final = await driver.move_lines(
+            [goal], speed=_tcp_speed(args), blend_radius=float(args.blend) if args.blend is not None else 0.0
+        )
+    finally:
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, DriverError):
+                await task
+            out.write("\n")
+    error = float(np.linalg.norm(np.array([final.x, final.y, final.z]) - target))
+    print(f"done: a straight line in {time.monotonic() - start:.2f} s, {error * 1000:.3f} mm from the goal", file=out)
 
 
 async def _run(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
@@ -441,7 +539,6 @@ async def _with_driver(args: argparse.Namespace, model: RobotModel, out: TextIO)
 
 
 async def _demo(args: argparse.Namespace, out: TextIO) -> None:
-    size = {"width": 0.06, "height": 0.04} if args.short else {}
     config = DemoConfig(
         model=args.model,
         output=args.output,
@@ -454,8 +551,10 @@ async def _demo(args: argparse.Namespace, out: TextIO) -> None:
         wire=_wire(args),
         policies=tuple(args.policies),
         plot=not args.no_plot,
-        **size,
+        movl=not args.no_movl,
     )
+    if args.short:
+        config = dataclasses.replace(config, width=0.06, height=0.04)
     result = await run_demo(config, progress=lambda line: print(line, file=out, flush=True))
     print(file=out)
     print(format_table(result.rows), file=out)
@@ -491,6 +590,14 @@ def _check_arguments(args: argparse.Namespace, model: RobotModel) -> None:
         return
     if not 0.0 < args.speed <= 1.0:
         raise ValueError(f"--speed must be in (0, 1], not {args.speed}")
+    if args.linear and args.pose is None:
+        raise ValueError("--linear needs --pose (a straight line to a pose)")
+    if not args.linear and (args.tcp_speed is not None or args.blend is not None):
+        raise ValueError("--tcp-speed and --blend need --linear")
+    if args.tcp_speed is not None and not (math.isfinite(args.tcp_speed) and args.tcp_speed > 0.0):
+        raise ValueError(f"--tcp-speed must be > 0 (m/s), not {args.tcp_speed}")
+    if args.blend is not None and not (math.isfinite(args.blend) and args.blend >= 0.0):
+        raise ValueError(f"--blend must be >= 0 (m), not {args.blend}")
     if args.joints is not None and len(args.joints) != model.dof:
         raise ValueError(f"--joints needs {model.dof} values for {model.name}, not {len(args.joints)}")
     if args.pose is not None and len(args.pose) not in (3, 6):

@@ -1,5 +1,6 @@
 """The paper's experiment (its Fig. 6): the flange traces the edges of a rectangle, planned as
-sparse Cartesian waypoints, executed under each interpolation policy of the controller.
+sparse Cartesian waypoints, executed under each interpolation policy of the controller, and, for
+comparison, run by the controller itself as four straight lines.
 
 :func:`run_demo` plans the rectangle with :class:`~.planner.Planner` (straight lines through the
 corners, one waypoint every ``spacing`` metres, on one IK branch), then for each policy (``linear``
@@ -9,8 +10,22 @@ rectangle's waypoints as JOINT_TRAJ_PT (streamed; downloaded on a simulated cloc
 would run dry between points). The emulator records every servo tick of the rectangle, and
 :func:`analyse` turns that record into one table row.
 
+**The "controller MOVL" row** (``DemoConfig.movl``, on by default): after the same joint move to
+the first corner, an embedded emulator (its default policy: lines do not go through it) runs the
+rectangle as four CARTESIAN_LINE requests (this project's extension, docs/protocol.md), one per
+edge, blend radius 0 (an exact stop at each corner), at the TCP speed ``DemoConfig.speed``
+(0.06 m/s). That is the speed the planned rows are timed at: the planner's ``max_speed``, which
+every edge reaches at 0.5 m/s² and cruises at, so the waypoints are 25 mm / 0.06 m/s apart in time.
+(Between two waypoints the policies that join them at rest go faster and slower around that
+mean, the quintic up to 1.875 times it; the linear policy holds it.) With the same nominal speed
+the cycle times compare. The controller accelerates along a line within its own limits (2 m/s²
+and 20 m/s³ on the emulator, ``robot_server.control.cartesian.LineLimits``), not the planner's
+0.5 m/s². The row comes from the emulator's record, like the others.
+
 If a controller already answers on the given ports, the rectangle runs there once instead (its
-interpolation is its own business) and the row is computed from the joint states it publishes.
+interpolation is its own business) and the row is computed from the joint states it publishes;
+the MOVL row then runs there too if the controller has straight lines
+(:meth:`~.driver.RobotDriver.supports_lines`), and is skipped, with a line saying so, if not.
 
 **The table** (all from the controller's record, or from the published joint states):
 
@@ -22,6 +37,9 @@ interpolation is its own business) and the row is computed from the joint states
   interpolation instants, by more than its jerk limit allows in that time;
 * path deviation: the largest distance of the actual flange (forward kinematics of the actual
   joint positions) from the rectangle's edges, in mm;
+* corner error: the largest, over the rectangle's four corners, of the distance from the corner
+  to the closest point of the actual flange's path (the polyline through its positions at the
+  instants the other columns use), in mm: how far the robot cut (or missed) a corner;
 * following error: the largest command - actual joint difference, in mrad.
 """
 
@@ -41,16 +59,27 @@ import numpy as np
 from numpy.typing import NDArray
 
 from robot_server import Emulator, EmulatorConfig, Recorder
-from robot_server.kinematics import closed_form, fk, fk_batch
+from robot_server.control import DEFAULT_POLICY
+from robot_server.kinematics import closed_form, fk, fk_batch, rotation_to_quaternion
 from robot_server.loader import load_model
 from robot_server.model import RobotModel
 from simple_message.wire import DEFAULT_FORMAT, WireFormat
 
-from .driver import DriverError, Mode, RobotDriver
+from .driver import DriverError, LineGoal, Mode, RobotDriver
 from .planner import Motion, Planner, PlanningError, pose
 from .trajectory import Trajectory, recording
 
-__all__ = ["DemoConfig", "DemoRow", "DemoResult", "analyse", "plan_rectangle", "run_demo", "format_table"]
+__all__ = [
+    "DemoConfig",
+    "DemoRow",
+    "DemoResult",
+    "analyse",
+    "corner_error",
+    "plan_rectangle",
+    "run_demo",
+    "format_table",
+    "MOVL",
+]
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +92,8 @@ CENTRE_CONFIGURATION = (0.0, 0.3, -0.2, 0.0, 0.9, 0.0)
 SETTLED_POSITION = 1e-3
 #: the policies of the paper's table: its rest-to-rest shapes and ruckig
 PAPER_POLICIES = ("linear", "cubic", "quintic", "ruckig")
+#: the row of the rectangle run as the controller's own straight lines
+MOVL = "controller MOVL"
 
 
 @dataclass(frozen=True)
@@ -90,6 +121,8 @@ class DemoConfig:
     profile: str = "generic"
     wire: WireFormat = DEFAULT_FORMAT
     plot: bool = True
+    #: also run the rectangle as four straight lines of the controller (the "controller MOVL" row)
+    movl: bool = True
 
 
 @dataclass(frozen=True)
@@ -100,6 +133,7 @@ class DemoRow:
     peak_jerk: float  # rad/s^3
     discontinuities: int
     path_deviation: float  # m
+    corner_error: float  # m
     following_error: float | None  # rad (None: not known from joint states alone)
     source: str  # "controller record" or "joint states"
 
@@ -178,6 +212,23 @@ def distance_to_path(points: Array, corners: Array) -> Array:
     return best
 
 
+def corner_error(path: Array, corners: Array) -> float:
+    """The largest, over ``corners`` ``(M, 3)`` (a closed polyline's last corner, the first again,
+    counted once), of the distance from the corner to the closest point of the polyline through
+    ``path`` ``(N, 3)``."""
+    targets = corners[:-1] if corners.shape[0] > 1 and np.allclose(corners[0], corners[-1]) else corners
+    if path.shape[0] == 1:
+        return float(np.max(np.linalg.norm(targets - path[0], axis=1)))
+    a, d = path[:-1], np.diff(path, axis=0)
+    length = np.einsum("ij,ij->i", d, d)
+    worst = 0.0
+    for corner in targets:
+        rel = corner - a
+        u = np.clip(np.einsum("ij,ij->i", rel, d) / np.where(length > 0, length, 1.0), 0.0, 1.0)
+        worst = max(worst, float(np.min(np.linalg.norm(rel - u[:, None] * d, axis=1))))
+    return worst
+
+
 def drive_differences(command: Array, dt: float) -> tuple[Array, Array, Array]:
     """The drive's view of a commanded motion, the one definition the demo's table, traces and
     figure share: velocity, acceleration and jerk as the first, second and third differences of
@@ -199,7 +250,11 @@ GLOSSARY = (
     "acc discontinuities: runs of interpolation instants where that acceleration changes by more than the joint's "
     "jerk limit allows in one period",
     "path deviation: the largest distance of the actual flange position from the rectangle's edges",
+    "corner error: the largest, over the rectangle's corners, of the distance from the corner to the closest point "
+    "of the actual flange's path",
     "following error: the largest |command - actual| joint position at any servo tick",
+    f"{MOVL}: the rectangle run by the controller as four straight lines (CARTESIAN_LINE), exact stops at the "
+    "corners, at the TCP speed the waypoints of the other rows are timed at",
     "controller's own (an external controller, not the embedded emulator): the same formulas on the joint states "
     "it publishes (about 40 Hz), taken as both command and actual; no following error",
 )
@@ -238,6 +293,7 @@ def analyse(
         peak_jerk=float(np.max(np.abs(jerk))) if jerk.size else 0.0,
         discontinuities=events,
         path_deviation=float(np.max(distance_to_path(flange, corners))),
+        corner_error=corner_error(flange, corners),
         following_error=None if following_error is None else float(np.max(np.abs(following_error))),
         source=source,
     )
@@ -264,6 +320,7 @@ def format_table(rows: Sequence[DemoRow]) -> str:
         "peak jerk (rad/s³)",
         "acc discontinuities",
         "path deviation (mm)",
+        "corner error (mm)",
         "following error (mrad)",
     )
     lines = [
@@ -274,6 +331,7 @@ def format_table(rows: Sequence[DemoRow]) -> str:
             f"{r.peak_jerk:.1f}",
             str(r.discontinuities),
             f"{r.path_deviation * 1000:.3f}",
+            f"{r.corner_error * 1000:.3f}",
             "n/a" if r.following_error is None else f"{r.following_error * 1000:.3f}",
         )
         for r in rows
@@ -307,18 +365,26 @@ class _Plan:
     start: Array  # the first corner's configuration
     waypoints: Trajectory
     corners: Array
+    rotation: Array  # the tool's orientation all along
+
+    def lines(self) -> list[LineGoal]:
+        """The rectangle as straight lines of the controller: to each corner after the first."""
+        orientation = rotation_to_quaternion(self.rotation)
+        return [LineGoal(corner, orientation) for corner in self.corners[1:]]
 
 
-async def _embedded_run(config: DemoConfig, plan: _Plan, policy: str) -> tuple[DemoRow, Recorder, int]:
+async def _embedded_run(config: DemoConfig, plan: _Plan, policy: str | None) -> tuple[DemoRow, Recorder, int]:
+    """One row on an embedded emulator: the waypoints under ``policy``, or (None) the rectangle as
+    the controller's straight lines (its default policy)."""
     model, waypoints = plan.model, plan.waypoints
     emulator_config = EmulatorConfig(
         models=(config.model,),
         motion_port=0,
         state_port=0,
-        interpolation=policy,
         simulated=config.simulated,
         speedup=config.speedup,
         state_rate=100.0,
+        interpolation=DEFAULT_POLICY if policy is None else policy,
     )
     mode = Mode.DOWNLOAD if config.simulated else Mode.STREAM
     async with Emulator(emulator_config, [model]) as emu:
@@ -329,12 +395,16 @@ async def _embedded_run(config: DemoConfig, plan: _Plan, policy: str) -> tuple[D
             model=model,
             goal_tolerance=SETTLED_POSITION,
             watchdog=2.0,
+            tcp_tolerance=1e-4,
         )
         async with driver:
             await _approach(driver, _planner(model, config), plan.start, mode)
             [record] = emu.record(waypoints.duration + 30.0)
             try:
-                await driver.execute(waypoints, mode)
+                if policy is None:
+                    await driver.move_lines(plan.lines(), speed=config.speed)
+                else:
+                    await driver.execute(waypoints, mode)
                 # let the record reach the settled robot (the goal is seen a state period late at most)
                 await emu.settle(10.0)
             finally:
@@ -343,7 +413,7 @@ async def _embedded_run(config: DemoConfig, plan: _Plan, policy: str) -> tuple[D
     ticks = round(emulator_config.interpolation_period / servo)
     rows = _interpolation_rows(record, servo, ticks)
     row = analyse(
-        policy,
+        MOVL if policy is None else policy,
         plan.model,
         plan.corners,
         times=record.time()[rows],
@@ -385,7 +455,11 @@ def _save_trace(path: Path, record: Recorder, model: RobotModel, ticks: int) -> 
     path.write_text("\n".join(rows) + "\n", encoding="utf-8")
 
 
-async def _external_run(driver: RobotDriver, config: DemoConfig, plan: _Plan) -> tuple[DemoRow, Array, Array]:
+async def _external_run(
+    driver: RobotDriver, config: DemoConfig, plan: _Plan, *, lines: bool = False
+) -> tuple[DemoRow, Array, Array]:
+    """The rectangle on a controller found on the ports: the waypoints, streamed, or (``lines``) its
+    own straight lines; the row from the joint states it publishes meanwhile."""
     await _approach(driver, _planner(plan.model, config), plan.start, Mode.STREAM)
     times: list[float] = []
     positions: list[Array] = []
@@ -397,7 +471,10 @@ async def _external_run(driver: RobotDriver, config: DemoConfig, plan: _Plan) ->
 
     watcher = asyncio.get_running_loop().create_task(watch())
     try:
-        await driver.execute(plan.waypoints, Mode.STREAM)
+        if lines:
+            await driver.move_lines(plan.lines(), speed=config.speed)
+        else:
+            await driver.execute(plan.waypoints, Mode.STREAM)
     finally:
         watcher.cancel()
         with contextlib.suppress(asyncio.CancelledError, DriverError):
@@ -405,7 +482,7 @@ async def _external_run(driver: RobotDriver, config: DemoConfig, plan: _Plan) ->
     t = np.array(times) - times[0]
     q = np.array(positions)
     row = analyse(
-        "controller's own",
+        MOVL if lines else "controller's own",
         plan.model,
         plan.corners,
         times=t,
@@ -442,7 +519,7 @@ async def run_demo(config: DemoConfig, progress: Callable[[str], None] = print) 
     model = load_model(config.model)
     start, motion, corners = plan_rectangle(model, config)
     waypoints = motion.sparse()
-    plan = _Plan(model, start, waypoints, corners)
+    plan = _Plan(model, start, waypoints, corners, rectangle_corners(model, config.width, config.height)[1])
     out = Path(config.output)
     result = DemoResult([], waypoints)
     result.files.append(_save_waypoints(out, waypoints))
@@ -457,18 +534,26 @@ async def run_demo(config: DemoConfig, progress: Callable[[str], None] = print) 
         progress(f"a controller answers at {result.external}: running the rectangle there")
         try:
             row, t, q = await _external_run(external, config, plan)
+            result.rows.append(row)
+            trace = out / "demo_controller.csv"
+            recording(t.tolist(), q.tolist(), joint_names=model.joint_names).save(trace)
+            result.files.append(trace)
+            if config.movl:
+                if await external.supports_lines():
+                    progress(f"{MOVL}: the rectangle as the controller's straight lines (CARTESIAN_LINE) ...")
+                    row, t, q = await _external_run(external, config, plan, lines=True)
+                    result.rows.append(row)
+                    trace = out / "demo_controller_movl.csv"
+                    recording(t.tolist(), q.tolist(), joint_names=model.joint_names).save(trace)
+                    result.files.append(trace)
+                else:
+                    progress(f"{MOVL}: skipped: the controller has no straight-line motion (no CARTESIAN_LINE)")
         finally:
             await external.close()
-        result.rows.append(row)
-        trace = out / "demo_controller.csv"
-        recording(t.tolist(), q.tolist(), joint_names=model.joint_names).save(trace)
-        result.files.append(trace)
         return result
     records: dict[str, Recorder] = {}
+    clock = "simulated clock" if config.simulated else ("real time" if config.speedup == 1 else f"{config.speedup:g}x")
     for policy in config.policies:
-        clock = (
-            "simulated clock" if config.simulated else ("real time" if config.speedup == 1 else f"{config.speedup:g}x")
-        )
         progress(f"{policy}: embedded emulator ({clock}) ...")
         begun = time.perf_counter()
         row, record, ticks = await _embedded_run(config, plan, policy)
@@ -478,6 +563,15 @@ async def run_demo(config: DemoConfig, progress: Callable[[str], None] = print) 
         _save_trace(trace, record, model, ticks)
         result.files.append(trace)
         progress(f"{policy}: done in {time.perf_counter() - begun:.1f} s, trace {trace}")
+    if config.movl:
+        progress(f"{MOVL}: embedded emulator ({clock}), the rectangle as four straight lines (CARTESIAN_LINE) ...")
+        begun = time.perf_counter()
+        row, record, ticks = await _embedded_run(config, plan, None)
+        result.rows.append(row)
+        trace = out / "demo_movl.csv"
+        _save_trace(trace, record, model, ticks)
+        result.files.append(trace)
+        progress(f"{MOVL}: done in {time.perf_counter() - begun:.1f} s, trace {trace}")
     if config.plot:
         if "linear" not in records or "quintic" not in records:
             result.no_figure = "it compares the linear and quintic runs: give both in --policies"

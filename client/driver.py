@@ -36,6 +36,14 @@ connection, a state watchdog expiry (no joint state for ``watchdog`` s), a path 
 point was sent (how a dropped download shows: TOPIC points have no reply), or no goal within
 ``goal_timeout`` s after the trajectory's end; before raising it tries to stop the robot.
 Cancelling ``execute`` stops it too.
+
+**Straight lines run by the controller** (CARTESIAN_LINE and TOOL_POSE, this project's extension,
+docs/protocol.md). :meth:`RobotDriver.supports_lines` asks the controller once per connection
+(a CARTESIAN_LINE STOP: only its own reply type means yes). :meth:`RobotDriver.move_lines` sends
+:class:`LineGoal` targets as lines 0, 1, ... and waits, as ``execute`` does, until the robot has
+run them and the actual TCP is at the last one; a refused line raises :class:`LineRefused`, which
+names the controller's :class:`~simple_message.constants.LineResult`. :meth:`RobotDriver.subscribe_tool_pose`
+asks for TOOL_POSE on the state connection; :attr:`RobotDriver.tool_pose` is the latest one.
 """
 
 from __future__ import annotations
@@ -43,19 +51,23 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from robot_server import RobotModel
 from robot_server.control import QUINTIC_PEAK_VELOCITY
-from simple_message.connection import ConnectionState, Subscription
+from robot_server.kinematics import fk, quaternion_angle, rotation_to_quaternion
+from simple_message.connection import Connection, ConnectionState, Subscription
 from simple_message.constants import (
     CommType,
+    LineResult,
     MotoCommand,
     MotoResult,
     MsgType,
@@ -73,8 +85,11 @@ from simple_message.errors import (
     RequestFailed,
     RequestTimeout,
     SimpleMessageError,
+    UnexpectedReply,
 )
 from simple_message.messages import (
+    CartesianLine,
+    CartesianLineReply,
     JointFeedback,
     JointPosition,
     JointTrajPt,
@@ -84,12 +99,13 @@ from simple_message.messages import (
     MotoMotionReply,
     Ping,
     Status,
+    ToolPose,
 )
 from simple_message.wire import WireFormat
 
 from .trajectory import Trajectory
 
-__all__ = ["RobotDriver", "DriverError", "ExecutionAborted", "JointState", "Mode"]
+__all__ = ["RobotDriver", "DriverError", "ExecutionAborted", "LineRefused", "LineGoal", "JointState", "Mode"]
 
 log = logging.getLogger(__name__)
 
@@ -106,12 +122,65 @@ class DriverError(Exception):
 
 
 class ExecutionAborted(DriverError):
-    """A trajectory execution stopped before the goal; ``confirmed`` is the index of the last point
-    the controller acknowledged (-1: none)."""
+    """A trajectory execution (or a series of straight lines) stopped before the goal;
+    ``confirmed`` is the index of the last point (line) the controller acknowledged (-1: none)."""
 
-    def __init__(self, message: str, confirmed: int) -> None:
-        super().__init__(f"{message} (last point confirmed by the controller: {confirmed})")
+    def __init__(self, message: str, confirmed: int, *, what: str = "point") -> None:
+        super().__init__(f"{message} (last {what} confirmed by the controller: {confirmed})")
         self.confirmed = confirmed
+
+
+#: what each refusal of a straight line means (docs/protocol.md, CARTESIAN_LINE's reply)
+LINE_REFUSALS = {
+    LineResult.NOT_READY: "the robot cannot move",
+    LineResult.BUSY: "a joint trajectory is under way",
+    LineResult.INVALID: "a field is out of bounds",
+    LineResult.SEQUENCE: "a sequence number the controller does not accept",
+    LineResult.UNREACHABLE: "the target, or a point of the line, is out of reach",
+    LineResult.SINGULAR: "it passes a singularity",
+    LineResult.JOINT_LIMIT: "it would take a joint past its limits",
+    LineResult.WORKSPACE: "it leaves the allowed workspace",
+    LineResult.TCP_SPEED: "the speed is more than the controller allows",
+}
+
+
+def line_reason(result: int) -> str:
+    """A CARTESIAN_LINE reply's result, named and explained: ``SINGULAR (it passes a singularity)``."""
+    try:
+        name = LineResult(result)
+    except ValueError:
+        return f"result {result} (not a known LineResult)"
+    meaning = LINE_REFUSALS.get(name)
+    return f"{name.name} ({meaning})" if meaning else name.name
+
+
+class LineRefused(ExecutionAborted):
+    """The controller refused straight line ``line`` with ``result`` (a :class:`LineResult`):
+    nothing of it ran, nothing after it was sent, and the lines before it were stopped."""
+
+    def __init__(self, line: int, result: int, confirmed: int, why: str = "") -> None:
+        super().__init__(
+            f"the controller refused line {line}: {line_reason(result)}{f'; {why}' if why else ''}",
+            confirmed,
+            what="line",
+        )
+        self.line = line
+        self.result = result
+
+
+class LineGoal(NamedTuple):
+    """Where a straight line ends: the TCP position (m, in the controller's cell frame) and
+    orientation, a unit quaternion ``(w, x, y, z)`` (w first, as ``robot_server.kinematics``; the
+    wire's CARTESIAN_LINE has x y z w)."""
+
+    position: ArrayLike
+    orientation: ArrayLike
+
+    @classmethod
+    def from_pose(cls, pose: ArrayLike) -> LineGoal:
+        """The goal of a 4x4 homogeneous pose (a planner's, :func:`robot_server.kinematics.fk`'s)."""
+        t = np.asarray(pose, dtype=float)
+        return cls(t[:3, 3].copy(), rotation_to_quaternion(t))
 
 
 class _NotSent(DriverError):
@@ -120,6 +189,10 @@ class _NotSent(DriverError):
 
 class _InFlight(DriverError):
     """The motion connection dropped while a request awaited its reply: the controller may have it."""
+
+
+class _LineInFlight(ExecutionAborted):
+    """A line got no reply (lost connection, timeout): the controller may have it, so stop."""
 
 
 @dataclass(frozen=True)
@@ -154,6 +227,8 @@ class RobotDriver:
         serial: str | None = None,
         resume: bool = False,
         check_limits: bool = True,
+        tcp_tolerance: float = 0.001,
+        orientation_tolerance: float = 0.01,
     ) -> None:
         #: the controller family (its ports, byte order, reply rule, how motion is commanded)
         self.dialect = dialect(profile) if isinstance(profile, str) else profile
@@ -172,6 +247,9 @@ class RobotDriver:
         #: refuse a trajectory beyond the model's position or speed limits before sending it (off:
         #: to see what a controller does with points it must refuse, e.g. a conformance test)
         self.check_limits = check_limits
+        #: :meth:`move_lines` is done when the actual TCP is this close to the last target (m, rad)
+        self.tcp_tolerance = tcp_tolerance
+        self.orientation_tolerance = orientation_tolerance
         policy = ReconnectPolicy(initial_delay=0.1, max_delay=2.0)
         self.serial = serial
         if serial is not None:  # one link carries motion and state (robot-server --serial)
@@ -193,6 +271,14 @@ class RobotDriver:
         self._status: Status | None = None
         self._changed = asyncio.Event()
         self._reader: asyncio.Task[None] | None = None
+        #: every joint-state sample and TOOL_POSE sets it (waits for "this, or so many rounds")
+        self._activity = asyncio.Event()
+        self._samples = 0
+        self._tool_poses: dict[int, ToolPose] = {}
+        self._tool_wanted = False
+        self._tool_asked_on: Connection | None = None
+        #: supports_lines' answer and the motion connection it holds for (None: for the driver's life)
+        self._lines: tuple[Connection | None, bool] | None = None
 
     # -- lifecycle ---------------------------------------------------------------------------------
 
@@ -203,7 +289,13 @@ class RobotDriver:
         try:
             # whatever joint-state topic the peer sends (its dialect's state_topics, or another: a
             # generic peer may send JOINT_FEEDBACK, a MotoROS look-alike JOINT_POSITION)
-            topics = {*self.dialect.state_topics, MsgType.JOINT_POSITION, MsgType.JOINT_FEEDBACK, MsgType.STATUS}
+            topics = {
+                *self.dialect.state_topics,
+                MsgType.JOINT_POSITION,
+                MsgType.JOINT_FEEDBACK,
+                MsgType.STATUS,
+                MsgType.TOOL_POSE,  # only if asked for (subscribe_tool_pose)
+            }
             subscription = self.state.subscribe(64, topics)
             clients = [self.motion] if motion or self.state is self.motion else []
             if self.state is not self.motion:
@@ -272,6 +364,12 @@ class RobotDriver:
         0.2 ms apart, and rates read high)."""
         feedback = False
         async for msg in subscription:
+            if self._tool_wanted and self.state.connection is not self._tool_asked_on:
+                self._ask_tool_pose()  # a new state connection: the controller forgot who asked
+            if isinstance(msg, ToolPose):
+                self._tool_poses[msg.robot_id] = msg
+                self._wake_activity()
+                continue
             if isinstance(msg, Status):
                 changed = msg != self._status
                 self._status = msg
@@ -292,6 +390,12 @@ class RobotDriver:
                 continue
             self._changed.set()
             self._changed = asyncio.Event()
+            self._samples += 1
+            self._wake_activity()
+
+    def _wake_activity(self) -> None:
+        self._activity.set()
+        self._activity = asyncio.Event()
 
     def _positions(self, values: tuple[float, ...]) -> Array:
         dof = self.model.dof if self.model is not None else len(values)
@@ -304,6 +408,47 @@ class RobotDriver:
     @property
     def status(self) -> Status | None:
         return self._status
+
+    @property
+    def tool_pose(self) -> ToolPose | None:
+        """The latest TOOL_POSE of motion group 0 (None until one arrives: only after
+        :meth:`subscribe_tool_pose`, and only from a controller that has the extension)."""
+        return self._tool_poses.get(0)
+
+    def tool_pose_of(self, group: int) -> ToolPose | None:
+        """The latest TOOL_POSE of motion group ``group`` (None until one arrives)."""
+        return self._tool_poses.get(group)
+
+    async def subscribe_tool_pose(self, *, wait: bool = True, rounds: int = 3) -> ToolPose | None:
+        """Ask the controller for TOOL_POSE (this project's extension, docs/protocol.md: the actual
+        TCP pose and speed each state round) by sending one TOOL_POSE on the state connection,
+        and again after each reconnection. A TOPIC: a controller that does not know it ignores it,
+        and :attr:`tool_pose` stays None.
+
+        With ``wait``, returns the first TOOL_POSE if it comes within ``rounds`` joint-state
+        samples after asking (a controller that has the extension sends it with the next round)
+        or the watchdog period, else None; without, returns at once what is known."""
+        self._tool_wanted = True
+        if self.state.connection is not self._tool_asked_on:
+            self._ask_tool_pose()
+        pose = self.tool_pose
+        if not wait or pose is not None:
+            return pose
+        start = self._samples
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(self.watchdog):
+                while self.tool_pose is None and self._samples - start < rounds:
+                    await self._activity.wait()
+        return self.tool_pose
+
+    def _ask_tool_pose(self) -> None:
+        """Send the TOOL_POSE request on the state connection as it is now (if it is up)."""
+        connection = self.state.connection
+        if connection is None or connection.closed or self.state.state is not ConnectionState.CONNECTED:
+            return  # asked again once a state message arrives on the next connection
+        if connection.send_nowait(ToolPose()):
+            self._tool_asked_on = connection
+            log.debug("TOOL_POSE requested on %s", self.state.name)
 
     async def wait_state(self, timeout: float | None = None) -> JointState:
         """The next joint state (within ``timeout``, default the watchdog period)."""
@@ -374,6 +519,247 @@ class RobotDriver:
             except RequestFailed:
                 raise DriverError("the controller answered FAILURE to STOP") from None
         log.info("stop sent")
+
+    # -- straight lines run by the controller (CARTESIAN_LINE, this project's extension) -----------
+
+    async def supports_lines(self) -> bool:
+        """Whether the controller runs straight lines itself (CARTESIAN_LINE, docs/protocol.md).
+
+        The probe is a CARTESIAN_LINE STOP (sequence -4): harmless for a robot at rest, but a stop
+        all the same, so ask only as the motion client about to move. Only a CARTESIAN_LINE reply
+        (type 65000, SERVICE_REPLY, its 12-byte body) means yes, whatever its result; anything
+        else means no: the C++ library's header-only FAILURE, MotoROS's MOTO_MOTION_REPLY, a reply
+        that does not decode, no reply within ``min(reply_timeout, 1)`` s (the link is then reset,
+        as for any lost reply, and the answer kept for the driver's life). The answer is kept for
+        the motion connection it was found on."""
+        cached = self._lines
+        if cached is not None and (cached[0] is None or cached[0] is self.motion.connection):
+            return cached[1]
+        await self._motion_up()
+        connection = self.motion.connection
+        timeout = min(self.reply_timeout, 1.0)
+        reply: object
+        try:
+            reply = await self.motion.request(CartesianLine(0, SpecialSeq.STOP_TRAJECTORY), timeout)
+        except RequestFailed as exc:
+            reply = exc.reply  # a refused STOP is still a CARTESIAN_LINE reply; a header-only one is not
+        except UnexpectedReply as exc:
+            reply = exc.reply  # another type, or a body no layout fits: the link stays aligned
+        except RequestTimeout:
+            if connection is not None:
+                log.warning("no reply to the CARTESIAN_LINE probe within %s s: resetting the motion link", timeout)
+                await connection.close()
+            log.info("%s: no reply to CARTESIAN_LINE: no straight-line motion", self.motion.name)
+            self._lines = (None, False)
+            return False
+        except NotConnected as exc:
+            raise DriverError(f"motion connection down: {exc}") from None
+        except ConnectionClosed as exc:
+            raise DriverError(f"motion connection lost while asking for straight lines: {exc}") from None
+        supported = isinstance(reply, CartesianLineReply) and reply.comm_type == CommType.SERVICE_REPLY
+        log.info(
+            "%s: %s",
+            self.motion.name,
+            "runs CARTESIAN_LINE"
+            if supported
+            else f"no CARTESIAN_LINE (answered {getattr(reply, 'name', None) or type(reply).__name__})",
+        )
+        self._lines = (connection, supported)
+        return supported
+
+    async def _motion_up(self) -> None:
+        """Wait (bounded) for the motion link if it is being re-established, e.g. after a reset."""
+        if self.motion.state is not ConnectionState.CONNECTED:
+            try:
+                await self.motion.wait_for(ConnectionState.CONNECTED, self.reply_timeout)
+            except (TimeoutError, ConnectionClosed):
+                raise DriverError(f"the motion link to {self.address} is down") from None
+
+    async def move_lines(
+        self, targets: Sequence[LineGoal], *, speed: float, blend_radius: float = 0.0, group: int = 0
+    ) -> ToolPose:
+        """Move the TCP of motion group ``group`` along straight lines through ``targets``, each
+        line run by the controller (CARTESIAN_LINE, sequence 0, 1, ...) at the TCP ``speed`` (m/s),
+        rounding each corner within ``blend_radius`` (m; 0: exact stops), and wait until the
+        robot has run them: STATUS in_motion FALSE after it moved, and the actual TCP within
+        :attr:`tcp_tolerance` and :attr:`orientation_tolerance` of the last target. The actual
+        TCP is the controller's TOOL_POSE (subscribed here), or, from a controller that does not
+        send it, the forward kinematics of the joint state (group 0, with a model). Returns the
+        final TOOL_POSE.
+
+        Raises :class:`DriverError` for bad targets or a controller without the extension
+        (:meth:`supports_lines`, nothing sent then), :class:`LineRefused` naming the
+        :class:`LineResult` when the controller refuses a line (nothing after it is sent), and
+        :class:`ExecutionAborted` as :meth:`execute` does (an alarm or e-stop, a lost connection,
+        a robot standing still short of the goal, no goal in time). Once a line has been
+        accepted, any failure (and a cancellation) sends a STOP before raising."""
+        goals = _line_goals(targets)
+        if not (math.isfinite(speed) and speed > 0.0):
+            raise DriverError(f"the TCP speed must be a number > 0, not {speed}")
+        if not (math.isfinite(blend_radius) and blend_radius >= 0.0):
+            raise DriverError(f"the blend radius must be a number >= 0, not {blend_radius}")
+        if group < 0:
+            raise DriverError(f"no motion group {group}")
+        await self.wait_state()
+        await self._motion_up()
+        if not await self.supports_lines():
+            raise DriverError(
+                f"the controller at {self.address} has no straight-line motion (it does not answer CARTESIAN_LINE)"
+            )
+        await self.subscribe_tool_pose()
+        start = self._tcp(group, self._latest)
+        if start is None:
+            raise DriverError(
+                "cannot tell where the TCP is: the controller sends no TOOL_POSE and the driver has no robot model"
+            )
+        confirmed, pending = -1, False
+        try:
+            for k, (position, orientation) in enumerate(goals):
+                (px, py, pz), (w, x, y, z) = position.tolist(), orientation.tolist()
+                line = CartesianLine(group, k, px, py, pz, x, y, z, w, speed, blend_radius)
+                pending = True
+                try:
+                    reply = await self._send_line(k, line, confirmed)
+                except ExecutionAborted as exc:
+                    pending = isinstance(exc, _LineInFlight)  # else answered (refused) or never sent
+                    raise
+                pending = False
+                if not isinstance(reply, CartesianLineReply) or reply.result != LineResult.ACCEPTED:
+                    raise ExecutionAborted(f"line {k} answered with {reply.name}", confirmed, what="line")
+                confirmed = k
+            return await self._wait_lines(group, start, goals, speed, confirmed)
+        except (asyncio.CancelledError, ExecutionAborted):
+            if confirmed >= 0 or pending:
+                await self._stop_lines_quietly(group)
+            raise
+
+    async def _send_line(self, k: int, line: CartesianLine, confirmed: int) -> Message:
+        """Send line ``k`` and return its reply; a refusal or a failure to send raises."""
+        try:
+            return await self._request(line)
+        except RequestFailed as exc:
+            reply = exc.reply
+            if isinstance(reply, CartesianLineReply):
+                why = await self._why_now() if reply.result == LineResult.NOT_READY else ""
+                raise LineRefused(k, reply.result, confirmed, why) from None
+            name = getattr(reply, "name", type(reply).__name__)
+            raise ExecutionAborted(f"line {k} answered FAILURE ({name})", confirmed, what="line") from None
+        except UnexpectedReply as exc:
+            raise ExecutionAborted(f"line {k}: {exc}", confirmed, what="line") from None
+        except _NotSent as exc:
+            raise ExecutionAborted(f"{exc}; line {k} was never sent", confirmed, what="line") from None
+        except _InFlight as exc:
+            raise _LineInFlight(
+                f"{exc} with line {k} awaiting its reply: the controller may or may not have it", confirmed, what="line"
+            ) from None
+        except DriverError as exc:  # no reply in time (the link is reset): the controller may have it
+            raise _LineInFlight(f"line {k}: {exc}", confirmed, what="line") from None
+
+    async def _stop_lines_quietly(self, group: int) -> None:
+        """A CARTESIAN_LINE STOP after an abort (the plain STOP if that fails); bounded, never raises."""
+
+        async def stop() -> None:
+            if self.motion.state is not ConnectionState.CONNECTED:
+                await self.motion.wait_for(ConnectionState.CONNECTED, self.reply_timeout)
+            try:
+                reply = await self._request(CartesianLine(group, SpecialSeq.STOP_TRAJECTORY))
+            except (RequestFailed, UnexpectedReply):
+                reply = None
+            if not isinstance(reply, CartesianLineReply):
+                await self.stop()
+            else:
+                log.info("line stop sent")
+
+        with contextlib.suppress(DriverError, SimpleMessageError, TimeoutError):
+            await asyncio.shield(stop())
+
+    def _tcp(self, group: int, state: JointState | None) -> tuple[Array, Array] | None:
+        """The actual TCP position and orientation ``(w, x, y, z)``: the latest TOOL_POSE, else
+        the forward kinematics of ``state`` (group 0 with a model), else None."""
+        pose = self._tool_poses.get(group)
+        if pose is not None:
+            return np.array([pose.x, pose.y, pose.z]), np.array([pose.qw, pose.qx, pose.qy, pose.qz])
+        if self.model is None or group != 0 or state is None:
+            return None
+        t = fk(self.model, state.positions[: self.model.dof])
+        return t[:3, 3].copy(), rotation_to_quaternion(t)
+
+    async def _wait_lines(
+        self, group: int, start: tuple[Array, Array], goals: list[tuple[Array, Array]], speed: float, confirmed: int
+    ) -> ToolPose:
+        """Wait until the robot has run the lines (see :meth:`move_lines`), as :meth:`_wait_goal`
+        does for a trajectory; the TCP is compared with the last target."""
+        goal_position, goal_orientation = goals[-1]
+
+        def off(pose: tuple[Array, Array], position: Array, orientation: Array) -> tuple[float, float]:
+            return float(np.linalg.norm(pose[0] - position)), quaternion_angle(pose[1], orientation)
+
+        # a rough duration: the lengths at the TCP speed (the turns, accelerations and any slowing
+        # down are the controller's; goal_timeout covers them)
+        corners = np.array([start[0], *(p for p, _ in goals)])
+        length = float(np.sum(np.linalg.norm(np.diff(corners, axis=0), axis=1)))
+        duration = length / speed
+        moves = any(
+            d > self.tcp_tolerance or a > self.orientation_tolerance for d, a in (off(start, p, q) for p, q in goals)
+        )
+        sent = time.monotonic()
+        deadline = sent + duration + self.goal_timeout
+        stalled_since: float | None = None
+        seen_moving = False
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise ExecutionAborted("the robot did not reach the last line's end in time", confirmed, what="line")
+            try:
+                state = await self.wait_state(min(self.watchdog, remaining))
+            except DriverError:
+                if remaining < self.watchdog:
+                    raise ExecutionAborted(
+                        "the robot did not reach the last line's end in time", confirmed, what="line"
+                    ) from None
+                raise ExecutionAborted(self._no_state(), confirmed, what="line") from None
+            status = state.status
+            if status is not None and status.in_error == TriState.TRUE:
+                raise ExecutionAborted(f"the controller is in error (code {status.error_code})", confirmed, what="line")
+            if status is not None and (status.e_stopped == TriState.TRUE or status.drives_powered == TriState.FALSE):
+                raise ExecutionAborted(f"the robot stopped: {self._why()}", confirmed, what="line")
+            tcp = self._tcp(group, state)
+            if tcp is None:  # TOOL_POSE came and went? (a group without it): nothing to compare yet
+                continue
+            distance, angle = off(tcp, goal_position, goal_orientation)
+            at_goal = distance <= self.tcp_tolerance and angle <= self.orientation_tolerance
+            away, turned = off(tcp, *start)
+            if (status is not None and status.in_motion == TriState.TRUE) or (
+                away > self.tcp_tolerance or turned > self.orientation_tolerance
+            ):
+                seen_moving = True
+            waited = time.monotonic() - sent
+            ran = seen_moving or not moves or waited > duration + self.stall_timeout
+            if at_goal and ran and status is not None and status.in_motion != TriState.TRUE:
+                if status.in_motion == TriState.UNKNOWN:
+                    log.warning("the lines' end reached, but the controller reports in_motion UNKNOWN")
+                return self._final_pose(group, tcp, state)
+            if not at_goal and status is not None and status.in_motion == TriState.FALSE:
+                now = time.monotonic()
+                if stalled_since is None:
+                    stalled_since = now
+                elif now - stalled_since > self.stall_timeout:
+                    raise ExecutionAborted(
+                        f"the robot stands still {distance * 1000:.3g} mm and {angle:.3g} rad from the last line's "
+                        f"end (in_motion FALSE for {self.stall_timeout} s): the controller dropped or stopped the "
+                        f"lines{f': {self._why()}' if self._faulted() else ''}",
+                        confirmed,
+                        what="line",
+                    )
+            else:
+                stalled_since = None
+
+    def _final_pose(self, group: int, tcp: tuple[Array, Array], state: JointState) -> ToolPose:
+        pose = self._tool_poses.get(group)
+        if pose is not None:
+            return pose
+        (x, y, z), (qw, qx, qy, qz) = tcp[0].tolist(), tcp[1].tolist()
+        return ToolPose(group, 0, state.received, x, y, z, qx, qy, qz, qw, 0.0)
 
     # -- execution ---------------------------------------------------------------------------------
 
@@ -680,6 +1066,30 @@ def _in_flight(k: int, exc: DriverError) -> str:
         f"{exc} with point {k} awaiting its reply: the controller may or may not have it, so it is not "
         "resent (that could repeat it)"
     )
+
+
+def _line_goals(targets: Sequence[LineGoal]) -> list[tuple[Array, Array]]:
+    """The targets as (position, unit quaternion w x y z) arrays; a quaternion within 1e-3 of
+    unit length is normalised, anything else refused (DriverError) before anything is sent."""
+    goals = []
+    for k, target in enumerate(targets):
+        try:
+            position, orientation = target
+            p = np.asarray(position, dtype=float).reshape(3)
+            q = np.asarray(orientation, dtype=float).reshape(4)
+        except (TypeError, ValueError):
+            raise DriverError(
+                f"line {k}: a target is a position (x, y, z) and a quaternion (w, x, y, z), not {target!r}"
+            ) from None
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+            raise DriverError(f"line {k}: the target is not finite")
+        norm = float(np.linalg.norm(q))
+        if abs(norm - 1.0) > 1e-3:
+            raise DriverError(f"line {k}: the orientation is not a unit quaternion (norm {norm:.6g})")
+        goals.append((p, q / norm))
+    if not goals:
+        raise DriverError("no line to move along (give at least one target)")
+    return goals
 
 
 def _differences(trajectory: Trajectory) -> Array:

@@ -407,7 +407,8 @@ async def test_demo_runs_the_rectangle_on_a_controller_that_answers(tmp_path: Pa
     assert f"a controller answers at 127.0.0.1:{ports[1]}: running the rectangle there" in out
     assert len(points) > 11  # the approach, then the rectangle's waypoints
     row = next(line.split() for line in out.splitlines() if line.startswith("controller's own"))
-    assert len(row) == 8 and row[-1] == "n/a"  # no following error from joint states alone
+    assert len(row) == 9 and row[-1] == "n/a"  # no following error from joint states alone
+    assert "controller MOVL: skipped" in out  # the fake does not answer CARTESIAN_LINE
     lines = (tmp_path / "demo_controller.csv").read_text().splitlines()
     assert lines[0].startswith("time,") and len(lines) > 4
 
