@@ -146,7 +146,7 @@ DATA = ROOT / "tests" / "data"
 HEADER = 16  # length prefix + msg_type + comm_type + reply_code
 MAX_LENGTH = 64 * 1024  # the server's default largest length prefix (simple_message.framing)
 PING = 1
-MOTION_TYPES = frozenset({11, 12, 14, 2001, 2016, 65000})  # 65000: the project's CARTESIAN_LINE
+MOTION_TYPES = frozenset({11, 12, 14, 2001, 2016, 65001})  # 65001: the project's CARTESIAN_LINE
 #: MotoROS closes its motion connection on these (§8.1): sent rarely there, or every frame would
 #: cost a reconnection
 MOTOROS_CLOSING = frozenset({13, 15, 2002, 2017})
@@ -172,11 +172,11 @@ LAYOUTS: dict[int, tuple[str, str]] = {
     2017: ("i" + "2i31r" * 4, "i" + "2i31r" * 4),
     2018: ("3i", "3i"),
     2020: ("", "128r"),
-    65001: ("2i9r", "2i9r"),  # the project's TOOL_POSE (its subscription on the state port)
+    65002: ("2i9r", "2i9r"),  # the project's TOOL_POSE (its subscription on the state port)
 }
 KNOWN_TYPES = tuple(sorted(set(LAYOUTS) | MOTION_TYPES))
 UNKNOWN_TYPES: tuple[int, ...] = (0, -1, 3, 9, 16, 17, 19, 20, 21, 22, 999, 1000, 1300, 1400, 2000, 2014, 2015)
-UNKNOWN_TYPES += (2019, 2021, 3000, 65002, 65535, 65536, 2**31 - 1, -(2**31))
+UNKNOWN_TYPES += (2019, 2021, 3000, 65003, 65535, 65536, 2**31 - 1, -(2**31))
 MOTO_COMMANDS = range(200100, 200200)  # every MOTO_MOTION_CTRL command MotoROS has, and spares
 #: a position is plausible when finite and at most this far from zero (rad or m)
 PLAUSIBLE = 1e3
@@ -263,7 +263,7 @@ def _motion_body_reason(msg_type: int, body: bytes, order: str) -> str | None:
                     return f"sequence -4 (STOP) at body offset {off}"
                 if _plausible(real(body, off + 12 + r)[0]):
                     return f"plausible position 0 (float{8 * r}, body offset {off})"
-        elif msg_type == 65000:  # robot_id, sequence, x, y, z, ...
+        elif msg_type == 65001:  # robot_id, sequence, x, y, z, ...
             size = 8 + 9 * r
             for off in _alignments(n, size):
                 if integer(body, off + 4)[0] == -4:
@@ -602,7 +602,7 @@ class Generator:
         I4 = _INT[order]
         if how == "all" or msg_type == 12:
             size = {11: 4 + 12 * real, 12: rng.choice((0, 4, 20, 56, 4 + 52, 108, 524)), 14: 12 + 31 * real}
-            size |= {2001: 12 + 10 * real, 2016: 8 + rng.randint(1, 4) * (8 + 31 * real), 65000: 8 + 9 * real}
+            size |= {2001: 12 + 10 * real, 2016: 8 + rng.randint(1, 4) * (8 + 31 * real), 65001: 8 + 9 * real}
             return poison_bytes(rng, size[msg_type])
 
         def reals(count: int) -> bytes:
@@ -623,7 +623,7 @@ class Generator:
             head = I4.pack(rng.choice((0, 0, 1, 3, -1, 4))) + I4.pack(self._sequence())
             fields = I4.pack(rng.choice((0x07, 0x0F, 0x03, 0x02, 0, 0x1F, -1)))
             return head + fields + reals(1) + positions() + reals(20)
-        if msg_type == 65000:  # robot_id, sequence, x (poisoned), then y ... blend radius
+        if msg_type == 65001:  # robot_id, sequence, x (poisoned), then y ... blend radius
             head = I4.pack(rng.choice((0, 0, 1, -1, 4))) + I4.pack(self._sequence())
             return head + (self._poison(1, order, real) if how != "bytes" else poison_bytes(rng, real)) + reals(8)
         if msg_type == 2001:
@@ -662,7 +662,7 @@ class Generator:
         for the layouts of the motion types."""
         order = self.order
         msg_type = _INT[order].unpack_from(frame, 4)[0]
-        ints = {11: 4, 14: 12, 2001: 12, 2016: 8, 65000: 8}.get(msg_type, 0)
+        ints = {11: 4, 14: 12, 2001: 12, 2016: 8, 65001: 8}.get(msg_type, 0)
         body = frame[HEADER:]
         return frame[:HEADER] + body[:ints] + poison_bytes(self.rng, len(body) - ints)
 

@@ -527,7 +527,7 @@ class RobotDriver:
 
         The probe is a CARTESIAN_LINE STOP (sequence -4): harmless for a robot at rest, but a stop
         all the same, so ask only as the motion client about to move. Only a CARTESIAN_LINE reply
-        (type 65000, SERVICE_REPLY, its 12-byte body) means yes, whatever its result; anything
+        (type 65001, SERVICE_REPLY, its 12-byte body) means yes, whatever its result; anything
         else means no: the C++ library's header-only FAILURE, MotoROS's MOTO_MOTION_REPLY, a reply
         that does not decode, no reply within ``min(reply_timeout, 1)`` s (the link is then reset,
         as for any lost reply, and the answer kept for the driver's life). The answer is kept for

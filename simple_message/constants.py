@@ -4,7 +4,7 @@ Values come from the reference C++ library (``simple_message.h``, ``joint_traj_p
 ``robot_status.h``), REP-I0004/I0006 and the Yaskawa MotoROS sources; see
 ``simple-message.md`` §2.1, §3, §4.1, §5 and §8.1. The project's own extension messages
 (CARTESIAN_LINE, TOOL_POSE and :class:`LineResult`) use numbers of the range REP-I0004 leaves
-freely assignable (65000-65535); ``docs/protocol.md`` describes them. No other module of the
+freely assignable (65001-65535); ``docs/protocol.md`` describes them. No other module of the
 project writes a protocol number as a literal.
 """
 
@@ -50,7 +50,7 @@ class MsgType(IntEnum):
     extensions).
 
     This enum names the numbers of the standard and MotoROS messages and of this project's two
-    extension messages (CARTESIAN_LINE and TOOL_POSE, in the freely assignable range 65000-65535)
+    extension messages (CARTESIAN_LINE and TOOL_POSE, in the freely assignable range 65001-65535)
     only. Which class decodes a number is the message registry's business
     (:func:`simple_message.messages.register`): a vendor message set registers its own numbers and
     names without being added here, and :func:`simple_message.messages.type_name` names any number,
@@ -89,14 +89,14 @@ class MsgType(IntEnum):
     SELECT_TOOL = 2018
     GET_DH_PARAMETERS = 2020
 
-    # This project's extensions. REP-I0004 leaves 65000-65535 freely assignable: no vendor block
-    # and no REP number lives there (1000-2999 are the vendor blocks, 3000-64999 are reserved).
+    # This project's extensions. REP-I0004 leaves 65001-65535 freely assignable: no vendor block
+    # and no REP number lives there (1000-2999 are the vendor blocks, 3000-65000 are reserved).
     # A peer that does not know them answers FAILURE or its own "unknown type" reply (docs/protocol.md).
     #: A Cartesian straight line of the TCP (request :class:`~.messages.CartesianLine`, reply
     #: :class:`~.messages.CartesianLineReply` with a :class:`LineResult`).
-    CARTESIAN_LINE = 65000
+    CARTESIAN_LINE = 65001
     #: The actual TCP pose, a state-port topic sent only to clients that asked for it.
-    TOOL_POSE = 65001
+    TOOL_POSE = 65002
 
     # Aliases used in the REPs, the C++ library and the MotoROS sources.
     JOINT = 10
@@ -268,7 +268,7 @@ class IoResult(IntEnum):
 
 
 class LineResult(IntEnum):
-    """``result`` of a CARTESIAN_LINE (65000) reply (a project extension). 0 means accepted, like
+    """``result`` of a CARTESIAN_LINE (65001) reply (a project extension). 0 means accepted, like
     ``MotoResult``; 1-4 refuse the request itself, 10 and up the line's geometry or speed."""
 
     #: The line was accepted: queued, or for sequence -4 the stop was obeyed.

@@ -4,7 +4,7 @@ Each message type is a frozen dataclass whose fields are its body fields in wire
 simple-message.md §2.2 and §8.1, in snake_case), followed by the keyword-only header fields
 ``comm_type`` and ``reply_code``. The class knows its ``MSG_TYPE``; the length prefix is computed.
 Besides the standard and MotoROS messages there are the project's own two extension messages,
-CARTESIAN_LINE (65000) and TOOL_POSE (65001), in the range REP-I0004 leaves freely assignable
+CARTESIAN_LINE (65001) and TOOL_POSE (65002), in the range REP-I0004 leaves freely assignable
 (``docs/protocol.md``, "Project extensions").
 
 Decoding is exact: for every accepted frame, :func:`encode` of the decoded message gives back the
@@ -1134,13 +1134,13 @@ class GetDhParametersReply(Message):
 
 
 # ---------------------------------------------------------------------------------------------
-# Project extensions, in the freely assignable range 65000-65535 of REP-I0004 (docs/protocol.md)
+# Project extensions, in the freely assignable range 65001-65535 of REP-I0004 (docs/protocol.md)
 # ---------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True, slots=True)
 class CartesianLine(Message):
-    """CARTESIAN_LINE (65000) request: move the TCP of ``robot_id`` in a straight line to a pose.
+    """CARTESIAN_LINE (65001) request: move the TCP of ``robot_id`` in a straight line to a pose.
 
     The target is ``x, y, z`` (m, in the cell frame) and the orientation ``qx, qy, qz, qw`` (a unit
     quaternion, Hamilton convention, in the x y z w order of ROS ``geometry_msgs``), reached at the
@@ -1180,7 +1180,7 @@ class CartesianLine(Message):
 
 @dataclass(frozen=True, slots=True)
 class CartesianLineReply(Message):
-    """CARTESIAN_LINE (65000) SERVICE_REPLY: the request's ``robot_id`` and ``sequence`` and the
+    """CARTESIAN_LINE (65001) SERVICE_REPLY: the request's ``robot_id`` and ``sequence`` and the
     outcome ``result`` (:class:`~.constants.LineResult`, 0 = accepted); 12 bytes. The header
     reply_code is SUCCESS when the line was accepted, FAILURE otherwise."""
 
@@ -1195,7 +1195,7 @@ class CartesianLineReply(Message):
 
 @dataclass(frozen=True, slots=True)
 class ToolPose(Message):
-    """TOOL_POSE (65001) topic: the actual TCP pose of ``robot_id`` at controller time ``time`` (s).
+    """TOOL_POSE (65002) topic: the actual TCP pose of ``robot_id`` at controller time ``time`` (s).
 
     ``tool`` is the active tool number (0 = the model's own tool); ``x, y, z`` (m) and ``qx, qy,
     qz, qw`` (unit quaternion, as in :class:`CartesianLine`) are the TCP pose in the cell frame and
@@ -1710,6 +1710,6 @@ register(ReadMRegister, ReadMRegisterReply)
 register(WriteMRegister, WriteMRegisterReply)
 register(GetDhParameters, GetDhParametersReply)
 
-# The project's extensions (65000-65535, freely assignable)
+# The project's extensions (65001-65535, freely assignable)
 register(CartesianLine, CartesianLineReply, converters={"result": LineResult})
 register(ToolPose)

@@ -30,7 +30,7 @@ from tests.stepped import settle, stepped_emulator
 MODEL = load_model("jibot_zxs")
 #: a configuration away from the singularities, the flange pointing down and tilted
 START = (0.0, 0.3, -0.6, 0.0, 0.8, 0.0)
-LINE = 65000
+LINE = 65001
 #: bound of one command in a worker thread (s of wall time)
 COMMAND_TIMEOUT = 60.0
 

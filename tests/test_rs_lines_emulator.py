@@ -1,5 +1,5 @@
 """The project's extensions on the emulator's ports, driven with raw bytes over loopback TCP:
-CARTESIAN_LINE (65000) on the motion port, TOOL_POSE (65001) on the state port for the clients
+CARTESIAN_LINE (65001) on the motion port, TOOL_POSE (65002) on the state port for the clients
 that ask, the supervision of a cell file, and MANUAL mode with motion allowed.
 
 The controller runs on a clock the test advances (tests/stepped.py)."""
@@ -22,7 +22,7 @@ from tests.rawpeer import Frame, RawPeer, status
 from tests.stepped import advance_until, poll, settle, step, stepped_emulator
 
 MODEL = load_model("jibot_zxs")
-LINE, TOOL_POSE, STATUS, JOINT_POSITION, PING = 65000, 65001, 13, 10, 1
+LINE, TOOL_POSE, STATUS, JOINT_POSITION, PING = 65001, 65002, 13, 10, 1
 REQUEST, REPLY, TOPIC = 2, 3, 1
 SUCCESS, FAILURE = 1, 2
 START = (0.0, 0.3, -0.6, 0.0, 0.8, 0.0)

@@ -1,4 +1,4 @@
-"""The project's extension messages CARTESIAN_LINE (65000) and TOOL_POSE (65001).
+"""The project's extension messages CARTESIAN_LINE (65001) and TOOL_POSE (65002).
 
 Expected frames are written with :mod:`struct` here, independently of the codec; then every generic
 path is checked with them: decode and encode in the four wire formats, the reply class chosen by
@@ -71,15 +71,15 @@ def packed(order: str, real: str, head: tuple[int, int, int], ints: int, values:
 
 
 def line_frame(order: str, real: str) -> bytes:
-    return packed(order, real, (65000, 2, 0), 2, LINE_VALUES)
+    return packed(order, real, (65001, 2, 0), 2, LINE_VALUES)
 
 
 def reply_frame(order: str) -> bytes:
-    return packed(order, "f", (65000, 3, 2), 3, (1, 3, 11))
+    return packed(order, "f", (65001, 3, 2), 3, (1, 3, 11))
 
 
 def pose_frame(order: str, real: str) -> bytes:
-    return packed(order, real, (65001, 1, 0), 2, POSE_VALUES)
+    return packed(order, real, (65002, 1, 0), 2, POSE_VALUES)
 
 
 # -- numbers and names --------------------------------------------------------------------------
@@ -87,11 +87,11 @@ def pose_frame(order: str, real: str) -> bytes:
 
 def test_the_numbers_are_in_the_freely_assignable_range() -> None:
     for member in (MsgType.CARTESIAN_LINE, MsgType.TOOL_POSE):
-        assert 65000 <= member <= 65535
+        assert 65001 <= member <= 65535
         assert member > max(VendorRange) + 99  # beyond every vendor block
-    assert (int(MsgType.CARTESIAN_LINE), int(MsgType.TOOL_POSE)) == (65000, 65001)
-    assert MsgType(65000).name == "CARTESIAN_LINE" and MsgType(65001).name == "TOOL_POSE"
-    assert (CartesianLine.MSG_TYPE, CartesianLineReply.MSG_TYPE, ToolPose.MSG_TYPE) == (65000, 65000, 65001)
+    assert (int(MsgType.CARTESIAN_LINE), int(MsgType.TOOL_POSE)) == (65001, 65002)
+    assert MsgType(65001).name == "CARTESIAN_LINE" and MsgType(65002).name == "TOOL_POSE"
+    assert (CartesianLine.MSG_TYPE, CartesianLineReply.MSG_TYPE, ToolPose.MSG_TYPE) == (65001, 65001, 65002)
 
 
 def test_line_result_codes() -> None:
@@ -118,18 +118,18 @@ def test_the_classes_are_exported() -> None:
 
 
 def test_registry_names_and_classes() -> None:
-    assert type_name(65000) == "CARTESIAN_LINE" and type_name(65001) == "TOOL_POSE"
-    assert type_for_name("cartesian_line") == 65000 and type_for_name("Tool_Pose") == 65001
-    line = lookup(65000)
+    assert type_name(65001) == "CARTESIAN_LINE" and type_name(65002) == "TOOL_POSE"
+    assert type_for_name("cartesian_line") == 65001 and type_for_name("Tool_Pose") == 65002
+    line = lookup(65001)
     assert line is not None and (line.name, line.request, line.reply) == (
         "CARTESIAN_LINE",
         CartesianLine,
         CartesianLineReply,
     )
     assert line.converters["result"][11] is LineResult.SINGULAR
-    pose = lookup(65001)
+    pose = lookup(65002)
     assert pose is not None and (pose.name, pose.request, pose.reply) == ("TOOL_POSE", ToolPose, ToolPose)
-    assert MESSAGE_CLASSES[65000] == (CartesianLine, CartesianLineReply)
+    assert MESSAGE_CLASSES[65001] == (CartesianLine, CartesianLineReply)
     assert LINE.name == REPLY.name == "CARTESIAN_LINE" and POSE.name == "TOOL_POSE"
 
 
@@ -165,19 +165,19 @@ def test_byte_exact_in_every_format(wire: WireFormat, order: str, real: str) -> 
 
 def test_the_two_formats_the_brief_pins_down() -> None:
     """Little-endian float32 and big-endian float64 spelled out, field by field."""
-    le32 = struct.pack("<iiii", 56, 65000, 2, 0) + struct.pack("<ii", 1, 3)
+    le32 = struct.pack("<iiii", 56, 65001, 2, 0) + struct.pack("<ii", 1, 3)
     le32 += struct.pack("<fffffffff", 0.5, -0.25, 0.75, 0.0, 0.0, 0.70703125, 0.70703125, 0.125, 0.015625)
     assert LINE.encode(LE32) == le32 and len(le32) - 16 == 44
-    be64 = struct.pack(">iiii", 92, 65000, 2, 0) + struct.pack(">ii", 1, 3)
+    be64 = struct.pack(">iiii", 92, 65001, 2, 0) + struct.pack(">ii", 1, 3)
     be64 += struct.pack(">ddddddddd", 0.5, -0.25, 0.75, 0.0, 0.0, 0.70703125, 0.70703125, 0.125, 0.015625)
     assert LINE.encode(BE64) == be64 and len(be64) - 16 == 80
-    reply = struct.pack("<iiii", 24, 65000, 3, 2) + struct.pack("<iii", 1, 3, 11)
+    reply = struct.pack("<iiii", 24, 65001, 3, 2) + struct.pack("<iii", 1, 3, 11)
     assert REPLY.encode(LE32) == reply and REPLY.encode(LE64) == reply and len(reply) - 16 == 12
-    assert REPLY.encode(BE64) == struct.pack(">iiii", 24, 65000, 3, 2) + struct.pack(">iii", 1, 3, 11)
-    pose = struct.pack("<iiii", 56, 65001, 1, 0) + struct.pack("<ii", 0, 2)
+    assert REPLY.encode(BE64) == struct.pack(">iiii", 24, 65001, 3, 2) + struct.pack(">iii", 1, 3, 11)
+    pose = struct.pack("<iiii", 56, 65002, 1, 0) + struct.pack("<ii", 0, 2)
     pose += struct.pack("<fffffffff", 12.5, 0.5, -0.25, 0.75, 0.0, 0.0, 0.0, 1.0, 0.0625)
     assert POSE.encode(LE32) == pose and len(pose) - 16 == 44  # 2 int32 + 9 float32
-    pose64 = struct.pack(">iiii", 92, 65001, 1, 0) + struct.pack(">ii", 0, 2)
+    pose64 = struct.pack(">iiii", 92, 65002, 1, 0) + struct.pack(">ii", 0, 2)
     pose64 += struct.pack(">ddddddddd", 12.5, 0.5, -0.25, 0.75, 0.0, 0.0, 0.0, 1.0, 0.0625)
     assert POSE.encode(BE64) == pose64 and len(pose64) - 16 == 80
 
@@ -299,20 +299,20 @@ def test_the_fast_stream_decoder_agrees_with_decode(wire: WireFormat) -> None:
 @pytest.mark.parametrize("wire", WIRES.values(), ids=WIRES.keys())
 def test_the_reply_class_is_chosen_by_comm_type(wire: WireFormat) -> None:
     order = wire.byte_order.struct_char
-    frame = struct.pack(f"{order}4i3i", 24, 65000, 3, 1, 4, 9, 2)
+    frame = struct.pack(f"{order}4i3i", 24, 65001, 3, 1, 4, 9, 2)
     reply = decode(frame, wire)
     assert type(reply) is CartesianLineReply and (reply.robot_id, reply.sequence) == (4, 9)
     assert reply.result is LineResult.BUSY  # the registered converter
     assert reply.comm_type is CommType.SERVICE_REPLY and reply.reply_code is ReplyCode.SUCCESS
-    unmapped = decode(struct.pack(f"{order}4i3i", 24, 65000, 3, 2, 4, 9, 99), wire)
+    unmapped = decode(struct.pack(f"{order}4i3i", 24, 65001, 3, 2, 4, 9, 99), wire)
     assert unmapped.result == 99 and type(unmapped.result) is int  # type: ignore[attr-defined]
     topic = decode(encode(CartesianLine(2, 1, comm_type=CommType.TOPIC), wire), wire)
     assert type(topic) is CartesianLine and topic.comm_type is CommType.TOPIC
-    assert message_class(65000) is CartesianLine
-    assert message_class(65000, CommType.TOPIC) is CartesianLine
-    assert message_class(65000, CommType.SERVICE_REPLY) is CartesianLineReply
+    assert message_class(65001) is CartesianLine
+    assert message_class(65001, CommType.TOPIC) is CartesianLine
+    assert message_class(65001, CommType.SERVICE_REPLY) is CartesianLineReply
     for comm in (CommType.TOPIC, CommType.SERVICE_REQUEST, CommType.SERVICE_REPLY):
-        assert message_class(65001, comm) is ToolPose
+        assert message_class(65002, comm) is ToolPose
         request = decode(encode(ToolPose(1, comm_type=comm), wire), wire)
         assert type(request) is ToolPose and request.comm_type is comm
 
@@ -327,16 +327,16 @@ def test_bodies_of_the_other_shape_are_malformed() -> None:
     with pytest.raises(MalformedMessage, match="CARTESIAN_LINE SERVICE_REQUEST body of 12 bytes"):
         decode(as_request, LE32)
     with pytest.raises(MalformedMessage, match="TOOL_POSE TOPIC body of 48 bytes"):
-        decode(struct.pack("<4i", 60, 65001, 1, 0) + bytes(48), LE32)  # its body is 44 bytes
+        decode(struct.pack("<4i", 60, 65002, 1, 0) + bytes(48), LE32)  # its body is 44 bytes
 
 
 def test_what_a_controller_without_the_extension_answers() -> None:
     """The C++ library answers an unknown request with a header-only FAILURE: it decodes as such,
     not as a CartesianLineReply, which is how a client tells support from its absence."""
-    refusal = decode(struct.pack("<4i", 12, 65000, 3, 2), LE32)
-    assert isinstance(refusal, HeaderOnly) and refusal.msg_type == 65000 and refusal.reply_code is ReplyCode.FAILURE
+    refusal = decode(struct.pack("<4i", 12, 65001, 3, 2), LE32)
+    assert isinstance(refusal, HeaderOnly) and refusal.msg_type == 65001 and refusal.reply_code is ReplyCode.FAILURE
     assert refusal.name == "CARTESIAN_LINE"
-    opt_in = decode(HeaderOnly(65001, comm_type=CommType.SERVICE_REQUEST, reply_code=0).encode(BE32), BE32)
+    opt_in = decode(HeaderOnly(65002, comm_type=CommType.SERVICE_REQUEST, reply_code=0).encode(BE32), BE32)
     assert isinstance(opt_in, HeaderOnly) and opt_in.msg_type == MsgType.TOOL_POSE  # an empty-body opt-in
 
 
@@ -345,7 +345,7 @@ def test_what_a_controller_without_the_extension_answers() -> None:
 
 @pytest.mark.parametrize("wire", [LE32, BE64], ids=str)
 def test_json_round_trip(wire: WireFormat) -> None:
-    for msg in (LINE, REPLY, POSE, CartesianLineReply(0, 0, 99), HeaderOnly(65000, reply_code=ReplyCode.FAILURE)):
+    for msg in (LINE, REPLY, POSE, CartesianLineReply(0, 0, 99), HeaderOnly(65001, reply_code=ReplyCode.FAILURE)):
         obj = json.loads(json.dumps(message_to_json(msg, wire.real_size)))
         assert obj["msg_type"] == msg.msg_type and obj["name"] == msg.name
         back = message_from_json(obj)
@@ -356,7 +356,7 @@ def test_json_round_trip(wire: WireFormat) -> None:
 def test_json_form_and_names() -> None:
     obj = message_to_json(REPLY)
     assert obj == {
-        "msg_type": 65000,
+        "msg_type": 65001,
         "name": "CARTESIAN_LINE",
         "comm_type": 3,
         "reply_code": 2,
@@ -414,7 +414,7 @@ def test_cli_decodes_them_by_name(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert err == ""
     line, reply, pose = (json.loads(text) for text in out.splitlines())
     assert line == {
-        "msg_type": 65000,
+        "msg_type": 65001,
         "name": "CARTESIAN_LINE",
         "comm_type": 2,
         "reply_code": 0,
@@ -437,7 +437,7 @@ def test_cli_decodes_them_by_name(tmp_path: Path, capsys: pytest.CaptureFixture[
     }
     assert reply["name"] == "CARTESIAN_LINE" and reply["body"] == {"robot_id": 1, "sequence": 3, "result": 11}
     assert reply["names"]["result"] == "SINGULAR" and reply["label"] == "REPLY"
-    assert pose["name"] == "TOOL_POSE" and pose["msg_type"] == 65001 and pose["body"]["time"] == 12.5
+    assert pose["name"] == "TOOL_POSE" and pose["msg_type"] == 65002 and pose["body"]["time"] == 12.5
 
 
 @pytest.mark.parametrize(("order", "real"), [("big", "d"), ("little", "d"), ("big", "f")])

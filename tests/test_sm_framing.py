@@ -222,7 +222,7 @@ def test_feed_messages_is_feed_and_decode_in_every_wire_format(wire: WireFormat)
         JointFeedback(0, 0x0E, 1.5, q, q, q),
         JointFeedback(0, 0x0E, 1.5, q, q, q),
         Ping(),
-        RawMessage(65500, b"\x01\x02\x03", comm_type=1),  # an unknown type (65000/65001 are the extensions)
+        RawMessage(65500, b"\x01\x02\x03", comm_type=1),  # an unknown type (65001/65002 are the extensions)
         JointTraj([TrajPoint(0, q, 0.5, 1.0)]),
     ]
     stream = b"".join(encode(m, wire) for m in msgs) * 3

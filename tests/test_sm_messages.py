@@ -236,7 +236,7 @@ def test_dummy_data_reply_of_rep_i0006() -> None:
 
 
 def test_unknown_type_is_raw_and_byte_exact() -> None:
-    frame = RawMessage(65500, b"\x01\x02\x03", comm_type=1).encode(BE32)  # 65000/65001 are the extensions
+    frame = RawMessage(65500, b"\x01\x02\x03", comm_type=1).encode(BE32)  # 65001/65002 are the extensions
     back = decode(frame, BE32)
     assert isinstance(back, RawMessage) and back.body == b"\x01\x02\x03" and back.name == "UNKNOWN"
     assert back.encode(BE32) == frame

@@ -13,7 +13,7 @@
   flow control is possible without replies).
 * STOP (sequence -4): obeyed the moment it is read, ahead of anything queued, also while an
   earlier point waits for room; then acknowledged in order (§10 pitfall 5).
-* CARTESIAN_LINE (65000, this project's extension, docs/protocol.md) as SERVICE_REQUEST: a
+* CARTESIAN_LINE (65001, this project's extension, docs/protocol.md) as SERVICE_REQUEST: a
   straight line of the tool run by the controller (``robot_server.control.cartesian``), streamed
   like JOINT_TRAJ_PT: sequence 0 starts a series, each next line is the last + 1, -4 stops at once
   (braking along the line). Each is answered with a CARTESIAN_LINE reply whose ``result`` says why
@@ -28,7 +28,7 @@ Replies echo the request body (the C++ library's style, the ``generic`` dialect)
 positions, velocities, accelerations of each group, all four valid bits set) goes to every client
 with ``feedback=True``, and otherwise to the clients that ask for it by sending a JOINT_FEEDBACK
 message (any body; as a SERVICE_REQUEST it is answered SUCCESS) on the state port. TOOL_POSE
-(65001, this project's extension: the actual TCP pose and speed of each group, as of the last
+(65002, this project's extension: the actual TCP pose and speed of each group, as of the last
 interpolation instant) goes only to the clients that ask for it the same way, by sending a
 TOOL_POSE: a client that never asks never receives a message it does not know.
 """
