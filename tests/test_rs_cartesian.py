@@ -284,6 +284,61 @@ def test_a_joint_trajectory_that_cuts_a_forbidden_box_is_refused() -> None:
     assert np.allclose(ctl.command.command_position, goal, atol=1e-9)
 
 
+@pytest.mark.parametrize("where", [0.5, 0.75, 0.95])
+@pytest.mark.parametrize("download", [False, True])
+def test_a_thin_plate_anywhere_on_the_way_is_found(where: float, download: bool) -> None:
+    """A 0.8 mm plate across the TCP's way, at full speed (the TCP moves several mm per 4 ms
+    interpolation period): the path is checked in 1 mm steps to the end of its last segment."""
+    goal = np.array(START) + np.array([0.8, 0.0, 0.0, 0.0, 0.0, 0.0])
+    middle = np.array(START) + where * (goal - np.array(START))
+    at = fk(MODEL, middle)[:3, 3]
+    travel = fk(MODEL, middle + np.array([1e-4, 0, 0, 0, 0, 0]))[:3, 3] - at
+    axis = int(np.argmax(np.abs(travel)))
+    lower, upper = at - 0.05, at + 0.05
+    lower[axis], upper[axis] = at[axis] - 0.0004, at[axis] + 0.0004
+    ctl = controller(supervision=Supervision(forbidden=(Box(tuple(lower), tuple(upper), "plate"),)))  # type: ignore[arg-type]
+    first = Point(np.array(START), velocity_ratio=1.0, duration=0.0)
+    last = Point(goal, velocity_ratio=1.0, duration=0.0)
+    with pytest.raises(PointRejected) as info:
+        if download:
+            ctl.start_download(first)
+            ctl.finish_download(last)
+        else:
+            ctl.start(first)
+            ctl.add(last)
+    assert info.value.reason is Reason.WORKSPACE and "'plate'" in str(info.value)
+
+
+@pytest.mark.parametrize(
+    "goal",
+    [
+        (0.8, -0.3, 0.4, 0.5, 0.0, 0.5),
+        (0.29, 0.24, -0.17, 0.63, 0.6, -0.77),
+        (0.283, -0.281, 0.036, -0.366, 0.607, -0.697),
+        (0.217, -0.079, 0.191, -0.49, -0.175, 0.477),
+    ],
+)
+def test_manual_mode_slows_any_joint_move_down_to_the_reduced_speed(goal: tuple[float, ...]) -> None:
+    for download in (False, True):
+        ctl = controller()
+        ctl.manual = True
+        recorder = Recorder(MODEL.dof)
+        target = np.array(START) + np.array(goal)
+        first = Point(np.array(START), velocity_ratio=1.0, duration=0.0)
+        last = Point(target, velocity_ratio=1.0, duration=0.0)
+        if download:
+            ctl.start_download(first)
+            ctl.finish_download(last)
+        else:
+            ctl.start(first)
+            ctl.add(last)
+        run_until_rest(ctl, recorder)
+        assert not ctl.in_error, ctl.error_message
+        tool = recorder.tool()[interpolation_ticks(recorder)]
+        assert float(tool[:, 15].max()) <= 0.25
+        assert np.allclose(ctl.command.command_position, target, atol=1e-9)
+
+
 def test_a_stop_whose_braking_path_enters_a_zone_raises_the_alarm_and_cuts_the_drives() -> None:
     ctl, goal = joint_move([0.8, 0.0, 0.0, 0.0, 0.0, 0.0], 1.0)
     ctl.run_for(0.25)

@@ -40,6 +40,7 @@ at full torque under their own loops) and new points are refused until :meth:`Co
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections.abc import Sequence
@@ -318,11 +319,17 @@ class Controller:
         plan = self.queue.plan(point, first=first, min_scale=min_scale)
         if self.speed_limit is None and not self.supervision.has_zones:
             return plan
+        total, peak = 1.0, math.inf
         for _ in range(_SLOWING_ROUNDS):
             slower = self._supervise_path(*self.queue.path(plan, self.config.interpolation_period))
             if slower is None:
                 return plan
-            plan = self.queue.plan(point, first=first, min_scale=plan.scale * slower)
+            slower, peak = _more(slower, peak)
+            total *= slower
+            if _by_ratio(point):  # its own speed: the queue's time scale would not reach it
+                plan = self.queue.plan(_slowed(point, total), first=first, min_scale=min_scale)
+            else:
+                plan = self.queue.plan(point, first=first, min_scale=plan.scale * slower)
         raise PointRejected(Reason.TCP_SPEED, "the trajectory could not be slowed down to the TCP speed limit")
 
     def commit(self, plan: Plan) -> None:
@@ -385,14 +392,17 @@ class Controller:
             raise PointRejected(Reason.SEQUENCE, "the end of a download that was never started")
         self.add(point)
         points, self._download = self._download, None
-        slower = 1.0
+        slower, peak = 1.0, math.inf
         try:
             for _ in range(_SLOWING_ROUNDS):
                 try:
-                    self.queue.add_all(points, min_scale=slower, check=self._check_download)
+                    slowed = points if slower == 1.0 else [_slowed(p, slower) for p in points]
+                    by_ratio = all(_by_ratio(p) for p in points[1:])
+                    self.queue.add_all(slowed, min_scale=1.0 if by_ratio else slower, check=self._check_download)
                     break
                 except _SlowDown as slow:
-                    slower *= slow.factor
+                    factor, peak = _more(slow.factor, peak)
+                    slower *= factor
             else:
                 raise PointRejected(Reason.TCP_SPEED, "the trajectory could not be slowed down to the TCP speed limit")
         except PointRejected as exc:
@@ -667,6 +677,26 @@ class Controller:
         self.queue.abandon(np.array(actual))
 
 
+def _more(factor: float, last: float) -> tuple[float, float]:
+    """The next slowing factor, from the one the TCP speed asks (peak / limit) and the one the
+    round before asked: a point timed by a velocity ratio on an acceleration-bound move hardly
+    slows down with its ratio, so a round that gained nothing doubles its step."""
+    return (max(factor, 2.0) if factor >= last * 0.99 else factor), factor
+
+
+def _by_ratio(point: Point) -> bool:
+    """A point timed by its velocity ratio (a JOINT_TRAJ_PT with duration 0), not by a time."""
+    return point.velocity_ratio is not None and not (point.duration is not None and point.duration > 0.0)
+
+
+def _slowed(point: Point, factor: float) -> Point:
+    """``point`` asking for ``factor`` times less speed where it is timed by a velocity ratio (a
+    time or a duration is slowed down by the queue's time scale)."""
+    if not _by_ratio(point) or point.velocity_ratio is None:
+        return point
+    return dataclasses.replace(point, velocity_ratio=point.velocity_ratio / factor)
+
+
 class _SlowDown(Exception):
     """A downloaded trajectory must be slowed down by ``factor`` for the TCP speed limit."""
 
@@ -676,7 +706,7 @@ class _SlowDown(Exception):
 
 
 #: how many times a trajectory is slowed down further for the TCP speed limit before it is refused
-_SLOWING_ROUNDS = 6
+_SLOWING_ROUNDS = 10
 
 
 def submit_together(pairs: Sequence[tuple[Controller, Point]], *, first: bool = False) -> None:

@@ -410,14 +410,16 @@ class MotionQueue:
         positions: list[Array] = [self._state.position[None, :]]
         clock = at
         for entry, begin in pieces:
-            left = max(entry.duration - begin, 0.0)
-            local = np.linspace(begin, begin + left, max(2, math.ceil(left / step) + 1))
             segment = entry.segment
             if segment is None:  # not decided yet: as it would be if it started now
                 if entry.end is None:
-                    segment = self._to_rest(entry, []).segment
+                    entry = self._to_rest(entry, [])
+                    segment = entry.segment
                 else:
                     segment = _connect(entry.start, entry.start_order, entry.end, entry.end_order, entry.duration)
+            duration = segment.duration if segment is not None else entry.duration
+            left = max(duration - begin, 0.0)
+            local = np.linspace(begin, begin + left, max(2, math.ceil(left / step) + 1))
             if segment is not None:
                 q = segment.sample(local).position
             else:
