@@ -220,12 +220,6 @@ def parser() -> argparse.ArgumentParser:
         metavar="M/S",
         help=f"with --linear: the tool's speed along the line, > 0 (default: {DEFAULT_TCP_SPEED})",
     )
-    move.add_argument(
-        "--blend",
-        type=float,
-        metavar="M",
-        help="with --linear: the blend radius at the line's end, >= 0 (default: 0, an exact stop)",
-    )
     run = command("run", "execute a trajectory file (.csv or .json)")
     run.add_argument("file", type=Path, metavar="FILE", help="the trajectory file (.csv or .json)")
     run.add_argument("--mode", choices=[m.value for m in Mode], default=Mode.STREAM.value, help=_MODES)
@@ -491,9 +485,7 @@ async def _move_line(driver: RobotDriver, goal: LineGoal, args: argparse.Namespa
     shown = out.isatty()
     task = asyncio.get_running_loop().create_task(progress()) if shown else None
     try:
-        final = await driver.move_lines(
-            [goal], speed=_tcp_speed(args), blend_radius=float(args.blend) if args.blend is not None else 0.0
-        )
+        final = await driver.move_lines([goal], speed=_tcp_speed(args))
     finally:
         if task is not None:
             task.cancel()
@@ -592,12 +584,10 @@ def _check_arguments(args: argparse.Namespace, model: RobotModel) -> None:
         raise ValueError(f"--speed must be in (0, 1], not {args.speed}")
     if args.linear and args.pose is None:
         raise ValueError("--linear needs --pose (a straight line to a pose)")
-    if not args.linear and (args.tcp_speed is not None or args.blend is not None):
-        raise ValueError("--tcp-speed and --blend need --linear")
+    if not args.linear and args.tcp_speed is not None:
+        raise ValueError("--tcp-speed needs --linear")
     if args.tcp_speed is not None and not (math.isfinite(args.tcp_speed) and args.tcp_speed > 0.0):
         raise ValueError(f"--tcp-speed must be > 0 (m/s), not {args.tcp_speed}")
-    if args.blend is not None and not (math.isfinite(args.blend) and args.blend >= 0.0):
-        raise ValueError(f"--blend must be >= 0 (m), not {args.blend}")
     if args.joints is not None and len(args.joints) != model.dof:
         raise ValueError(f"--joints needs {model.dof} values for {model.name}, not {len(args.joints)}")
     if args.pose is not None and len(args.pose) not in (3, 6):

@@ -138,7 +138,7 @@ LINE_REFUSALS = {
     LineResult.SEQUENCE: "a sequence number the controller does not accept",
     LineResult.UNREACHABLE: "the target, or a point of the line, is out of reach",
     LineResult.SINGULAR: "it passes a singularity",
-    LineResult.JOINT_LIMIT: "it would take a joint past its limits",
+    LineResult.JOINT_LIMIT: "it would take a joint past its limits, or the joints cannot follow it",
     LineResult.WORKSPACE: "it leaves the allowed workspace",
     LineResult.TCP_SPEED: "the speed is more than the controller allows",
 }

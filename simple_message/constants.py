@@ -277,7 +277,8 @@ class LineResult(IntEnum):
     NOT_READY = 1
     #: A joint trajectory is under way.
     BUSY = 2
-    #: A bad field: NaN or inf, quaternion norm not 1 within 1e-3, speed <= 0, blend radius < 0, unknown robot_id.
+    #: A bad field: NaN or inf, quaternion norm not 1 within 1e-3, speed <= 0, blend radius < 0, unknown
+    #: robot_id; or no speed profile can be made for the line.
     INVALID = 3
     #: A sequence number the controller does not accept (out of order, or a negative other than -4).
     SEQUENCE = 4
@@ -285,7 +286,7 @@ class LineResult(IntEnum):
     UNREACHABLE = 10
     #: The line passes through or too near a singularity.
     SINGULAR = 11
-    #: The line would take a joint beyond its position limits.
+    #: The line would take a joint beyond its position limits, or the joints cannot follow it.
     JOINT_LIMIT = 12
     #: The line leaves the allowed workspace of the cell.
     WORKSPACE = 13

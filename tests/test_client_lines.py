@@ -263,10 +263,9 @@ async def test_move_linear_says_why_the_controller_refused_the_line(capsys: pyte
     ("argv", "words"),
     [
         (["move", "--joints", *["0"] * 6, "--linear"], "--linear needs --pose"),
-        (["move", "--pose", "0.3", "0", "0.1", "--tcp-speed", "0.1"], "--tcp-speed and --blend need --linear"),
+        (["move", "--pose", "0.3", "0", "0.1", "--tcp-speed", "0.1"], "--tcp-speed needs --linear"),
         (["move", "--pose", "0.3", "0", "0.1", "--linear", "--tcp-speed", "0"], "--tcp-speed must be > 0"),
         (["move", "--pose", "0.3", "0", "0.1", "--linear", "--tcp-speed", "nan"], "--tcp-speed must be > 0"),
-        (["move", "--pose", "0.3", "0", "0.1", "--linear", "--blend", "-0.01"], "--blend must be >= 0"),
     ],
 )
 def test_bad_line_arguments_exit_2_before_connecting(

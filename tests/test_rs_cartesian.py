@@ -132,9 +132,14 @@ def test_a_controller_line_is_straight_and_its_orientation_follows_the_slerp() -
     assert float(error.max()) < 0.05
 
 
-def test_lines_stop_exactly_at_a_corner_unless_blended() -> None:
+@pytest.mark.parametrize(("length", "turn"), [(0.08, 60.0), (0.1, 90.0), (0.12, 90.0), (0.13, 90.0), (0.1, 105.0)])
+def test_lines_stop_exactly_at_a_corner_unless_blended(length: float, turn: float) -> None:
+    """(A corner whose blend would ask more of the joints than they can give is not blended: the
+    cases here are ones it can be.)"""
     p0, r0 = pose_of(START)
-    corner, end = p0 + np.array([0.1, 0.0, 0.0]), p0 + np.array([0.1, 0.1, 0.0])
+    corner = p0 + np.array([length, 0.0, 0.0])
+    end = corner + 0.08 * np.array([math.cos(math.radians(turn)), math.sin(math.radians(turn)), 0.0])
+    period = ControllerConfig().interpolation_period
     for blend in (0.0, 0.02):
         ctl = controller()
         recorder = Recorder(MODEL.dof)
@@ -145,12 +150,20 @@ def test_lines_stop_exactly_at_a_corner_unless_blended() -> None:
         tool = recorder.tool()[rows]
         nearest = int(np.argmin(np.linalg.norm(tool[:, 0:3] - corner, axis=1)))
         gap = float(np.linalg.norm(tool[nearest, 0:3] - corner))
-        if blend == 0.0:  # it stops at the corner (the speed: a central difference over +-4 ms)
-            assert gap < 1e-9 and tool[nearest, 7] < 1e-4
+        if blend == 0.0:  # it stops at the corner, between two interpolation instants (jerk-limited:
+            # within j t^3 / 6 of it 2 ms away; the speed: a central difference over +-4 ms)
+            assert gap < 1e-6 and tool[nearest, 7] < 1e-4
         else:  # it rounds the corner within the radius, moving
             assert 1e-4 < gap < blend and tool[nearest, 7] > 0.02
         assert np.allclose(tool[-1, 0:3], end, atol=1e-9)
         assert float(tool[:, 7].max()) <= 0.2 * 1.001
+        # the joints' commanded motion stays within their limits, blended or not: the drives'
+        # view, differences of the setpoints at the interpolation instants
+        command = recorder.get("command_position")[rows]
+        velocity = np.diff(command, axis=0) / period
+        acceleration = np.diff(command, 2, axis=0) / period**2
+        assert np.all(np.abs(velocity) <= MODEL.max_velocity * 1.001)
+        assert np.all(np.abs(acceleration) <= MODEL.max_acceleration * 1.01)
 
 
 @pytest.mark.parametrize(
@@ -468,3 +481,32 @@ def test_a_stop_right_after_a_line_is_accepted_holds_the_robot_where_it_is(after
     tool = recorder.tool()[interpolation_ticks(recorder)]
     assert float(line_distance(tool[:, 0:3], p0, p0 + np.array([0.05, 0.0, 0.0])).max()) < 1e-5
     assert float(np.linalg.norm(tool[-1, 0:3] - p0)) < 0.01
+
+
+def test_a_line_sent_while_a_stop_brakes_starts_where_the_braking_ends() -> None:
+    ctl = controller()
+    p0, r0 = pose_of(START)
+    ctl.add_line(target(p0 + np.array([0.15, 0.0, 0.0]), r0, 0.25, seq=0))
+    ctl.run_for(0.3)
+    assert ctl.stop() > 0.0
+    ctl.run_for(0.02)  # still braking
+    assert ctl.moving
+    goal = p0 + np.array([0.05, 0.05, 0.0])
+    recorder = Recorder(MODEL.dof)
+    ctl.add_line(target(goal, r0, 0.25, seq=0))
+    run_until_rest(ctl, recorder)
+    assert not ctl.in_error, ctl.error_message
+    assert np.allclose(ctl.tool.command_position, goal, atol=1e-9)
+    command = recorder.get("command_position")
+    assert float(np.abs(np.diff(command, axis=0)).max()) < 2e-3  # no jump on the way
+
+
+def test_a_very_slow_line_is_checked_on_a_bounded_number_of_samples() -> None:
+    ctl = controller()
+    p0, r0 = pose_of(START)
+    ctl.add_line(target(p0 + np.array([0.1, 0.0, 0.0]), r0, speed=1e-4, seq=0))  # 1000 s
+    [line] = ctl.lines._lines
+    assert line.duration > 999.0
+    assert line.checked is not None and line.checked[0].size <= 5_001
+    positions = np.array([fk(MODEL, q)[:3, 3] for q in line.checked[1][::50]])
+    assert float(np.linalg.norm(np.diff(positions, axis=0), axis=1).max()) <= 50 * 0.001  # 1 mm apart at most

@@ -78,7 +78,12 @@ _MAX_SLOWING_ROUNDS = 6
 #: a stretch of a line this long (m) without any inverse-kinematics solution is out of reach; a
 #: shorter one is where a singularity loses the solutions (numerically, at a point)
 _OUT_OF_REACH = 0.005
-_MAX_SAMPLES = 400_000
+#: the most samples a line is checked on (a slow one is sampled more coarsely in time; at most
+#: ``step`` apart, which this allows up to 2.5 m of line: about 40 ms of planning at most)
+_SAMPLES = 5_000
+#: the share of the TCP acceleration and jerk a line that blends at a corner plans with: the
+#: decelerating and the accelerating line add up there (at a right angle, to 1/sqrt(2) of the sum)
+_BLEND_SHARE = 0.7
 
 
 @dataclass(frozen=True)
@@ -139,6 +144,8 @@ class _Line:
     checked: tuple[Array, Array] | None = None
     #: the path's speed, acceleration and jerk limits its profile was planned with (a stop brakes within them)
     rates: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: the TCP speed it runs at (the target's, capped by the limit in force)
+    speed: float = 0.0
 
     @property
     def duration(self) -> float:
@@ -196,6 +203,8 @@ class LineMotion:
         #: where the finished lines ended: position, orientation, joints
         self._base: tuple[Array, Array, Array] | None = None
         self._cache: dict[float, tuple[float, ...]] = {}
+        #: where braking lines come to rest (position, orientation, joints): the next line's start
+        self._stopped_at: tuple[Array, Array, Array] | None = None
         self._last: tuple[float, tuple[float, ...]] | None = None
         self.lines_run = 0
 
@@ -236,7 +245,11 @@ class LineMotion:
         r1 = np.array(target.orientation, dtype=float)
         r1 = r1 / np.linalg.norm(r1)
         previous = self._lines[-1] if self._lines else None
-        if previous is not None:
+        if previous is not None and self._stopped_at is not None:  # after a stop: from where it brakes to
+            p0, r0, q0 = self._stopped_at
+            earliest = max(previous.end, now)
+            previous = None  # nothing blends into a stop
+        elif previous is not None:
             assert previous.q_end is not None
             p0, r0, q0 = previous.p1, previous.r1, previous.q_end
             earliest = max(previous.end, now)
@@ -259,13 +272,15 @@ class LineMotion:
         lim = self.line_limits
         span = max(length, angle * speed / lim.rotation_speed, angle * lim.acceleration / lim.rotation_acceleration)
         span = max(span, angle * lim.jerk / lim.rotation_jerk)
-        line = _Line(target, p0, p1, r0, r1, span, None, earliest)
+        line = _Line(target, p0, p1, r0, r1, span, None, earliest, speed=speed)
         if span < 1e-9:  # already there
             line.q_end = q0.copy()
             line.checked = (np.array([earliest]), q0[None, :].copy())
             return line
         velocity, acceleration, jerk = speed, lim.acceleration, lim.jerk
         blend = previous is not None and previous.blend_from is not None and previous.blend_from >= now + self.period
+        if blend or target.blend_radius > 0.0:  # at a blended corner two lines' accelerations add up
+            acceleration, jerk = acceleration * _BLEND_SHARE, jerk * _BLEND_SHARE
         for _ in range(_MAX_SLOWING_ROUNDS):
             line.profile = _profile(span, velocity, acceleration, jerk)
             line.rates = (velocity, acceleration, jerk)
@@ -278,6 +293,9 @@ class LineMotion:
             ratio_v, ratio_a = self._joint_rates(q, times)
             if ratio_v <= 1.0 and ratio_a <= 1.0:
                 break
+            if blend:  # the blended corner asks too much of the joints: stop at the corner instead
+                blend = False
+                continue
             velocity /= max(ratio_v, 1.0) * 1.02
             acceleration /= max(ratio_a, 1.0) * 1.02
             jerk /= max(ratio_a, 1.0) * 1.02
@@ -299,6 +317,7 @@ class LineMotion:
         """Queue a line of :meth:`plan` (before the next :meth:`sample`)."""
         if self._lines:
             self._lines[-1].blend_from = None  # a next line is queued: nothing else can blend in
+            self._stopped_at = None  # the next one starts where this one ends
         else:  # a new series of lines, from where the robot rests
             assert line.checked is not None
             self._base = (line.p0, line.r0, line.checked[1][0].copy())
@@ -354,11 +373,17 @@ class LineMotion:
             keep.append(line)
         self._lines = keep
         self._cache.clear()
+        self._stopped_at = None
+        if keep and self._base is not None:  # where the braking ends: a line queued now starts there
+            position, rotation = self._tool_at(now + longest)
+            seed = self._last[1] if self._last is not None else self._base[2]
+            self._stopped_at = (position, rotation, self._solve_one(position, rotation, seed))
         return longest
 
     def abandon(self) -> None:
         """Drop every line at once (alarm, e-stop)."""
         self._lines = []
+        self._stopped_at = None
         self._base = None
         self._cache.clear()
         self._last = None
@@ -386,6 +411,7 @@ class LineMotion:
                 )
             else:
                 self._base = (position, rotation, q_end)
+                self._stopped_at = None
             self.lines_run += 1
 
     def _solve_one(self, position: Array, rotation: Array, seed: Sequence[float] | Array) -> Array:
@@ -420,8 +446,20 @@ class LineMotion:
         return value
 
     def _pose_at(self, t: float) -> NDArray[np.float64]:
-        """The tool pose of the running lines at one controller time, in floats (what the control
-        loop asks every period; :meth:`_poses` is the batch form the checks use)."""
+        """The tool pose (4x4) of the running lines at one controller time, in floats (what the
+        control loop asks every period; :meth:`_poses` is the batch form the checks use)."""
+        (px, py, pz), (w, x, y, z) = (v.tolist() for v in self._tool_at(t))
+        return np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y), px],
+                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x), py],
+                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y), pz],
+                [0.0, 0.0, 0.0, 1.0],
+            ]
+        )
+
+    def _tool_at(self, t: float) -> tuple[Array, Array]:
+        """The tool position and orientation quaternion of the running lines at time ``t``."""
         assert self._base is not None
         px, py, pz = self._base[0].tolist()
         rotation: Quaternion = tuple(self._base[1].tolist())
@@ -434,15 +472,7 @@ class LineMotion:
             r0: Quaternion = tuple(line.r0.tolist())
             turn = _product(_conjugated(r0), _slerp(r0, tuple(line.r1.tolist()), u))
             rotation = _product(rotation, turn)
-        w, x, y, z = rotation
-        return np.array(
-            [
-                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y), px],
-                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x), py],
-                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y), pz],
-                [0.0, 0.0, 0.0, 1.0],
-            ]
-        )
+        return np.array([px, py, pz]), np.array(rotation)
 
     def _poses(self, times: Array, lines: Sequence[_Line] | None = None) -> NDArray[np.float64]:
         """Tool poses (m, 4, 4) of the queued lines (or ``lines``) at controller ``times``."""
@@ -476,23 +506,23 @@ class LineMotion:
             assert previous.blend_from is not None and previous.checked is not None
             line.start = previous.blend_from
             lines = [previous, line]  # the blended stretch: both lines add up
-            times_before, q_before = previous.checked
-            k = int(np.clip(np.searchsorted(times_before, line.start), 0, times_before.size - 1))
-            seed = q_before[k]
+            times_before, q_before = previous.checked  # the joints where the blend starts
+            seed = np.array([np.interp(line.start, times_before, q_before[:, j]) for j in range(q_before.shape[1])])
         assert line.profile is not None
         duration = line.end - line.start
         peak = float(np.abs(line.profile.extremes(1)[1]).max()) if line.profile.duration > 0 else 0.0
         length = float(np.linalg.norm(line.p1 - line.p0))
         angle = quaternion_angle(line.r0, line.r1)
+        # every interpolation period (what the drives get), closer where the TCP moves more than a
+        # step in one, but no more than _SAMPLES in all: a very slow line is sampled more coarsely
+        # in time (its joints are far from their limits), never more than a step apart
         dt = self.period
         if peak > 0.0:
             moving = max(peak * length / line.span, 1e-12), max(peak * angle / line.span, 1e-12)
             dt = min(dt, lim.step / moving[0], lim.angle_step / moving[1])
         if blend and previous is not None:
-            dt = min(dt, lim.step / max(previous.target.speed, 1e-9))
-        count = math.ceil(duration / dt) + 1
-        if count > _MAX_SAMPLES:
-            raise PointRejected(Reason.TIMING, f"the line would need {count} samples to check: too long")
+            dt = min(dt, lim.step / max(previous.speed, 1e-9))
+        count = min(math.ceil(duration / dt), _SAMPLES) + 1
         times = line.start + np.linspace(0.0, duration, max(count, 2))
         poses = self._poses(times, lines)
         try:
@@ -504,7 +534,7 @@ class LineMotion:
         if blend:
             positions = poses[:, :3, 3]
             tcp = np.linalg.norm(np.diff(positions, axis=0), axis=1) / np.diff(times)
-            if tcp.size and float(tcp.max()) > max(speed, previous.target.speed if previous else 0.0) * 1.001:
+            if tcp.size and float(tcp.max()) > max(speed, previous.speed if previous else 0.0) * 1.001:
                 raise _Blend()
         return q, times
 
@@ -513,7 +543,8 @@ class LineMotion:
         assert solver is not None
         batch = solver.solve_batch(poses, seed, limits=False)
         start = batch.q[0]
-        distance = np.where(batch.valid[0], np.nanmax(np.abs(start - seed[None, :]), axis=1), np.inf)
+        gaps = np.abs(np.nan_to_num(start - seed[None, :], nan=np.inf))  # invalid slots are NaN
+        distance = np.where(batch.valid[0], gaps.max(axis=1), np.inf)
         branch = int(np.argmin(distance))
         where = poses[:, :3, 3]
         if not math.isfinite(float(distance[branch])) or distance[branch] > 1e-3:
@@ -587,13 +618,15 @@ class LineMotion:
         """How far the joints exceed their velocity and acceleration limits (ratios; <= 1: within)."""
         if q.shape[0] < 3:
             return 0.0, 0.0
-        # resample at the interpolation period: the drives get setpoints at that rate
-        grid = np.arange(times[0], times[-1] + 0.5 * self.period, self.period)
+        # resample at the interpolation period, the rate the drives get setpoints at (a very slow
+        # line, sampled more coarsely, at its samples' spacing)
+        dt = max(self.period, (times[-1] - times[0]) / _SAMPLES)
+        grid = np.arange(times[0], times[-1] + 0.5 * dt, dt)
         if grid.size < 3:
             return 0.0, 0.0
         qs = np.stack([np.interp(grid, times, q[:, j]) for j in range(q.shape[1])], axis=1)
-        velocity = np.gradient(qs, self.period, axis=0)
-        acceleration = np.diff(qs, 2, axis=0) / (self.period * self.period)
+        velocity = np.gradient(qs, dt, axis=0)
+        acceleration = np.diff(qs, 2, axis=0) / (dt * dt)
         ratio_v = float((np.abs(velocity) / self.limits.velocity[None, :]).max())
         ratio_a = float((np.abs(acceleration) / self.limits.acceleration[None, :]).max())
         return ratio_v, ratio_a
@@ -609,7 +642,10 @@ class LineMotion:
         s = line.profile.sample(times)
         remaining = (line.span - s.position[:, 0]) * length / line.span
         velocity = s.velocity[:, 0]
-        slowing = int(np.argmax(velocity)) if velocity.size else 0
+        # where it starts to slow down: the last sample at its top speed (a next line starting
+        # before that would add its speed to the full speed of this one)
+        top = float(velocity.max()) if velocity.size else 0.0
+        slowing = int(np.flatnonzero(velocity >= top * (1.0 - 1e-9))[-1]) if velocity.size else 0
         inside = np.flatnonzero((remaining <= radius) & (np.arange(times.size) >= slowing))
         if not inside.size:
             return None
@@ -629,7 +665,10 @@ def _profile(span: float, velocity: float, acceleration: float, jerk: float) -> 
     try:
         return RuckigSegment.plan(([0.0], [0.0], [0.0]), ([span], [0.0], [0.0]), [velocity], [acceleration], [jerk])
     except PlanningError as exc:
-        raise PointRejected(Reason.TIMING, f"no speed profile for the line: {exc}") from None
+        log.debug("no speed profile for a line of %g at %g: %s", span, velocity, exc)
+        raise PointRejected(
+            Reason.TIMING, f"no speed profile for a line of {span:.4g} m at {velocity:.4g} m/s (out of range)"
+        ) from None
 
 
 def _point(line: _Line, u: float) -> tuple[Array, Array]:
