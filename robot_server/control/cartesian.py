@@ -39,6 +39,7 @@ running line along its own path (a category-2 stop that stays on the line).
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from collections.abc import Callable, Sequence
@@ -150,6 +151,12 @@ class _Line:
     @property
     def duration(self) -> float:
         return self.profile.duration if self.profile is not None else 0.0
+
+    @functools.cached_property
+    def floats(self) -> tuple[tuple[float, float, float], Quaternion, Quaternion]:
+        """Its displacement and its two orientations as floats (for the control loop)."""
+        (dx, dy, dz), r0, r1 = (self.p1 - self.p0).tolist(), self.r0.tolist(), self.r1.tolist()
+        return (dx, dy, dz), (r0[0], r0[1], r0[2], r0[3]), (r1[0], r1[1], r1[2], r1[3])
 
     @property
     def end(self) -> float:
@@ -467,11 +474,9 @@ class LineMotion:
             if line.start > t:
                 break  # the lines start in order; one not started yet adds nothing
             u = line.fraction_at(t)
-            dx, dy, dz = (line.p1 - line.p0).tolist()
+            (dx, dy, dz), r0, r1 = line.floats
             px, py, pz = px + dx * u, py + dy * u, pz + dz * u
-            r0: Quaternion = tuple(line.r0.tolist())
-            turn = _product(_conjugated(r0), _slerp(r0, tuple(line.r1.tolist()), u))
-            rotation = _product(rotation, turn)
+            rotation = _product(rotation, _product(_conjugated(r0), _slerp(r0, r1, u)))
         return np.array([px, py, pz]), np.array(rotation)
 
     def _poses(self, times: Array, lines: Sequence[_Line] | None = None) -> NDArray[np.float64]:
