@@ -137,6 +137,25 @@ def test_closed_form_on_10000_random_poses(name: str) -> None:
             assert any(wrapped_equal(s.q, solutions[i, j], 1e-9) for j in np.nonzero(valid[i])[0])
 
 
+@pytest.mark.parametrize("name", SPHERICAL)
+def test_nearest_in_floats_is_solve(name: str) -> None:
+    """The control loop's float form of :meth:`solve` gives the same solution, seeded anywhere."""
+    model = load_model(name)
+    solver = closed_form(model)
+    assert solver is not None
+    rng = np.random.default_rng(19)
+    q = rng.uniform(model.lower, model.upper, size=(200, 6))
+    seeds = q + rng.normal(0.0, 0.3, size=q.shape)
+    for pose, seed in zip(fk_batch(model, q), seeds, strict=True):
+        expected = solver.solve(pose, seed)
+        got = solver.nearest(pose[:3, :3].reshape(9).tolist(), pose[:3, 3].tolist(), seed.tolist())
+        if expected is None:
+            assert got is None
+        else:
+            assert got is not None and got.singular == expected.singular
+            assert np.allclose(got.q, expected.q, rtol=0.0, atol=1e-12)
+
+
 def test_reference_solution_sets_of_non_singular_cases() -> None:
     model = unlimited(load_model("jibot_zxs"))
     solver = closed_form(model)

@@ -382,7 +382,7 @@ class LineMotion:
         self._cache.clear()
         self._stopped_at = None
         if keep and self._base is not None:  # where the braking ends: a line queued now starts there
-            position, rotation = self._tool_at(now + longest)
+            position, rotation = (np.array(v) for v in self._tool_at(now + longest))
             seed = self._last[1] if self._last is not None else self._base[2]
             self._stopped_at = (position, rotation, self._solve_one(position, rotation, seed))
         return longest
@@ -445,28 +445,22 @@ class LineMotion:
             assert self._base is not None
             value = tuple(self._base[2].tolist())
         else:
-            solution = solver.solve(self._pose_at(t), seed)
+            (px, py, pz), (w, x, y, z) = self._tool_at(t)
+            rotation = (
+                *(1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+                *(2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+                *(2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
+            )
+            solution = solver.nearest(rotation, (px, py, pz), seed)
             if solution is None:
                 raise RuntimeError(f"the line's pose at t = {t:.4f} s has no solution (it was checked)")
             value = solution.q
         self._cache[key] = value
         return value
 
-    def _pose_at(self, t: float) -> NDArray[np.float64]:
-        """The tool pose (4x4) of the running lines at one controller time, in floats (what the
-        control loop asks every period; :meth:`_poses` is the batch form the checks use)."""
-        (px, py, pz), (w, x, y, z) = (v.tolist() for v in self._tool_at(t))
-        return np.array(
-            [
-                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y), px],
-                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x), py],
-                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y), pz],
-                [0.0, 0.0, 0.0, 1.0],
-            ]
-        )
-
-    def _tool_at(self, t: float) -> tuple[Array, Array]:
-        """The tool position and orientation quaternion of the running lines at time ``t``."""
+    def _tool_at(self, t: float) -> tuple[tuple[float, float, float], Quaternion]:
+        """The tool position and orientation quaternion of the running lines at time ``t``, in
+        floats (what the control loop asks every period; :meth:`_poses` is the batch form)."""
         assert self._base is not None
         px, py, pz = self._base[0].tolist()
         rotation: Quaternion = tuple(self._base[1].tolist())
@@ -477,7 +471,7 @@ class LineMotion:
             (dx, dy, dz), r0, r1 = line.floats
             px, py, pz = px + dx * u, py + dy * u, pz + dz * u
             rotation = _product(rotation, _product(_conjugated(r0), _slerp(r0, r1, u)))
-        return np.array([px, py, pz]), np.array(rotation)
+        return (px, py, pz), rotation
 
     def _poses(self, times: Array, lines: Sequence[_Line] | None = None) -> NDArray[np.float64]:
         """Tool poses (m, 4, 4) of the queued lines (or ``lines``) at controller ``times``."""

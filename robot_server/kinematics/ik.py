@@ -458,6 +458,25 @@ class ClosedFormIK:
             return None
         return min(solutions, key=lambda sol: sum((a - b) ** 2 for a, b in zip(sol.q, s, strict=True)))
 
+    def nearest(
+        self, rotation: Sequence[float], position: Sequence[float], seed: Sequence[float]
+    ) -> IKSolution | None:
+        """:meth:`solve` for a pose given as floats (the rotation's 9 entries row by row, the
+        position) and a seed of 6 floats, without numpy: the form a control loop calls every
+        interpolation period (about half the time of :meth:`solve`)."""
+        best: tuple[float, ...] | None = None
+        flags, distance = 0, math.inf
+        for branch in self._solver(*rotation, *position, *seed, SCALAR_OPS):
+            if not branch.valid:
+                continue
+            q = _shift_into_limits(branch.q, seed, self.limits)
+            if q is None:
+                continue
+            d = sum((a - b) ** 2 for a, b in zip(q, seed, strict=True))
+            if d < distance:
+                best, flags, distance = q, int(branch.flags), d
+        return None if best is None else IKSolution(best, _FLAGS[flags])
+
     def solve_batch(self, poses: ArrayLike, seeds: ArrayLike | None = None, *, limits: bool = True) -> BatchSolutions:
         """N poses ``(N, 4, 4)`` -> solutions ``q (N, 8, 6)``, ``valid (N, 8)``, singularity
         ``flags (N, 8)``; no Python loop over N. Invalid slots (unreachable, outside the limits,
