@@ -20,7 +20,7 @@ import os
 import signal
 import sys
 import time
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine, Sequence
 from pathlib import Path
 from typing import TextIO
 
@@ -397,6 +397,20 @@ async def _record(driver: RobotDriver, args: argparse.Namespace, out: TextIO) ->
             print("no joint state received: nothing written", file=out)
 
 
+@contextlib.asynccontextmanager
+async def _progress_line(out: TextIO, progress: Callable[[], Coroutine[None, None, None]]) -> AsyncIterator[None]:
+    """Run ``progress`` (which rewrites one line) while the block runs, on a terminal only."""
+    task = asyncio.get_running_loop().create_task(progress()) if out.isatty() else None
+    try:
+        yield
+    finally:
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, DriverError):
+                await task
+            out.write("\n")
+
+
 async def _execute(driver: RobotDriver, trajectory: Trajectory, mode: str, out: TextIO) -> None:
     """Run a trajectory with a progress line (on a terminal) and a final report."""
     total = trajectory.duration
@@ -412,16 +426,8 @@ async def _execute(driver: RobotDriver, trajectory: Trajectory, mode: str, out: 
             out.write(f"\r[{bar:<30}] {elapsed:6.2f}/{total:.2f} s  {error:.4f} rad from goal")
             out.flush()
 
-    shown = out.isatty()
-    task = asyncio.get_running_loop().create_task(progress()) if shown else None
-    try:
+    async with _progress_line(out, progress):
         final = await driver.execute(trajectory, mode)
-    finally:
-        if task is not None:
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError, DriverError):
-                await task
-            out.write("\n")
     error = float(np.max(np.abs(final.positions[: goal.size] - goal)))
     print(
         f"done: {len(trajectory)} points in {time.monotonic() - start:.2f} s (planned {total:.2f} s), "
@@ -482,16 +488,8 @@ async def _move_line(driver: RobotDriver, goal: LineGoal, args: argparse.Namespa
             )
             out.flush()
 
-    shown = out.isatty()
-    task = asyncio.get_running_loop().create_task(progress()) if shown else None
-    try:
+    async with _progress_line(out, progress):
         final = await driver.move_lines([goal], speed=_tcp_speed(args))
-    finally:
-        if task is not None:
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError, DriverError):
-                await task
-            out.write("\n")
     error = float(np.linalg.norm(np.array([final.x, final.y, final.z]) - target))
     print(f"done: a straight line in {time.monotonic() - start:.2f} s, {error * 1000:.3f} mm from the goal", file=out)
 

@@ -704,7 +704,7 @@ class RobotDriver:
         )
         sent = time.monotonic()
         deadline = sent + duration + self.goal_timeout
-        stalled_since: float | None = None
+        stall = _Stall(self.stall_timeout)
         seen_moving = False
         while True:
             remaining = deadline - time.monotonic()
@@ -739,20 +739,14 @@ class RobotDriver:
                 if status.in_motion == TriState.UNKNOWN:
                     log.warning("the lines' end reached, but the controller reports in_motion UNKNOWN")
                 return self._final_pose(group, tcp, state)
-            if not at_goal and status is not None and status.in_motion == TriState.FALSE:
-                now = time.monotonic()
-                if stalled_since is None:
-                    stalled_since = now
-                elif now - stalled_since > self.stall_timeout:
-                    raise ExecutionAborted(
-                        f"the robot stands still {distance * 1000:.3g} mm and {angle:.3g} rad from the last line's "
-                        f"end (in_motion FALSE for {self.stall_timeout} s): the controller dropped or stopped the "
-                        f"lines{f': {self._why()}' if self._faulted() else ''}",
-                        confirmed,
-                        what="line",
-                    )
-            else:
-                stalled_since = None
+            if stall.standing(not at_goal and status is not None and status.in_motion == TriState.FALSE):
+                raise ExecutionAborted(
+                    f"the robot stands still {distance * 1000:.3g} mm and {angle:.3g} rad from the last line's "
+                    f"end (in_motion FALSE for {self.stall_timeout} s): the controller dropped or stopped the "
+                    f"lines{f': {self._why()}' if self._faulted() else ''}",
+                    confirmed,
+                    what="line",
+                )
 
     def _final_pose(self, group: int, tcp: tuple[Array, Array], state: JointState) -> ToolPose:
         pose = self._tool_poses.get(group)
@@ -1000,7 +994,7 @@ class RobotDriver:
         goal = trajectory.positions[-1]
         sent = time.monotonic()
         deadline = sent + trajectory.duration + self.goal_timeout
-        stalled_since: float | None = None
+        stall = _Stall(self.stall_timeout)
         # "at the goal and not moving" means done only once the robot has run the trajectory: a path
         # that ends where it starts is "at the goal" before it begins, and the STATUS that comes with
         # a joint state may be older than the last point. So the robot must have been seen moving
@@ -1046,19 +1040,32 @@ class RobotDriver:
                 return state
             # standing still short of the goal: the controller dropped the trajectory (a refused
             # download point has no reply to say so) or someone stopped the robot
-            if not at_goal and status is not None and status.in_motion == TriState.FALSE:
-                now = time.monotonic()
-                if stalled_since is None:
-                    stalled_since = now
-                elif now - stalled_since > self.stall_timeout:
-                    raise ExecutionAborted(
-                        f"the robot stands still {error:.4g} from the goal (in_motion FALSE for "
-                        f"{self.stall_timeout} s): the controller dropped or stopped the trajectory"
-                        f"{f': {self._why()}' if self._faulted() else ''}",
-                        confirmed,
-                    )
-            else:
-                stalled_since = None
+            if stall.standing(not at_goal and status is not None and status.in_motion == TriState.FALSE):
+                raise ExecutionAborted(
+                    f"the robot stands still {error:.4g} from the goal (in_motion FALSE for "
+                    f"{self.stall_timeout} s): the controller dropped or stopped the trajectory"
+                    f"{f': {self._why()}' if self._faulted() else ''}",
+                    confirmed,
+                )
+
+
+class _Stall:
+    """How long the robot has stood still short of its goal (STATUS in_motion FALSE)."""
+
+    def __init__(self, limit: float) -> None:
+        self.limit = limit
+        self.since: float | None = None
+
+    def standing(self, still: bool) -> bool:
+        """Note one sample (``still``: standing short of the goal); True once that has lasted
+        more than the limit."""
+        if not still:
+            self.since = None
+            return False
+        now = time.monotonic()
+        if self.since is None:
+            self.since = now
+        return now - self.since > self.limit
 
 
 def _in_flight(k: int, exc: DriverError) -> str:
