@@ -458,12 +458,10 @@ class ClosedFormIK:
             return None
         return min(solutions, key=lambda sol: sum((a - b) ** 2 for a, b in zip(sol.q, s, strict=True)))
 
-    def nearest(
-        self, rotation: Sequence[float], position: Sequence[float], seed: Sequence[float]
-    ) -> IKSolution | None:
+    def nearest(self, rotation: Sequence[float], position: Sequence[float], seed: Sequence[float]) -> IKSolution | None:
         """:meth:`solve` for a pose given as floats (the rotation's 9 entries row by row, the
-        position) and a seed of 6 floats, without numpy: the form a control loop calls every
-        interpolation period (about half the time of :meth:`solve`)."""
+        position) and a seed of 6 floats, without numpy's conversions: the form a control loop
+        calls every interpolation period."""
         best: tuple[float, ...] | None = None
         flags, distance = 0, math.inf
         for branch in self._solver(*rotation, *position, *seed, SCALAR_OPS):
