@@ -132,7 +132,10 @@ def test_a_controller_line_is_straight_and_its_orientation_follows_the_slerp() -
     assert float(error.max()) < 0.05
 
 
-@pytest.mark.parametrize(("length", "turn"), [(0.08, 60.0), (0.1, 90.0), (0.12, 90.0), (0.13, 90.0), (0.1, 105.0)])
+@pytest.mark.parametrize(
+    ("length", "turn"),
+    [(0.08, 30.0), (0.08, 60.0), (0.1, 90.0), (0.12, 90.0), (0.13, 90.0), (0.1, 135.0), (0.1, 150.0)],
+)
 def test_lines_stop_exactly_at_a_corner_unless_blended(length: float, turn: float) -> None:
     """(A corner whose blend would ask more of the joints than they can give is not blended: the
     cases here are ones it can be.)"""
@@ -157,6 +160,9 @@ def test_lines_stop_exactly_at_a_corner_unless_blended(length: float, turn: floa
             assert 1e-4 < gap < blend and tool[nearest, 7] > 0.02
         assert np.allclose(tool[-1, 0:3], end, atol=1e-9)
         assert float(tool[:, 7].max()) <= 0.2 * 1.001
+        # the TCP within its acceleration at any corner: the two lines share it
+        tcp_acceleration = np.linalg.norm(np.diff(tool[:, 0:3], 2, axis=0), axis=1) / period**2
+        assert float(tcp_acceleration.max()) <= ctl.config.line.acceleration * 1.01
         # the joints' commanded motion stays within their limits, blended or not: the drives'
         # view, differences of the setpoints at the interpolation instants
         command = recorder.get("command_position")[rows]

@@ -79,8 +79,8 @@ _MAX_SLOWING_ROUNDS = 6
 #: a stretch of a line this long (m) without any inverse-kinematics solution is out of reach; a
 #: shorter one is where a singularity loses the solutions (numerically, at a point)
 _OUT_OF_REACH = 0.005
-#: the most samples a line is checked on (a slow one is sampled more coarsely in time; at most
-#: ``step`` apart, which this allows up to 2.5 m of line: about 40 ms of planning at most)
+#: the most samples a line is checked on every interpolation period: a slower one is sampled more
+#: coarsely in time, never more than ``step`` apart (about 40 ms of planning for 5,000 samples)
 _SAMPLES = 5_000
 #: the share of the TCP acceleration and jerk a line that blends at a corner plans with: the
 #: decelerating and the accelerating line add up there (at a right angle, to 1/sqrt(2) of the sum)
@@ -280,15 +280,19 @@ class LineMotion:
         span = max(length, angle * speed / lim.rotation_speed, angle * lim.acceleration / lim.rotation_acceleration)
         span = max(span, angle * lim.jerk / lim.rotation_jerk)
         line = _Line(target, p0, p1, r0, r1, span, None, earliest, speed=speed)
+        velocity = speed
         if span < 1e-9:  # already there
             line.q_end = q0.copy()
             line.checked = (np.array([earliest]), q0[None, :].copy())
             return line
-        velocity, acceleration, jerk = speed, lim.acceleration, lim.jerk
         blend = previous is not None and previous.blend_from is not None and previous.blend_from >= now + self.period
-        if blend or target.blend_radius > 0.0:  # at a blended corner two lines' accelerations add up
-            acceleration, jerk = acceleration * _BLEND_SHARE, jerk * _BLEND_SHARE
+        slowed = 1.0  # how much the joints' limits slowed the line down (acceleration and jerk)
         for _ in range(_MAX_SLOWING_ROUNDS):
+            # at a blended corner two lines' accelerations add up: each plans with a share
+            share = _BLEND_SHARE if target.blend_radius > 0.0 else 1.0
+            if blend and previous is not None:
+                share = min(share, _corner_share(previous, line, lim.acceleration))
+            acceleration, jerk = lim.acceleration * share / slowed, lim.jerk * share / slowed
             line.profile = _profile(span, velocity, acceleration, jerk)
             line.rates = (velocity, acceleration, jerk)
             line.start = earliest
@@ -300,12 +304,14 @@ class LineMotion:
             ratio_v, ratio_a = self._joint_rates(q, times)
             if ratio_v <= 1.0 and ratio_a <= 1.0:
                 break
-            if blend:  # the blended corner asks too much of the joints: stop at the corner instead
-                blend = False
-                continue
+            if blend:  # is the corner the cause? then stop at it instead; else slow the line down
+                line.start = earliest
+                alone = self._joint_rates(*self._check_line(line, previous, q0, blend=False, speed=speed))
+                if alone[0] <= 1.0 and alone[1] <= 1.0:
+                    blend = False
+                    continue
             velocity /= max(ratio_v, 1.0) * 1.02
-            acceleration /= max(ratio_a, 1.0) * 1.02
-            jerk /= max(ratio_a, 1.0) * 1.02
+            slowed *= max(ratio_a, 1.0) * 1.02
             log.info(
                 "line %d slowed down for the joints' limits (velocity x%.3g, acceleration x%.3g)",
                 target.sequence,
@@ -512,16 +518,16 @@ class LineMotion:
         peak = float(np.abs(line.profile.extremes(1)[1]).max()) if line.profile.duration > 0 else 0.0
         length = float(np.linalg.norm(line.p1 - line.p0))
         angle = quaternion_angle(line.r0, line.r1)
-        # every interpolation period (what the drives get), closer where the TCP moves more than a
-        # step in one, but no more than _SAMPLES in all: a very slow line is sampled more coarsely
-        # in time (its joints are far from their limits), never more than a step apart
-        dt = self.period
+        # never more than a step (or an angle step) apart, and every interpolation period (what
+        # the drives get) up to _SAMPLES in all: a very slow line is sampled more coarsely in time
+        # (its joints are far from their limits), never more coarsely in space
+        space = math.inf
         if peak > 0.0:
             moving = max(peak * length / line.span, 1e-12), max(peak * angle / line.span, 1e-12)
-            dt = min(dt, lim.step / moving[0], lim.angle_step / moving[1])
+            space = min(lim.step / moving[0], lim.angle_step / moving[1])
         if blend and previous is not None:
-            dt = min(dt, lim.step / max(previous.speed, 1e-9))
-        count = min(math.ceil(duration / dt), _SAMPLES) + 1
+            space = min(space, lim.step / max(previous.speed, 1e-9))
+        count = max(min(math.ceil(duration / self.period), _SAMPLES), math.ceil(duration / space)) + 1
         times = line.start + np.linspace(0.0, duration, max(count, 2))
         poses = self._poses(times, lines)
         try:
@@ -532,9 +538,13 @@ class LineMotion:
             raise
         if blend:
             positions = poses[:, :3, 3]
-            tcp = np.linalg.norm(np.diff(positions, axis=0), axis=1) / np.diff(times)
+            step = float(times[1] - times[0])
+            tcp = np.linalg.norm(np.diff(positions, axis=0), axis=1) / step
             if tcp.size and float(tcp.max()) > max(speed, previous.speed if previous else 0.0) * 1.001:
-                raise _Blend()
+                raise _Blend()  # faster than either line
+            tcp_acceleration = np.linalg.norm(np.diff(positions, 2, axis=0), axis=1) / step**2
+            if tcp_acceleration.size and float(tcp_acceleration.max()) > lim.acceleration * 1.01:
+                raise _Blend()  # the two lines' accelerations add up beyond the TCP's
         return q, times
 
     def _solve(self, poses: NDArray[np.float64], seed: Array, line: _Line) -> Array:
@@ -658,6 +668,21 @@ class LineMotion:
 
 class _Blend(Exception):
     """The blended corner cannot run: plan the line to start from rest at the corner instead."""
+
+
+def _corner_share(previous: _Line, line: _Line, acceleration: float) -> float:
+    """The share of the TCP acceleration ``line`` may plan with when it blends in while
+    ``previous`` slows down with its own: their sum stays within the TCP acceleration whatever the
+    corner's angle (a reversal: they add up), and the sum of their speeds within the faster one's."""
+    d1, d2 = previous.p1 - previous.p0, line.p1 - line.p0
+    n1, n2 = float(np.linalg.norm(d1)), float(np.linalg.norm(d2))
+    if n1 <= 0.0 or n2 <= 0.0:
+        return _BLEND_SHARE
+    a1 = min(previous.rates[1] / acceleration, 1.0)  # what slowing down the first line asks
+    c = -float(np.dot(d1, d2)) / (n1 * n2)  # the cosine between its deceleration and our acceleration
+    within = -a1 * c + math.sqrt(max(a1 * a1 * c * c - a1 * a1 + 1.0, 0.0))
+    # and no faster a speed-up than its slow-down: near straight on, their speeds add up
+    return max(0.05, min(within, a1))
 
 
 def _profile(span: float, velocity: float, acceleration: float, jerk: float) -> RuckigSegment:

@@ -116,7 +116,7 @@ class ControllerConfig:
     supervision: Supervision | None = None
     #: a motion is planned to at most this share of the TCP speed limit in force, so that the
     #: drives' overshoot does not trip the supervision of the actual speed
-    speed_margin: float = 0.95
+    speed_margin: float = 0.9
 
     def __post_init__(self) -> None:
         ratio = self.interpolation_period / self.servo_period
@@ -319,17 +319,14 @@ class Controller:
         plan = self.queue.plan(point, first=first, min_scale=min_scale)
         if self.speed_limit is None and not self.supervision.has_zones:
             return plan
-        total, peak = 1.0, math.inf
+        slowing, scale = _Slowing(), plan.scale
         for _ in range(_SLOWING_ROUNDS):
             slower = self._supervise_path(*self.queue.path(plan, self.config.interpolation_period))
             if slower is None:
                 return plan
-            slower, peak = _more(slower, peak)
-            total *= slower
-            if _by_ratio(point):  # its own speed: the queue's time scale would not reach it
-                plan = self.queue.plan(_slowed(point, total), first=first, min_scale=min_scale)
-            else:
-                plan = self.queue.plan(point, first=first, min_scale=plan.scale * slower)
+            slowing.step(slower)
+            slowed = _slowed(point, slowing.ratio)
+            plan = self.queue.plan(slowed, first=first, min_scale=max(min_scale, scale * slowing.scale))
         raise PointRejected(Reason.TCP_SPEED, "the trajectory could not be slowed down to the TCP speed limit")
 
     def commit(self, plan: Plan) -> None:
@@ -392,17 +389,15 @@ class Controller:
             raise PointRejected(Reason.SEQUENCE, "the end of a download that was never started")
         self.add(point)
         points, self._download = self._download, None
-        slower, peak = 1.0, math.inf
+        slowing = _Slowing()
         try:
             for _ in range(_SLOWING_ROUNDS):
                 try:
-                    slowed = points if slower == 1.0 else [_slowed(p, slower) for p in points]
-                    by_ratio = all(_by_ratio(p) for p in points[1:])
-                    self.queue.add_all(slowed, min_scale=1.0 if by_ratio else slower, check=self._check_download)
+                    slowed = [_slowed(p, slowing.ratio) for p in points]
+                    self.queue.add_all(slowed, min_scale=slowing.scale, check=self._check_download)
                     break
                 except _SlowDown as slow:
-                    factor, peak = _more(slow.factor, peak)
-                    slower *= factor
+                    slowing.step(slow.factor)
             else:
                 raise PointRejected(Reason.TCP_SPEED, "the trajectory could not be slowed down to the TCP speed limit")
         except PointRejected as exc:
@@ -677,22 +672,38 @@ class Controller:
         self.queue.abandon(np.array(actual))
 
 
-def _more(factor: float, last: float) -> tuple[float, float]:
-    """The next slowing factor, from the one the TCP speed asks (peak / limit) and the one the
-    round before asked: a point timed by a velocity ratio on an acceleration-bound move hardly
-    slows down with its ratio, so a round that gained nothing doubles its step."""
-    return (max(factor, 2.0) if factor >= last * 0.99 else factor), factor
+class _Slowing:
+    """How a trajectory is slowed down for the TCP speed limit, round by round. First by the
+    queue's time scale, which reaches every segment decided from the points' times and ratios;
+    once a round gains nothing, also by the velocity ratio of the ratio-timed points (a last
+    segment to rest is planned from its ratio when it starts, out of the time scale's reach, and
+    an acceleration-bound one hardly slows down with its ratio); a round that still gains nothing
+    doubles its step."""
 
+    def __init__(self) -> None:
+        self.scale = 1.0  # the time scale asked of the queue
+        self.ratio = 1.0  # the division of the velocity ratios
+        self._last = math.inf
+        self._by_ratio = False
 
-def _by_ratio(point: Point) -> bool:
-    """A point timed by its velocity ratio (a JOINT_TRAJ_PT with duration 0), not by a time."""
-    return point.velocity_ratio is not None and not (point.duration is not None and point.duration > 0.0)
+    def step(self, factor: float) -> None:
+        """One more round, for the TCP's ``factor`` = peak / limit (with margin)."""
+        stuck = factor >= self._last * 0.99
+        self._last = factor
+        if stuck:
+            if self._by_ratio:
+                factor = max(factor, 2.0)
+            self._by_ratio = True
+        self.scale *= factor
+        if self._by_ratio:
+            self.ratio *= factor
 
 
 def _slowed(point: Point, factor: float) -> Point:
-    """``point`` asking for ``factor`` times less speed where it is timed by a velocity ratio (a
-    time or a duration is slowed down by the queue's time scale)."""
-    if not _by_ratio(point) or point.velocity_ratio is None:
+    """``point`` with its velocity ratio divided by ``factor`` where it is timed by one (a
+    JOINT_TRAJ_PT with duration 0); any other point as it is."""
+    timed = point.duration is not None and point.duration > 0.0
+    if factor == 1.0 or point.velocity_ratio is None or timed:
         return point
     return dataclasses.replace(point, velocity_ratio=point.velocity_ratio / factor)
 
