@@ -49,7 +49,7 @@ from robot_server.control import (
     RealTimeClock,
     SimulatedClock,
 )
-from robot_server.kinematics import fk, rotation_to_quaternion
+from robot_server.kinematics import closed_form, fk, rotation_to_quaternion
 from robot_server.loader import load_model
 from robot_server.model import RobotModel
 from robot_server.workspace import Box, Supervision
@@ -156,6 +156,14 @@ def kinematics_in_the_loop(model: RobotModel, seconds: float) -> None:
     per_line_tick = (time.perf_counter() - t0) / samples
     print(f"| straight line: setpoint with the inverse kinematics | {per_line_tick * 1e6:.1f} | 60 |")
     print(f"| both | {(per_tick + per_line_tick) * 1e6:.1f} | |")
+    solver = closed_form(model)
+    assert solver is not None
+    pose = fk(model, LINE_START)
+    t0 = time.perf_counter()
+    for _ in range(5_000):
+        solver.solve(pose, LINE_START)
+    solve = (time.perf_counter() - t0) / 5_000
+    print(f"| (for scale: one closed-form IK solve, ClosedFormIK.solve) | {solve * 1e6:.1f} | |")
     print()
     ctl = Controller(
         model, ControllerConfig(initial_position=LINE_START, queue_capacity=100_000, supervision=supervised())

@@ -350,13 +350,13 @@ class LineMotion:
         q_next = self._solution(t + period, q_t)
         self._cache = {key: value for key, value in self._cache.items() if key >= t - 1e-9}
         self._last = (t, q_t)
-        p, n = np.array(q_t), np.array(q_next)
-        b = np.array(q_prev) if q_prev is not None else p - (n - p)
         if not self._lines:  # finished: rest there
-            return State.rest(p)
-        velocity = (n - b) / (2.0 * period)
-        acceleration = (n - 2.0 * p + b) / (period * period)
-        return State(p, velocity, acceleration)
+            return State.rest(np.array(q_t))
+        b = q_prev if q_prev is not None else tuple(2.0 * x - y for x, y in zip(q_t, q_next, strict=True))
+        k1, k2 = 0.5 / period, 1.0 / (period * period)
+        velocity = [(y - z) * k1 for y, z in zip(q_next, b, strict=True)]
+        acceleration = [(y - 2.0 * x + z) * k2 for x, y, z in zip(q_t, q_next, b, strict=True)]
+        return State(np.array(q_t), np.array(velocity), np.array(acceleration))
 
     def stop(self, now: float) -> float:
         """Brake every running line along its path and drop the others; returns the braking time."""
