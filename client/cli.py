@@ -4,7 +4,8 @@ Commands: ``ping``, ``status``, ``monitor``, ``move``, ``run FILE``, ``stop``, `
 ``demo`` (the paper's experiment; it starts an embedded emulator when no controller answers).
 Angles in radians, lengths in metres. Exit status 0 on success, 1 when the robot or controller
 failed (with one line saying why on stderr), 2 for bad arguments. SIGINT and SIGTERM stop a motion
-under way (STOP sent and acknowledged) before the command exits (130 and 143).
+under way (STOP sent and acknowledged) before the command exits (130 and 143). ``--capture
+FILE.pcapng`` records the command's traffic as a pcapng file (:mod:`simple_message.capture_writer`).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from robot_server.control import POLICIES, policy
 from robot_server.kinematics import fk
 from robot_server.loader import load_model, shipped_models
 from robot_server.model import ModelError, RobotModel, rpy_matrix
+from simple_message.capture_writer import DEFAULT_MAX_BYTES, CaptureWriter
 from simple_message.cliargs import (
     ArgumentParser,
     add_import_argument,
@@ -169,6 +171,20 @@ def parser() -> argparse.ArgumentParser:
     common.add_argument(
         "--timeout", type=positive_float, default=5.0, metavar="SECONDS", help="connect and reply timeout"
     )
+    common.add_argument(
+        "--capture",
+        metavar="FILE.pcapng",
+        help="record the command's traffic to a pcapng file that Wireshark and 'simple-message decode' read "
+        "(replaced if it exists; not for demo)",
+    )
+    common.add_argument(
+        "--capture-max-mb",
+        type=positive_float,
+        default=DEFAULT_MAX_BYTES / 1e6,
+        metavar="MB",
+        help="the capture's bound in megabytes, its files together: the file rotates at half of it (FILE.pcapng "
+        "becomes FILE.1.pcapng), so the latest traffic is kept (default: %(default)g)",
+    )
     add_log_level_argument(common)
     add_import_argument(common)  # e.g. a module that registers a dialect or an interpolation policy
 
@@ -275,7 +291,7 @@ def _wire(args: argparse.Namespace) -> WireFormat:
     return wire
 
 
-def _driver(args: argparse.Namespace, model: RobotModel) -> RobotDriver:
+def _driver(args: argparse.Namespace, model: RobotModel, capture: CaptureWriter | None = None) -> RobotDriver:
     return RobotDriver(
         args.host,
         args.motion_port,
@@ -285,6 +301,7 @@ def _driver(args: argparse.Namespace, model: RobotModel) -> RobotDriver:
         model=model,
         reply_timeout=args.timeout,
         serial=args.serial,
+        tap=capture,
     )
 
 
@@ -520,12 +537,21 @@ _WATCHING = {"status", "monitor", "record"}
 
 
 async def _with_driver(args: argparse.Namespace, model: RobotModel, out: TextIO) -> None:
-    driver = _driver(args, model)
-    await driver.connect(args.timeout, motion=args.command not in _WATCHING)
-    try:
-        await _COMMANDS[args.command](driver, args, out)
-    finally:
-        await driver.close()
+    with _capture(args) as capture:
+        driver = _driver(args, model, capture)
+        await driver.connect(args.timeout, motion=args.command not in _WATCHING)
+        try:
+            await _COMMANDS[args.command](driver, args, out)
+        finally:
+            await driver.close()
+
+
+def _capture(args: argparse.Namespace) -> contextlib.AbstractContextManager[CaptureWriter | None]:
+    """The ``--capture`` file's writer (closed after the driver), or nothing."""
+    if args.capture is None:
+        return contextlib.nullcontext()
+    max_bytes = max(1, round(args.capture_max_mb * 1e6))
+    return CaptureWriter(args.capture, max_bytes=max_bytes, application=f"robot-client {args.command}")
 
 
 async def _demo(args: argparse.Namespace, out: TextIO) -> None:
@@ -576,6 +602,10 @@ def _check_arguments(args: argparse.Namespace, model: RobotModel) -> None:
         args.trajectory = Trajectory.load(args.file).for_joints(model.joint_names)
     if args.command == "record":
         _writable(args.file)
+    if args.capture is not None:
+        if args.command == "demo":
+            raise ValueError("--capture is not supported by demo (its runs make connections of their own)")
+        _writable(args.capture)
     if args.command != "move":
         return
     if not 0.0 < args.speed <= 1.0:

@@ -64,7 +64,7 @@ from numpy.typing import ArrayLike, NDArray
 from robot_server import RobotModel
 from robot_server.control import QUINTIC_PEAK_VELOCITY
 from robot_server.kinematics import fk, quaternion_angle, rotation_to_quaternion
-from simple_message.connection import Connection, ConnectionState, Subscription
+from simple_message.connection import Connection, ConnectionState, Subscription, Tap
 from simple_message.constants import (
     CommType,
     LineResult,
@@ -207,7 +207,9 @@ class JointState:
 
 
 class RobotDriver:
-    """One controller's motion and state connections (see the module doc)."""
+    """One controller's motion and state connections (see the module doc). ``tap`` sees both
+    connections' traffic (:class:`~simple_message.connection.Tap`, e.g. a
+    :class:`~simple_message.capture_writer.CaptureWriter`: ``robot-client --capture``)."""
 
     def __init__(
         self,
@@ -229,6 +231,7 @@ class RobotDriver:
         check_limits: bool = True,
         tcp_tolerance: float = 0.001,
         orientation_tolerance: float = 0.01,
+        tap: Tap | None = None,
     ) -> None:
         #: the controller family (its ports, byte order, reply rule, how motion is commanded)
         self.dialect = dialect(profile) if isinstance(profile, str) else profile
@@ -253,7 +256,9 @@ class RobotDriver:
         policy = ReconnectPolicy(initial_delay=0.1, max_delay=2.0)
         self.serial = serial
         if serial is not None:  # one link carries motion and state (robot-server --serial)
-            self.motion = Client.serial(serial, wire, reconnect=policy, name=f"link {serial}", dialect=self.dialect)
+            self.motion = Client.serial(
+                serial, wire, reconnect=policy, name=f"link {serial}", dialect=self.dialect, tap=tap
+            )
             self.state = self.motion
         else:
             self.motion = Client.tcp(
@@ -263,9 +268,10 @@ class RobotDriver:
                 reconnect=policy,
                 name=f"motion {host}:{self.motion_port}",
                 dialect=self.dialect,
+                tap=tap,
             )
             self.state = Client.tcp(
-                host, self.state_port, wire, reconnect=policy, name=f"state {host}:{self.state_port}"
+                host, self.state_port, wire, reconnect=policy, name=f"state {host}:{self.state_port}", tap=tap
             )
         self._latest: JointState | None = None
         self._status: Status | None = None

@@ -8,6 +8,9 @@ decelerates the robot to rest, closes every connection and exits 0.
 Faults are injected by typing commands on its standard input (or piping them in), one per line:
 ``estop``, ``drives off``, ``drives on``, ``alarm CODE [TEXT]``, ``reset``, ``stop``,
 ``mode auto|manual``, or scheduled with ``--fault SECONDS:COMMAND`` (controller time from start).
+
+``--capture FILE.pcapng`` records every connection's traffic (every port, and the serial link) as a
+pcapng file Wireshark opens (:mod:`simple_message.capture_writer`), bounded by ``--capture-max-mb``.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import threading
 from collections.abc import Sequence
 from pathlib import Path
 
+from simple_message.capture_writer import DEFAULT_MAX_BYTES
 from simple_message.cliargs import (
     ArgumentParser,
     add_import_argument,
@@ -207,6 +211,20 @@ def parser() -> argparse.ArgumentParser:
         "joints at 1 ms; default: %(default)g)",
     )
     p.add_argument(
+        "--capture",
+        metavar="FILE.pcapng",
+        help="record every connection's traffic (every port, and the serial link) to a pcapng file that Wireshark "
+        "and 'simple-message decode' read (replaced if it exists)",
+    )
+    p.add_argument(
+        "--capture-max-mb",
+        type=positive_float,
+        default=DEFAULT_MAX_BYTES / 1e6,
+        metavar="MB",
+        help="the capture's bound in megabytes, its files together: the file rotates at half of it (FILE.pcapng "
+        "becomes FILE.1.pcapng), so the latest traffic is kept (default: %(default)g)",
+    )
+    p.add_argument(
         "--fault",
         type=_fault,
         action="append",
@@ -239,6 +257,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             _check_command(command)
         if args.record is not None:
             _check_writable(Path(args.record))
+        if args.capture is not None:
+            _check_writable(Path(args.capture), "--capture")
         config = EmulatorConfig(
             models=tuple(args.model or ["jibot_zxs"]),
             profile=args.profile,
@@ -262,6 +282,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             frame_timeout=args.frame_timeout,
             cell=args.cell,
             manual_motion=args.manual_motion,
+            capture=args.capture,
+            capture_max_bytes=max(1, round(args.capture_max_mb * 1e6)),
         )
         models = [load_model(m) for m in config.models]
         emulator = Emulator(config, models)
@@ -285,15 +307,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     return code
 
 
-def _check_writable(path: Path) -> None:
-    """Refuse a record the server could not write when it exits (before the session, not after)."""
+def _check_writable(path: Path, option: str = "--record") -> None:
+    """Refuse a file the server could not write (a record when it exits, a capture when it
+    starts): before the session, not after."""
     folder = path.parent
     if path.is_dir():
-        raise ValueError(f"--record {path}: is a directory")
+        raise ValueError(f"{option} {path}: is a directory")
     if not folder.is_dir():
-        raise ValueError(f"--record {path}: no directory {folder}")
+        raise ValueError(f"{option} {path}: no directory {folder}")
     if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        raise ValueError(f"--record {path}: not writable")
+        raise ValueError(f"{option} {path}: not writable")
 
 
 def _write_records(path: str | None, recorders: list[Recorder], emulator: Emulator) -> None:
@@ -321,6 +344,8 @@ async def _serve(emulator: Emulator, faults: list[tuple[float, str]], read_stdin
         loop.add_signal_handler(sig, done.set)
     await emulator.start()
     print(emulator.describe(), flush=True)
+    if emulator.capture is not None:
+        log.info("recording every connection to %s", emulator.capture.path)
     tasks = [loop.create_task(_scheduled(emulator, at, command)) for at, command in faults]
     if read_stdin:
         _read_commands(emulator, loop)

@@ -1,11 +1,15 @@
 """``simple-message``: decode and encode simple_message frames, like tshark for this protocol.
 
-``simple-message decode [--byte-order little|big|auto] [--float64] [--raw] [--import MODULE] [FILE]``
+``simple-message decode [--byte-order little|big|auto] [--float64] [--raw] [--port P] [--type T] [--import M] [FILE]``
     Reads hex frames, one line per frame or per TCP segment (a line may be ``NAME HEX`` as in the
     conformance vector files, or ``time src dst HEX`` as in the capture segment files: the last
     token is the hex, the rest becomes ``"label"``; ``#`` lines and blank lines are skipped), or
-    with ``--raw`` a binary byte stream. Prints one JSON object per message on stdout. A malformed
-    frame prints an error object on stderr; the command goes on and exits 1 at the end.
+    with ``--raw`` a binary byte stream, or a pcap/pcapng capture (a FILE that begins like one:
+    TCP reassembled per connection and direction by :mod:`.capture`; each message also gets
+    ``"time"``, ``"src"`` and ``"dst"``; ``--port`` and ``--type`` filter). Prints one JSON object
+    per message on stdout. A malformed frame (or a gap in a capture) prints an error object on
+    stderr; the command goes on and exits 1 at the end. A file that is not a readable capture
+    although it begins like one is one error line, exit 1.
 
 ``simple-message encode [--byte-order little|big] [--float64] [--raw] [--import MODULE] [FILE]``
     Reads JSON objects, one per line, and prints each frame as a hex line (``--raw``: binary).
@@ -20,22 +24,25 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 from collections.abc import Iterator
 from typing import IO, Any
 
+from .capture import CapturedMessage, CaptureError, capture_format, captured_messages, format_address
 from .cliargs import (
     ArgumentParser,
     add_import_argument,
     add_log_level_argument,
     add_version_argument,
+    client_port,
     import_all,
     preimport,
 )
 from .errors import FrameError, SimpleMessageError
 from .framing import FrameDecoder
 from .jsonio import message_from_json, message_to_json
-from .messages import decode, encode
+from .messages import decode, encode, type_for_name
 from .wire import ByteOrder, WireFormat
 
 __all__ = ["main", "add_wire_arguments", "wire_from_args", "add_import_argument", "import_modules", "preimport"]
@@ -123,7 +130,79 @@ def _hex_lines(stream: IO[str]) -> Iterator[tuple[int, str | None, str]]:
         yield number, label, tokens[-1]
 
 
+def _is_capture(path: str) -> bool:
+    """Whether ``path`` is a file that begins like a pcap or pcapng capture (a pipe or a device is
+    not looked into: what was read from it would be lost to the hex reader)."""
+    if not os.path.isfile(path):
+        return False
+    with open(path, "rb") as probe:
+        return capture_format(probe.read(4)) is not None
+
+
+def _msg_types(names: list[str]) -> set[int] | None:
+    """The msg_types ``--type`` names (a name or alias in any case, or a number); ``None`` after
+    reporting one that is neither."""
+    types: set[int] = set()
+    for name in names:
+        try:
+            msg_type: int | None = int(name, 0)
+        except ValueError:
+            msg_type = type_for_name(name)
+        if msg_type is None:
+            _emit_error("UsageError", f"--type {name}: no message type of that name (give a name or a number)")
+            return None
+        types.add(msg_type)
+    return types
+
+
+def _decode_capture(args: argparse.Namespace) -> int:
+    """``decode`` of a pcap/pcapng capture: messages on stdout, gaps and errors on stderr."""
+    wire, auto = wire_from_args(args)
+    types = _msg_types(args.types) if args.types else None
+    if args.types and types is None:
+        return 2
+    out = sys.stdout
+    errors = 0
+    try:
+        for item in captured_messages(args.file, wire, auto, ports=args.ports or None, types=types):
+            if isinstance(item, CapturedMessage):
+                where: dict[str, Any] = {
+                    "time": item.time,
+                    "src": format_address(item.src),
+                    "dst": format_address(item.dst),
+                }
+                if item.message is None:
+                    errors += 1
+                    _emit_error(type(item.error).__name__, str(item.error), hex=item.frame.hex(), **where)
+                    continue
+                obj = message_to_json(item.message, wire.real_size)
+                obj.update(where)
+                out.write(json.dumps(obj) + "\n")
+                continue
+            errors += 1
+            extra: dict[str, Any] = {}
+            if item.time is not None:
+                extra["time"] = item.time
+            if item.src is not None and item.dst is not None:
+                extra["src"] = format_address(item.src)
+                extra["dst"] = format_address(item.dst)
+            if item.start is not None:
+                extra["start"] = item.start
+            if item.end is not None:
+                extra["end"] = item.end
+            _emit_error(item.kind.value, item.message, **extra)
+    except CaptureError as exc:
+        _emit_error(type(exc).__name__, str(exc))
+        return 1
+    return 1 if errors else 0
+
+
 def _decode(args: argparse.Namespace) -> int:
+    if not args.raw and args.file != "-" and _is_capture(args.file):
+        return _decode_capture(args)
+    if args.ports or args.types:
+        _emit_error("UsageError", "--port and --type apply to pcap/pcapng captures only")
+        return 2
     wire, auto = wire_from_args(args)
     job = _Decoding(wire, auto, sys.stdout)
     if args.raw:
@@ -187,7 +266,18 @@ The input is hex, one line per frame or per TCP segment: a line may be NAME HEX 
 conformance vector files) or TIME SRC DST HEX (as in the capture segment files); the last token is
 the hex and the rest becomes "label"; lines starting with # and blank lines are skipped. With --raw
 the input is a binary byte stream. A malformed frame prints an error object on stderr; the command
-goes on and exits 1 at the end."""
+goes on and exits 1 at the end.
+
+A FILE that begins like a pcap or pcapng capture (tcpdump, Wireshark, robot-server --capture) is
+read as one: each TCP connection is reassembled per direction (out-of-order segments put back in
+order, retransmissions dropped) and its frames decoded; each message also gets "time" (seconds
+since the epoch, from the capture), "src" and "dst" ("address:port", IPv6 in brackets). Link types:
+Ethernet, Linux cooked (SLL, SLL2), raw IP and BSD loopback; IPv4 and IPv6. Bytes missing from the
+capture are reported as a "Gap" error object with the byte range, and decoding of that direction
+restarts after them; an incomplete frame at the end of a connection is a "TruncatedFrame". Use
+--byte-order auto (each direction's byte order detected) or big for big-endian controllers (Fanuc,
+Motoman). --port and --type filter captures only. A file that begins like a capture but is
+truncated or malformed is one "CaptureError" object on stderr and exit status 1."""
 
 _ENCODE = """Read JSON objects, one per line (as decode prints them), and print each message's frame as a
 hex line on stdout, or with --raw as binary. Lines starting with # and blank lines are skipped. A
@@ -209,18 +299,35 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", help="what to do")
     dec = sub.add_parser(
         "decode",
-        help="frames (hex lines or --raw bytes) to JSON lines",
+        help="frames (hex lines, --raw bytes or a pcap/pcapng capture) to JSON lines",
         description=f"{_DECODE}\n\n{_TYPES}",
     )
     add_wire_arguments(dec)
     dec.add_argument("--raw", action="store_true", help="input is a binary byte stream, not hex lines")
     add_import_argument(dec)
     dec.add_argument(
+        "--port",
+        dest="ports",
+        action="append",
+        default=[],
+        type=client_port,
+        metavar="PORT",
+        help="captures only: keep the connections with PORT at either end (repeatable)",
+    )
+    dec.add_argument(
+        "--type",
+        dest="types",
+        action="append",
+        default=[],
+        metavar="TYPE",
+        help="captures only: keep the messages of this type, a name (any case) or a number (repeatable)",
+    )
+    dec.add_argument(
         "file",
         nargs="?",
         default="-",
         metavar="FILE",
-        help="input file: hex lines, or bytes with --raw (default: stdin)",
+        help="input file: hex lines, bytes with --raw, or a pcap/pcapng capture (default: stdin)",
     )
     dec.set_defaults(func=_decode)
     enc = sub.add_parser(
@@ -248,8 +355,6 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args))
     except BrokenPipeError:
         # The reader went away (e.g. `| head`): stop quietly, as other Unix tools do.
-        import os
-
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         os.close(devnull)  # stdout's descriptor now points there itself

@@ -29,6 +29,11 @@ peer therefore costs at most one buffer of memory and never delays anyone else.
 
 When the connection ends for any reason, every pending request fails at once with
 :class:`~.errors.ConnectionClosed`. Nothing is ever re-sent by this layer.
+
+A :class:`Tap` (``tap=``; e.g. :class:`~.capture_writer.CaptureWriter`) sees the connection open,
+every chunk of bytes as it is handed to the transport or received from it (before it is acted on:
+a request comes before the reply it causes), and the end. Unset, it costs one ``is not None`` per
+write and read; a tap that raises is logged once and dropped for that connection.
 """
 
 from __future__ import annotations
@@ -38,10 +43,12 @@ import contextlib
 import enum
 import inspect
 import logging
+import socket
 import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
-from typing import cast
+from dataclasses import dataclass
+from typing import Protocol, cast
 
 from .constants import ReplyCode
 from .dialects import any_dialect_answers
@@ -72,7 +79,7 @@ from .messages import Message, type_name
 from .transport import StreamPair, set_nodelay, take_over, unread_by_peers
 from .wire import DEFAULT_FORMAT, WireFormat
 
-__all__ = ["Connection", "ConnectionState", "Subscription", "MessageHandler"]
+__all__ = ["Connection", "ConnectionState", "Subscription", "MessageHandler", "Tap", "TapLink"]
 
 log = logging.getLogger(__name__)
 frames_log = logging.getLogger(__name__ + ".frames")
@@ -81,6 +88,34 @@ frames_log = logging.getLogger(__name__ + ".frames")
 #: that does not decode: the MalformedMessage). It may return an awaitable, which the reader
 #: awaits before reading on (back-pressure).
 MessageHandler = Callable[[Message | MalformedMessage], Awaitable[None] | None]
+
+
+@dataclass(frozen=True, eq=False)
+class TapLink:
+    """What a :class:`Tap` is told about one connection (each connection has its own: compared by
+    identity). ``local`` and ``peer`` are the socket addresses ``(host, port)`` of a TCP connection
+    (IPv4 or IPv6), ``None`` for a serial port, a pty or a memory pair. ``accepted``: the peer
+    opened the connection (a server's); else this end did (a client's)."""
+
+    name: str
+    local: tuple[str, int] | None
+    peer: tuple[str, int] | None
+    accepted: bool
+
+
+class Tap(Protocol):
+    """Sees a connection's traffic (``Connection(tap=...)``, ``Server.tap``, ``Client(tap=...)``).
+    Called on the event loop; ``time_ns`` is ``time.time_ns()``. Must not block."""
+
+    def opened(self, link: TapLink, time_ns: int) -> None:
+        """The connection exists (called once, first)."""
+
+    def data(self, link: TapLink, outgoing: bool, data: bytes, time_ns: int) -> None:
+        """Bytes written to the transport (``outgoing``) or received from it, in order."""
+
+    def closed(self, link: TapLink, by_peer: bool, time_ns: int) -> None:
+        """The connection is over (called once, last); ``by_peer``: the peer's input had ended
+        (EOF, reset) before this end closed."""
 
 
 class ConnectionState(enum.Enum):
@@ -185,6 +220,8 @@ class Connection(asyncio.Protocol):
         max_write_buffer: int = 256 * 1024,
         answers: ReplyRule = any_dialect_answers,
         frame_timeout: float | None = None,
+        tap: Tap | None = None,
+        accepted: bool = False,
     ) -> None:
         #: the protocol state (sans-I/O): frames, byte order, requests and replies
         self.link = Link(wire, autodetect=autodetect, max_length=max_length, answers=answers)
@@ -244,6 +281,16 @@ class Connection(asyncio.Protocol):
         self.name = name or str(transport.get_extra_info("peername") or "link")
         #: the log lines this peer may cause (:mod:`.lograte`)
         self.log_budget = LogBudget(self.name)
+        #: sees the traffic (:class:`Tap`): given to the constructor; ``None`` once it failed, and
+        #: once the connection is closed
+        self.tap: Tap | None = None
+        #: what the tap is told about this connection
+        self.tap_link = TapLink(self.name, *_addresses(transport), accepted=accepted)
+        #: the peer's input ended (EOF, lost transport) before this end closed (for the tap)
+        self._input_over = False
+        if tap is not None:
+            self.tap = tap
+            self._tap_call(tap.opened, self.tap_link, time.time_ns())
 
     @property
     def wire(self) -> WireFormat:
@@ -317,7 +364,10 @@ class Connection(asyncio.Protocol):
             # the peer hung up (cleanly or not): normal life of a connection, not a warning
             log.info("%s: disconnected%s", self.name, f" ({reason})" if reason else "")
             if self._queued and not self.transport.is_closing():  # queued goes out before the close
-                self.transport.write(b"".join(self._queued))
+                data = b"".join(self._queued)
+                self.transport.write(data)
+                if self.tap is not None:
+                    self._tapped(True, data)
                 self._queued.clear()
             self.transport.close()
         else:
@@ -325,6 +375,10 @@ class Connection(asyncio.Protocol):
             # Drop what is buffered: a stalled peer would otherwise hold the close for ever.
             self._queued.clear()
             self.transport.abort()
+        tap = self.tap
+        if tap is not None:
+            self.tap = None  # nothing more: the tap's record of the connection ends here
+            self._tap_call(tap.closed, self.tap_link, self._input_over, time.time_ns())
         error = ConnectionClosed(f"{self.name}: connection closed" + (f" ({reason})" if reason else ""))
         self.link.close()
         futures, self._futures = self._futures, {}
@@ -355,6 +409,8 @@ class Connection(asyncio.Protocol):
             self._early.append(data)
             self._set_reading(False)
             return
+        if self.tap is not None:
+            self._tapped(False, data)
         if self._autodetect:
             detected = link.detected
             link.receive_data(data)
@@ -411,6 +467,7 @@ class Connection(asyncio.Protocol):
 
     def _input_ended(self, reason: BaseException | None) -> None:
         """No more bytes will come (EOF, or the transport is gone): the link ends after what it holds."""
+        self._input_over = True
         if self._early is not None:
             if self._early_end is None:
                 self._early_end = (reason,)
@@ -572,6 +629,21 @@ class Connection(asyncio.Protocol):
                 self._inbox.close()
         return self._inbox
 
+    # -- the tap ---------------------------------------------------------------------------------
+
+    def _tapped(self, outgoing: bool, data: bytes | bytearray | memoryview) -> None:
+        tap = self.tap
+        if tap is not None:
+            self._tap_call(tap.data, self.tap_link, outgoing, bytes(data), time.time_ns())
+
+    def _tap_call(self, method: Callable[..., None], *args: object) -> None:
+        """Call the tap; one that raises is logged once and dropped (never raised into the I/O)."""
+        try:
+            method(*args)
+        except Exception:
+            self.tap = None
+            log.error("%s: the tap failed and is dropped for this connection", self.name, exc_info=True)
+
     # -- sending ---------------------------------------------------------------------------------
 
     def _write_frame(self, frame: bytes) -> None:
@@ -583,6 +655,8 @@ class Connection(asyncio.Protocol):
             self._queued.clear()
         if not self.transport.is_closing():  # lost under us: connection_lost is on its way
             self.transport.write(frame)
+            if self.tap is not None:
+                self._tapped(True, frame)
 
     def queue_frame(self, frame: bytes) -> bool:
         """Queue a frame in this connection's :attr:`wire` format, to be written with the others
@@ -609,6 +683,8 @@ class Connection(asyncio.Protocol):
         if transport.is_closing():  # lost under us: connection_lost is on its way
             return False
         transport.write(data)
+        if self.tap is not None:
+            self._tapped(True, data)
         if transport.get_write_buffer_size() > self.max_write_buffer:
             self.abort(ConnectionClosed(f"peer fell {transport.get_write_buffer_size()} bytes behind"))
             return False
@@ -685,11 +761,11 @@ class Connection(asyncio.Protocol):
             return False
         if self._queued:
             self._queued.append(frame)
-            data = b"".join(self._queued)
+            frame = b"".join(self._queued)
             self._queued.clear()
-            transport.write(data)
-        else:
-            transport.write(frame)
+        transport.write(frame)
+        if self.tap is not None:
+            self._tapped(True, frame)
         if transport.get_write_buffer_size() > self.max_write_buffer:
             self.abort(ConnectionClosed(f"peer fell {transport.get_write_buffer_size()} bytes behind"))
             return False
@@ -757,6 +833,17 @@ def _expire(future: asyncio.Future[Message]) -> None:
 
 def _type_name(msg_type: int) -> str:
     return type_name(msg_type) or f"type {msg_type}"
+
+
+def _addresses(transport: asyncio.BaseTransport) -> tuple[tuple[str, int] | None, tuple[str, int] | None]:
+    """A TCP transport's local and peer ``(host, port)``; ``(None, None)`` for anything else."""
+    sock = transport.get_extra_info("socket")
+    if sock is None or sock.family not in (socket.AF_INET, socket.AF_INET6):
+        return None, None
+    local, peer = transport.get_extra_info("sockname"), transport.get_extra_info("peername")
+    if not isinstance(local, tuple) or not isinstance(peer, tuple):
+        return None, None
+    return (str(local[0]), int(local[1])), (str(peer[0]), int(peer[1]))
 
 
 def _hang_up(reason: BaseException) -> bool:

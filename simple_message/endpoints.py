@@ -60,7 +60,7 @@ from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine, Itera
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
 
-from .connection import Connection, ConnectionState, Subscription
+from .connection import Connection, ConnectionState, Subscription, Tap
 from .constants import CommType, MsgType, ReplyCode
 from .dialects import Dialect, ReplyStyle, any_dialect_answers, reply_style_of
 from .errors import ConnectionClosed, HeaderError, MalformedMessage, NotConnected
@@ -195,8 +195,12 @@ class Server:
         socket_send_buffer: int | None = None,
         frame_timeout: float | None = DEFAULT_FRAME_TIMEOUT,
         idle_after: float | None = DEFAULT_IDLE_AFTER,
+        tap: Tap | None = None,
     ) -> None:
         self.wire = wire
+        #: sees the traffic of every connection accepted from now on (:class:`~.connection.Tap`,
+        #: e.g. a :class:`~.capture_writer.CaptureWriter`)
+        self.tap = tap
         #: a connection that begins a frame and sends nothing more for this long (s) is closed
         #: (sockets only: a serial link, which cannot be dialled again, is never closed for that)
         self.frame_timeout = frame_timeout
@@ -359,6 +363,8 @@ class Server:
             drain_timeout=self.drain_timeout,
             max_write_buffer=self.max_write_buffer,
             frame_timeout=self.frame_timeout,
+            tap=self.tap,
+            accepted=True,
         )
         if not connection.is_socket:
             # a serial line cannot be dialled again: a byte of line noise must not end it
@@ -761,8 +767,11 @@ class Client:
         max_length: int = DEFAULT_MAX_LENGTH,
         drain_timeout: float = 5.0,
         dialect: Dialect | None = None,
+        tap: Tap | None = None,
     ) -> None:
         self._connector = connector
+        #: sees the traffic of every connection the client makes (:class:`~.connection.Tap`)
+        self.tap = tap
         #: the server's dialect (which replies answer which requests); None: any dialect's
         self.dialect = dialect
         self.wire = wire
@@ -882,6 +891,7 @@ class Client:
                         subscriptions=self.subscriptions,
                         drain_timeout=self.drain_timeout,
                         answers=self.dialect.answers if self.dialect is not None else any_dialect_answers,
+                        tap=self.tap,
                     )
                     self.connection = conn.start()
                     self._set_state(ConnectionState.CONNECTED)

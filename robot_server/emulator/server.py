@@ -12,6 +12,10 @@ state together. Use it from tests and programs::
 
 ``close()`` stops the robot with a controlled deceleration, waits (bounded) until it has settled,
 then closes every connection.
+
+With ``capture`` set, every connection of every port (and the serial link) is recorded to that
+pcapng file (:mod:`simple_message.capture_writer`: opened by ``start()``, closed by ``close()``
+after the connections, bounded by ``capture_max_bytes``).
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+from simple_message.capture_writer import DEFAULT_MAX_BYTES, CaptureWriter
 from simple_message.constants import MAX_JOINTS
 from simple_message.dialects import ReplyStyle, reply_style_of
 from simple_message.endpoints import DEFAULT_IDLE_AFTER, Server, Session
@@ -129,6 +134,10 @@ class EmulatorConfig:
     manual_motion: bool = False
     #: where every motion group starts (joint values, SI; default: 0, moved into the limits)
     initial_position: tuple[float, ...] | None = None
+    #: record every connection's traffic to this pcapng file (:mod:`simple_message.capture_writer`)
+    capture: str | Path | None = None
+    #: the bound of the capture's files together (bytes; the file rotates, see capture_writer)
+    capture_max_bytes: int = DEFAULT_MAX_BYTES
 
     def __post_init__(self) -> None:
         dialect = profile_named(self.profile).dialect
@@ -158,6 +167,8 @@ class EmulatorConfig:
             raise ValueError(f"max_connections must be at least 1, not {self.max_connections}")
         if not self.frame_timeout > 0.0:
             raise ValueError(f"the frame timeout must be > 0 s, not {self.frame_timeout}")
+        if self.capture_max_bytes < 1:
+            raise ValueError(f"the capture's size bound must be at least 1 byte, not {self.capture_max_bytes}")
 
     @property
     def wire(self) -> WireFormat:
@@ -321,6 +332,8 @@ class Emulator:
         self._tasks: list[asyncio.Task[None]] = []
         self._started = False
         self._closed = False
+        #: the pcapng recording of every connection (``config.capture``), from ``start()`` on
+        self.capture: CaptureWriter | None = None
         #: the ceiling over :data:`PEER_LOGGERS` while the emulator runs
         self._log_ceiling: BudgetFilter | None = None
 
@@ -330,8 +343,14 @@ class Emulator:
         """Bind the ports, start the control loop and the state topics."""
         if self._started:
             return self
-        self._started = True
         cfg = self.config
+        if cfg.capture is not None:  # an OSError here: nothing is bound or started yet
+            self.capture = CaptureWriter(
+                cfg.capture, max_bytes=cfg.capture_max_bytes, application=f"robot-server ({cfg.profile} profile)"
+            )
+            for server in {*self.servers.values(), self.state_server}:
+                server.tap = self.capture
+        self._started = True
         try:
             for name, server in self.servers.items():
                 port = cfg.port(name)
@@ -340,6 +359,8 @@ class Emulator:
         except BaseException:  # e.g. a port taken: nothing stays bound
             for server in self.servers.values():
                 await server.close()
+            if self.capture is not None:
+                self.capture.close()
             raise
         # installed once nothing can fail any more (close takes it off again)
         self._log_ceiling = BudgetFilter(
@@ -432,6 +453,8 @@ class Emulator:
         await asyncio.gather(*self._tasks, return_exceptions=True)
         for server in {*self.servers.values(), self.state_server}:
             await server.close()
+        if self.capture is not None:  # after the connections: their ends are in the file
+            self.capture.close()
         if self._log_ceiling is not None:
             self._log_ceiling.remove()
         log.info("emulator closed")
