@@ -37,6 +37,8 @@ from .cliargs import (
     add_version_argument,
     client_port,
     import_all,
+    positive_float,
+    positive_int,
     preimport,
 )
 from .errors import FrameError, SimpleMessageError
@@ -50,23 +52,29 @@ __all__ = ["main", "add_wire_arguments", "wire_from_args", "add_import_argument"
 log = logging.getLogger("simple_message.cli")
 
 
-def add_wire_arguments(parser: argparse.ArgumentParser, *, allow_auto: bool = True) -> None:
-    """The ``--byte-order`` and ``--float64`` options shared by every command of the project."""
+def add_wire_arguments(
+    parser: argparse.ArgumentParser, *, allow_auto: bool = True, default: str | None = "little", default_text: str = ""
+) -> None:
+    """The ``--byte-order`` and ``--float64`` options shared by every command of the project
+    (``default`` None: the command decides, and says how in ``default_text``)."""
     choices = ["little", "big", "auto"] if allow_auto else ["little", "big"]
+    said = default_text or f"{default}, the ROS default build"
     parser.add_argument(
         "--byte-order",
         choices=choices,
-        default="little",
-        help="wire byte order (default: %(default)s, the ROS default build; Fanuc and FS100 use big)"
+        default=default,
+        help=f"wire byte order (default: {said}; Fanuc and FS100 use big)"
         + ("; auto detects it from the first length prefix" if allow_auto else ""),
     )
     parser.add_argument("--float64", action="store_true", help="reals are float64 (the FLOAT64 build)")
 
 
-def wire_from_args(args: argparse.Namespace) -> tuple[WireFormat, bool]:
-    """The wire format the options ask for, and whether the byte order is to be detected."""
-    auto = args.byte_order == "auto"
-    order = ByteOrder.LITTLE if auto else ByteOrder(args.byte_order)
+def wire_from_args(args: argparse.Namespace, default: str = "little") -> tuple[WireFormat, bool]:
+    """The wire format the options ask for, and whether the byte order is to be detected
+    (``default``: the byte order when the option was left to the command)."""
+    chosen = args.byte_order if args.byte_order is not None else default
+    auto = chosen == "auto"
+    order = ByteOrder.LITTLE if auto else ByteOrder(chosen)
     return WireFormat(order, 8 if args.float64 else 4), auto
 
 
@@ -157,7 +165,7 @@ def _msg_types(names: list[str]) -> set[int] | None:
 
 def _decode_capture(args: argparse.Namespace) -> int:
     """``decode`` of a pcap/pcapng capture: messages on stdout, gaps and errors on stderr."""
-    wire, auto = wire_from_args(args)
+    wire, auto = wire_from_args(args, default="auto")
     types = _msg_types(args.types) if args.types else None
     if args.types and types is None:
         return 2
@@ -195,6 +203,51 @@ def _decode_capture(args: argparse.Namespace) -> int:
         _emit_error(type(exc).__name__, str(exc))
         return 1
     return 1 if errors else 0
+
+
+def _replay(args: argparse.Namespace) -> int:
+    """``replay``: the capture's client side against ``--against``, a table, exit 0 iff all match."""
+    import asyncio
+
+    from .replay import ReplayError, exchanges, format_table, from_capture, replay, server_ports
+
+    wire, auto = wire_from_args(args, default="auto")
+    host, _, listed = args.against.rpartition(":") if ":" in args.against else (args.against, "", "")
+    if not host:
+        host, listed = listed, ""
+    try:
+        items, wire, problems = from_capture(args.file, wire, auto, ports=args.ports or None)
+    except CaptureError as exc:
+        _emit_error(type(exc).__name__, str(exc))
+        return 1
+    for problem in problems:
+        print(f"simple-message replay: {args.file}: {problem}", file=sys.stderr)
+    plan = exchanges(items)
+    if not plan:
+        _emit_error("ReplayError", f"{args.file}: no client message to replay")
+        return 1
+    captured = server_ports(items)
+    try:
+        targets = [client_port(p) for p in listed.split(",")] if listed else captured
+    except argparse.ArgumentTypeError as exc:
+        _emit_error("UsageError", f"--against {args.against}: {exc}")
+        return 2
+    if len(targets) != len(captured):
+        _emit_error(
+            "UsageError",
+            f"--against {args.against}: the capture has {len(captured)} controller port(s) "
+            f"({', '.join(map(str, captured))}); give as many",
+        )
+        return 2
+    ports = dict(zip(captured, targets, strict=True))
+    options = {"keep_timing": args.keep_timing, "remap": args.remap, "reply_timeout": args.reply_timeout}
+    try:
+        outcomes = asyncio.run(replay(plan, host, ports, wire, **options))
+    except ReplayError as exc:
+        _emit_error("ReplayError", str(exc))
+        return 1
+    print(format_table(outcomes))
+    return 0 if all(o.match for o in outcomes) else 1
 
 
 def _decode(args: argparse.Namespace) -> int:
@@ -284,6 +337,17 @@ hex line on stdout, or with --raw as binary. Lines starting with # and blank lin
 line that does not encode prints an error object on stderr; the command goes on and exits 1 at the
 end."""
 
+_REPLAY = """Play the client side of a captured session (a pcap/pcapng capture) against a controller or the
+emulator, and compare each reply with the captured one by kind: message type, comm type, reply code,
+and a MotoROS MOTO_MOTION_REPLY's result and subcode (values such as positions are not compared).
+Requests go as fast as the protocol allows (or with --keep-timing, no earlier than in the capture); a
+request the captured controller answered BUSY is sent again while the target answers BUSY. Prints a
+table, one line per request or topic sent, and a summary; exits 0 only when every reply matches."""
+
+_REPLAY_EXAMPLE = """Example, a real FS100's session against the emulator (its ports 50240 and 50241):
+  robot-server --profile motoros --byte-order big --interpolation-period 0.002 &
+  simple-message replay motoman_fs100_simple_move.pcapng --against 127.0.0.1 --remap 6"""
+
 _TYPES = """Every message type of the registry decodes and encodes by name; --import MODULE (repeatable)
 imports a module first, e.g. one that registers a vendor message set."""
 
@@ -302,7 +366,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="frames (hex lines, --raw bytes or a pcap/pcapng capture) to JSON lines",
         description=f"{_DECODE}\n\n{_TYPES}",
     )
-    add_wire_arguments(dec)
+    add_wire_arguments(dec, default=None, default_text="little for hex and bytes, auto for a capture")
     dec.add_argument("--raw", action="store_true", help="input is a binary byte stream, not hex lines")
     add_import_argument(dec)
     dec.add_argument(
@@ -330,6 +394,47 @@ def build_parser() -> argparse.ArgumentParser:
         help="input file: hex lines, bytes with --raw, or a pcap/pcapng capture (default: stdin)",
     )
     dec.set_defaults(func=_decode)
+    rep_ = sub.add_parser(
+        "replay",
+        help="play a capture's client side against a controller and compare the replies",
+        description=_REPLAY,
+        epilog=_REPLAY_EXAMPLE,
+    )
+    add_wire_arguments(rep_, default="auto", default_text="auto, detected from the capture's first frame")
+    add_import_argument(rep_)
+    rep_.add_argument("file", metavar="FILE", help="a pcap/pcapng capture of a session")
+    rep_.add_argument(
+        "--against",
+        required=True,
+        metavar="HOST[:PORT,...]",
+        help="the controller to replay against; the capture's controller ports, ascending, map to the PORTs "
+        "given (default: the same port numbers)",
+    )
+    rep_.add_argument(
+        "--port",
+        dest="ports",
+        action="append",
+        default=[],
+        type=client_port,
+        metavar="PORT",
+        help="replay only the connections with PORT at either end (repeatable)",
+    )
+    rep_.add_argument(
+        "--keep-timing",
+        action="store_true",
+        help="send each request no earlier than the capture did (default: at once)",
+    )
+    rep_.add_argument(
+        "--remap",
+        type=positive_int,
+        metavar="JOINTS",
+        help="move the trajectory points to where the target robot stands, for a robot of JOINTS joints "
+        "(the slots beyond them cleared)",
+    )
+    rep_.add_argument(
+        "--reply-timeout", type=positive_float, default=5.0, metavar="SECONDS", help="per reply (default: 5)"
+    )
+    rep_.set_defaults(func=_replay)
     enc = sub.add_parser(
         "encode",
         help="JSON lines to frames (hex lines or --raw bytes)",

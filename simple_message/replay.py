@@ -36,13 +36,14 @@ import contextlib
 import dataclasses
 import logging
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Sequence
 from dataclasses import dataclass, field
 
+from .capture import CaptureEvent, captured_messages
 from .constants import CommType, MotoCommand, MotoResult
 from .dialects import DIALECTS
 from .errors import SimpleMessageError
-from .framing import FrameDecoder
+from .framing import FrameDecoder, detect_byte_order
 from .messages import (
     JointFeedback,
     JointPosition,
@@ -57,7 +58,18 @@ from .messages import (
 )
 from .wire import WireFormat
 
-__all__ = ["Captured", "Exchange", "Outcome", "ReplayError", "exchanges", "replay", "kind", "format_table"]
+__all__ = [
+    "Captured",
+    "Exchange",
+    "Outcome",
+    "ReplayError",
+    "exchanges",
+    "from_capture",
+    "server_ports",
+    "replay",
+    "kind",
+    "format_table",
+]
 
 log = logging.getLogger(__name__)
 
@@ -152,6 +164,32 @@ def exchanges(frames: Iterable[Captured]) -> list[Exchange]:
             k = waiting.pop(key)
             out[k] = dataclasses.replace(out[k], expected=item.message)
     return out
+
+
+def from_capture(
+    path: str, wire: WireFormat, auto: bool, *, ports: Collection[int] | None = None
+) -> tuple[list[Captured], WireFormat, list[str]]:
+    """The frames of a pcap/pcapng capture (:mod:`.capture`) as :class:`Captured`, the wire format
+    they were spoken in (the byte order detected from the first frame when ``auto``) and what the
+    capture could not give (gaps, undecodable frames), as lines for the user."""
+    items: list[Captured] = []
+    problems: list[str] = []
+    for item in captured_messages(path, wire, auto, ports=ports):
+        if isinstance(item, CaptureEvent):
+            problems.append(f"{item.kind.value}: {item.message}")
+        elif item.message is None:
+            problems.append(f"{type(item.error).__name__}: {item.error}")
+        else:
+            items.append(Captured(item.time, item.src, item.dst, item.frame, item.message, item.client))
+    if auto and items:
+        wire = WireFormat(detect_byte_order(items[0].frame[:4]), wire.real_size)
+    return items, wire, problems
+
+
+def server_ports(items: Iterable[Captured]) -> list[int]:
+    """The controller's ports in the capture (the server side of each connection), ascending."""
+    known = _well_known()
+    return sorted({_sides(item, known)[1][1] for item in items})
 
 
 def _well_known() -> set[int]:
