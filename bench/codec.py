@@ -2,7 +2,8 @@
 
 Plain script; prints a table. Targets: decoding at least 300,000 JOINT_TRAJ_PT frames per second on
 one core, frame cutting included (issue 2); 1,000,000 on the path a Link takes,
-``FrameDecoder.feed_messages`` (issue 16).
+``FrameDecoder.feed_messages`` (issue 16); 200,000 messages per second decoded from a 100 MB
+pcapng of the project's own traffic (issue 20; ``--capture-mb`` sets its size).
 
 Columns: ``cut+decode`` is ``feed`` + ``decode`` of each frame, each message dropped at once;
 ``kept`` the same with the messages of a call kept until its end; ``feed_messages`` cuts and decodes
@@ -12,7 +13,7 @@ visible with the three-array types), so ``kept`` is the like-for-like comparison
 1000 coalesced frames of one type, which ``feed_messages`` decodes as one run; the mixed-stream
 table below shows both paths on a random mix of four types (runs of about one frame).
 
-    python bench/codec.py [--seconds 0.5]
+    python bench/codec.py [--seconds 0.5] [--capture-mb 100]
 """
 
 from __future__ import annotations
@@ -21,20 +22,27 @@ import argparse
 import os
 import platform
 import random
+import tempfile
 import time
 from collections.abc import Callable
 
 from simple_message import (
     LE32,
+    CommType,
     FrameDecoder,
     JointFeedback,
+    JointPosition,
     JointTrajPt,
     JointTrajPtFull,
     Message,
+    ReplyCode,
     Status,
     decode,
     encode,
 )
+from simple_message.capture import CapturedMessage, captured_messages
+from simple_message.capture_writer import CaptureWriter
+from simple_message.connection import TapLink
 
 
 def rate(fn: Callable[[], object], seconds: float, batch: int = 1000) -> float:
@@ -72,6 +80,7 @@ def machine() -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--seconds", type=float, default=0.5)
+    parser.add_argument("--capture-mb", type=float, default=100.0, help="size of the capture decoded (MB)")
     args = parser.parse_args()
     q = [0.1, -0.2, 0.3, -0.4, 0.5, -0.6]
     samples: list[tuple[str, Message]] = [
@@ -168,6 +177,63 @@ def main() -> None:
     print("|---|---:|")
     for label, fn in (("feed + decode", plain), ("feed + decode, kept", plain_kept), ("feed_messages", one_pass)):
         print(f"| {label} | {rate(fn, args.seconds, batch=1) * frames:,.0f} |")
+    capture_rate(args.capture_mb)
+
+
+def write_capture(path: str, megabytes: float) -> int:
+    """A pcapng of the project's own traffic, as robot-server --capture writes it (the
+    CaptureWriter, through its Tap interface): a state connection publishing JOINT_POSITION and
+    STATUS every 4 ms (and JOINT_FEEDBACK every other round) in one write, and a motion
+    connection streaming JOINT_TRAJ_PT requests and their replies. Returns the messages written."""
+    writer = CaptureWriter(path, max_bytes=10**12, files=1)
+    state = TapLink("state", ("127.0.0.1", 11002), ("127.0.0.1", 40001), accepted=True)
+    motion = TapLink("motion", ("127.0.0.1", 11000), ("127.0.0.1", 40002), accepted=True)
+    t = 1_700_000_000_000_000_000
+    writer.opened(state, t)
+    writer.opened(motion, t)
+    status = encode(Status(1, 0, 0, 0, 1, 2, 1), LE32)
+    reply = encode(JointTrajPt(0, comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS), LE32)
+    messages, k = 0, 0
+    target = megabytes * 1e6
+    while True:
+        k += 1
+        t += 4_000_000
+        q = (0.001 * k,) * 6
+        chunk = encode(JointPosition(0, q), LE32) + status
+        messages += 2
+        if k % 2 == 0:
+            chunk += encode(JointFeedback(0, 2, 0.0, q), LE32)
+            messages += 1
+        writer.data(state, True, chunk, t)
+        if k % 3 == 0:
+            writer.data(motion, False, encode(JointTrajPt(k, q, 0.5, 0.1), LE32), t + 1000)
+            writer.data(motion, True, reply, t + 2000)
+            messages += 2
+        if k % 5000 == 0 and os.path.getsize(path) >= target:
+            break
+    writer.closed(state, False, t)
+    writer.closed(motion, False, t)
+    writer.close()
+    return messages
+
+
+def capture_rate(megabytes: float) -> None:
+    """Messages per second decoded from a capture of the project's own traffic (target: 200,000)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "traffic.pcapng")
+        written = write_capture(path, megabytes)
+        size = os.path.getsize(path)
+        best = 0.0
+        for _ in range(3):
+            t0 = time.perf_counter()
+            decoded = sum(1 for item in captured_messages(path, LE32, True) if isinstance(item, CapturedMessage))
+            best = max(best, decoded / (time.perf_counter() - t0))
+        assert decoded == written, (decoded, written)
+    print()
+    print("| capture decode (`captured_messages`: read, TCP reassembled, cut, decoded) | messages | msg/s |")
+    print("|---|---:|---:|")
+    print(f"| {size / 1e6:.0f} MB pcapng of the project's own traffic | {decoded:,} | {best:,.0f} |")
+
 
 
 if __name__ == "__main__":
