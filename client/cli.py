@@ -555,6 +555,11 @@ def _capture(args: argparse.Namespace) -> contextlib.AbstractContextManager[Capt
 
 
 async def _demo(args: argparse.Namespace, out: TextIO) -> None:
+    with _capture(args) as capture:
+        await _run_demo(args, out, capture)
+
+
+async def _run_demo(args: argparse.Namespace, out: TextIO, capture: CaptureWriter | None) -> None:
     config = DemoConfig(
         model=args.model,
         output=args.output,
@@ -568,6 +573,7 @@ async def _demo(args: argparse.Namespace, out: TextIO) -> None:
         policies=tuple(args.policies),
         plot=not args.no_plot,
         movl=not args.no_movl,
+        tap=capture,
     )
     if args.short:
         config = dataclasses.replace(config, width=0.06, height=0.04)
@@ -603,8 +609,6 @@ def _check_arguments(args: argparse.Namespace, model: RobotModel) -> None:
     if args.command == "record":
         _writable(args.file)
     if args.capture is not None:
-        if args.command == "demo":
-            raise ValueError("--capture is not supported by demo (its runs make connections of their own)")
         _writable(args.capture)
     if args.command != "move":
         return

@@ -63,6 +63,7 @@ from robot_server.control import DEFAULT_POLICY
 from robot_server.kinematics import closed_form, fk, fk_batch, rotation_to_quaternion
 from robot_server.loader import load_model
 from robot_server.model import RobotModel
+from simple_message.connection import Tap
 from simple_message.wire import DEFAULT_FORMAT, WireFormat
 
 from .driver import DriverError, LineGoal, Mode, RobotDriver
@@ -123,6 +124,8 @@ class DemoConfig:
     plot: bool = True
     #: also run the rectangle as four straight lines of the controller (the "controller MOVL" row)
     movl: bool = True
+    #: sees every connection's traffic (robot-client demo --capture: a CaptureWriter)
+    tap: Tap | None = None
 
 
 @dataclass(frozen=True)
@@ -396,6 +399,7 @@ async def _embedded_run(config: DemoConfig, plan: _Plan, policy: str | None) -> 
             goal_tolerance=SETTLED_POSITION,
             watchdog=2.0,
             tcp_tolerance=1e-4,
+            tap=config.tap,
         )
         async with driver:
             await _approach(driver, _planner(model, config), plan.start, mode)
@@ -505,6 +509,7 @@ async def _probe(config: DemoConfig, model: RobotModel) -> RobotDriver | None:
         wire=config.wire,
         model=model,
         goal_tolerance=SETTLED_POSITION * 5,
+        tap=config.tap,
     )
     try:
         await driver.connect(timeout=1.0)

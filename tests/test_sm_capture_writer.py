@@ -36,6 +36,7 @@ from client import cli as client_cli
 from robot_server import cli as server_cli
 from robot_server.emulator import Emulator, EmulatorConfig
 from simple_message import LE32, FrameDecoder, MsgType, Ping, decode
+from simple_message.capture import CapturedMessage, captured_messages
 from simple_message.capture_writer import MAX_SEGMENT, CaptureWriter, rotated_name
 from simple_message.connection import Connection, TapLink
 from simple_message.endpoints import Client, Server
@@ -621,10 +622,25 @@ def test_the_commands_refuse_a_capture_they_cannot_write(tmp_path: Path, capsys:
     missing = str(tmp_path / "nowhere" / "x.pcapng")
     assert client_cli.main(["status", "--capture", missing], io.StringIO()) == 2
     assert "cannot write it" in capsys.readouterr().err
-    assert client_cli.main(["demo", "--capture", str(tmp_path / "x.pcapng")], io.StringIO()) == 2
-    assert "--capture is not supported by demo" in capsys.readouterr().err
+    assert client_cli.main(["demo", "--capture", missing], io.StringIO()) == 2
+    assert "cannot write it" in capsys.readouterr().err
     assert server_cli.main(["--capture", missing, "--no-stdin"]) == 2
     assert "--capture" in capsys.readouterr().err
     assert server_cli.main(["--capture", str(tmp_path), "--no-stdin"]) == 2
     assert "is a directory" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_demo_records_every_run_of_its_own(tmp_path: Path) -> None:
+    """robot-client demo --capture: the runs on its embedded emulators, in one file."""
+    path = tmp_path / "demo.pcapng"
+    argv = ["demo", "--simulated", "--embedded", "--short", "--policies", "quintic", "--no-plot"]
+    argv += ["--output", str(tmp_path / "out"), "--capture", str(path)]
+    assert client_cli.main(argv, io.StringIO()) == 0
+    names = [
+        item.message.name
+        for item in captured_messages(str(path), LE32, True)
+        if isinstance(item, CapturedMessage) and item.message is not None
+    ]
+    # the quintic row downloads its waypoints; the MOVL row sends CARTESIAN_LINE; both read the state
+    assert "JOINT_TRAJ_PT" in names and "CARTESIAN_LINE" in names and "JOINT_POSITION" in names
