@@ -7,7 +7,9 @@ transport or gets it from it, as one TCP segment (or several, see below) of a sy
 Ethernet/IPv4/TCP packet. Reading the file back with dpkt, tshark or ``simple-message decode``
 gives each direction's byte stream exactly.
 
-**The file.** pcapng (little- or big-endian as the machine, written with ``dpkt.pcapng``): one
+**The file.** A path ending in ``.pcap`` gets a classic pcap file (nanosecond timestamps, magic
+``a1b23c4d``, link type Ethernet; no packet comments), any other a pcapng one. pcapng (little- or
+big-endian as the machine, written with ``dpkt.pcapng``): one
 Section Header Block (``shb_userappl``: the program), one Interface Description Block (link type
 Ethernet, ``DLT_EN10MB``; snap length 262144; ``if_name`` ``simple_message``; ``if_tsresol`` 9:
 timestamps in nanoseconds, from ``time.time_ns()`` when the tap was called), then one Enhanced
@@ -85,6 +87,7 @@ from types import TracebackType
 from typing import IO, Any
 
 import dpkt  # type: ignore[import-untyped, unused-ignore]
+import dpkt.pcap  # type: ignore[import-untyped, unused-ignore]
 import dpkt.pcapng  # type: ignore[import-untyped, unused-ignore]
 
 from .connection import TapLink
@@ -208,6 +211,8 @@ class CaptureWriter:
         #: the bound of one file (bytes)
         self.file_limit = max(1, max_bytes // files)
         self.application = application
+        #: ``pcap`` for a path ending in ``.pcap``, else ``pcapng``
+        self.format = "pcap" if self.path.suffix.lower() == ".pcap" else "pcapng"
         #: packets written (all files)
         self.packets = 0
         #: how many times the file was full and a new one begun
@@ -302,6 +307,14 @@ class CaptureWriter:
     def _open(self) -> None:
         """Begin a new file with its headers (raises OSError)."""
         file = open(self.path, "wb", buffering=1 << 16)  # noqa: SIM115 - kept open, closed by close()
+        if self.format == "pcap":
+            try:
+                dpkt.pcap.Writer(file, snaplen=SNAPLEN, linktype=dpkt.pcap.DLT_EN10MB, nano=True)  # the header
+            except BaseException:
+                file.close()
+                raise
+            self._file, self._size, self._in_file = file, _PCAP_HEADER_SIZE, 0
+            return
         try:
             shb = _SHB(opts=[_option(dpkt.pcapng.PCAPNG_OPT_SHB_USERAPPL, self.application.encode()), _option(0)])
             idb = _IDB(
@@ -331,7 +344,11 @@ class CaptureWriter:
                 file.close()
 
     def _write(self, packet: bytes, time_ns: int, comment: str | None = None) -> None:
-        block = _packet_block(packet, time_ns, comment)
+        if self.format == "pcap":
+            seconds, nanoseconds = divmod(time_ns, 1_000_000_000)
+            block = _PCAP_RECORD.pack(seconds, nanoseconds, len(packet), len(packet)) + packet
+        else:
+            block = _packet_block(packet, time_ns, comment)
         if self._size + len(block) > self.file_limit and self._in_file > 0 and not self._next_file():
             return
         file = self._file
@@ -448,6 +465,11 @@ class CaptureWriter:
         flow.unacked[sender] += len(payload)
         if flags & _ACK:
             flow.unacked[receiver] = 0
+
+
+#: a classic pcap file's header, and a record's header in the machine's byte order (dpkt's Writer)
+_PCAP_HEADER_SIZE = 24
+_PCAP_RECORD = struct.Struct("<IIII" if _LITTLE else ">IIII")
 
 
 def _packet_block(packet: bytes, time_ns: int, comment: str | None) -> bytes:

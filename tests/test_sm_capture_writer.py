@@ -37,6 +37,7 @@ from robot_server import cli as server_cli
 from robot_server.emulator import Emulator, EmulatorConfig
 from simple_message import LE32, FrameDecoder, MsgType, Ping, decode
 from simple_message.capture import CapturedMessage, captured_messages
+from simple_message.capture import read_capture as read_capture_segments
 from simple_message.capture_writer import MAX_SEGMENT, CaptureWriter, rotated_name
 from simple_message.connection import Connection, TapLink
 from simple_message.endpoints import Client, Server
@@ -644,3 +645,28 @@ def test_the_demo_records_every_run_of_its_own(tmp_path: Path) -> None:
     ]
     # the quintic row downloads its waypoints; the MOVL row sends CARTESIAN_LINE; both read the state
     assert "JOINT_TRAJ_PT" in names and "CARTESIAN_LINE" in names and "JOINT_POSITION" in names
+
+
+def test_a_pcap_and_a_pcapng_written_by_the_project_read_back_identically(tmp_path: Path) -> None:
+    """The same traffic through a writer to FILE.pcap (classic pcap, ns timestamps) and to
+    FILE.pcapng: the reader gives the same packets, times and payloads from both."""
+    server = TapLink("motion", ("127.0.0.1", 11000), ("127.0.0.1", 40001), accepted=True)
+    client = TapLink("state", ("10.0.0.2", 40002), ("10.0.0.1", 11002), accepted=False)
+    ping = PING_REQUEST
+    segments = {}
+    for name in ("traffic.pcap", "traffic.pcapng"):
+        with CaptureWriter(tmp_path / name) as writer:
+            assert writer.format == name.rsplit(".", 1)[1]
+            writer.opened(server, T0)
+            writer.opened(client, T0 + 1)
+            for k in range(5):
+                writer.data(server, False, ping, T0 + 10 * k + 2)
+                writer.data(server, True, ping, T0 + 10 * k + 3)
+                writer.data(client, False, bytes(range(40)) * (k + 1), T0 + 10 * k + 4)
+            writer.closed(server, True, T0 + 100)
+            writer.closed(client, False, T0 + 101)
+        segments[name] = [
+            (s.time_ns, s.src, s.dst, s.flags, s.seq, s.payload) for s in read_capture_segments(str(tmp_path / name))
+        ]
+    assert segments["traffic.pcap"] == segments["traffic.pcapng"]
+    assert len(segments["traffic.pcap"]) > 15 and segments["traffic.pcap"][0][0] == T0  # nanoseconds kept
