@@ -15,7 +15,9 @@ Quick use::
 
 from __future__ import annotations
 
-from .connection import Connection, ConnectionState, Subscription
+from .capture import CapturedMessage, CaptureError, CaptureEvent, captured_messages, read_capture
+from .capture_writer import CaptureWriter
+from .connection import Connection, ConnectionState, Subscription, Tap, TapLink
 from .constants import (
     HEADER_SIZE,
     LENGTH_SIZE,
@@ -116,6 +118,14 @@ from .messages import (
 from .wire import BE32, BE64, DEFAULT_FORMAT, LE32, LE64, ByteOrder, WireFormat
 
 __all__ = [
+    "CaptureError",
+    "CapturedMessage",
+    "CaptureEvent",
+    "CaptureWriter",
+    "Tap",
+    "TapLink",
+    "captured_messages",
+    "read_capture",
     # endpoints, connections and their errors
     "Client",
     "CloseConnection",
