@@ -235,6 +235,5 @@ def capture_rate(megabytes: float) -> None:
     print(f"| {size / 1e6:.0f} MB pcapng of the project's own traffic | {decoded:,} | {best:,.0f} |")
 
 
-
 if __name__ == "__main__":
     main()
