@@ -172,16 +172,18 @@ class _Flow:
 
     __slots__ = ("ends", "ip_id", "name", "seq", "unacked")
 
-    def __init__(self, name: str, local: _End, peer: _End) -> None:
+    def __init__(self, name: str, local: _End, peer: _End, serial: int) -> None:
         self.name = name
         self.ends = (local, peer)
-        self.seq = [_isn(local, peer), _isn(peer, local)]
+        self.seq = [_isn(local, peer, serial), _isn(peer, local, serial)]
         self.unacked = [0, 0]
         self.ip_id = [0, 0]
 
 
-def _isn(src: _End, dst: _End) -> int:
-    return zlib.crc32(src.ip + dst.ip + struct.pack(">HH", src.port, dst.port))
+def _isn(src: _End, dst: _End, serial: int) -> int:
+    """A direction's initial sequence number: from its addresses, ports and the connection's serial
+    number in this capture (a port pair used again gets other numbers, as a real stack's would)."""
+    return zlib.crc32(src.ip + dst.ip + struct.pack(">HHI", src.port, dst.port, serial))
 
 
 class CaptureWriter:
@@ -228,7 +230,8 @@ class CaptureWriter:
         self._file: IO[bytes] | None = None
         self._size = 0
         self._in_file = 0
-        self._flushed = time.monotonic_ns()
+        self._flushed = time.time_ns()  # the taps' clock
+        self._connections = 0
         for k in range(1, files):  # an earlier capture's rotated files: not part of this one
             with contextlib.suppress(FileNotFoundError):
                 os.remove(rotated_name(self.path, k))
@@ -258,6 +261,7 @@ class CaptureWriter:
             flow = self._flows.pop(link, None)
             if flow is not None and self._file is not None:
                 self._close_flow(flow, 1 if by_peer else 0, time_ns)
+                self._flush()  # a connection's end is on disk, even if nothing follows for long
 
     # -- the file ------------------------------------------------------------------------------------
 
@@ -268,11 +272,14 @@ class CaptureWriter:
 
     def flush(self) -> None:
         with self._lock:
-            if self._file is not None:
-                try:
-                    self._file.flush()
-                except OSError as exc:
-                    self._fail(exc)
+            self._flush()
+
+    def _flush(self) -> None:
+        if self._file is not None:
+            try:
+                self._file.flush()
+            except OSError as exc:
+                self._fail(exc)
 
     def close(self) -> None:
         """Close the connections still open (this end first), flush and close the file."""
@@ -314,6 +321,7 @@ class CaptureWriter:
                 file.close()
                 raise
             self._file, self._size, self._in_file = file, _PCAP_HEADER_SIZE, 0
+            self._flush()  # a file that tools can open from the start
             return
         try:
             shb = _SHB(opts=[_option(dpkt.pcapng.PCAPNG_OPT_SHB_USERAPPL, self.application.encode()), _option(0)])
@@ -333,6 +341,7 @@ class CaptureWriter:
             raise
         self._file = file
         self._in_file = 0
+        self._flush()  # a file that tools can open from the start
 
     def _fail(self, exc: OSError) -> None:
         """Writing failed: say so once and record nothing more (the program goes on)."""
@@ -394,7 +403,8 @@ class CaptureWriter:
         flow = self._flows.get(link)
         if flow is not None:
             return flow
-        flow = self._flows[link] = _Flow(link.name, *self._ends(link))
+        self._connections += 1
+        flow = self._flows[link] = _Flow(link.name, *self._ends(link), self._connections)
         client = 1 if link.accepted else 0
         server = 1 - client
         self._segment(flow, client, _SYN, b"", time_ns, options=_MSS_OPTION, comment=link.name)

@@ -250,9 +250,36 @@ def _replay(args: argparse.Namespace) -> int:
     return 0 if all(o.match for o in outcomes) else 1
 
 
+#: a file's first bytes that say what it is when it is no capture and no hex text
+_NOT_TEXT = {b"\x1f\x8b": "a gzip-compressed file: gunzip it first", b"\x28\xb5\x2f\xfd": "a zstd-compressed file"}
+_CAPTURE_SUFFIXES = (".pcap", ".pcapng", ".cap", ".ntar")
+
+
+def _not_a_capture(path: str) -> str | None:
+    """Why ``path``, which is no capture, cannot be read as hex text either (None: it may be)."""
+    if not os.path.isfile(path):
+        return None
+    with open(path, "rb") as probe:
+        head = probe.read(4096)
+    for magic, what in _NOT_TEXT.items():
+        if head.startswith(magic):
+            return what
+    if path.lower().endswith(_CAPTURE_SUFFIXES):
+        return "not a pcap or pcapng capture (its first bytes are no capture's)" if head else "an empty file"
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        if exc.start < len(head) - 4:  # not a character cut at the end of the probe
+            return "a binary file: neither a pcap/pcapng capture nor hex lines (--raw reads a byte stream)"
+    return None
+
+
 def _decode(args: argparse.Namespace) -> int:
     if not args.raw and args.file != "-" and _is_capture(args.file):
         return _decode_capture(args)
+    if not args.raw and args.file != "-" and (why := _not_a_capture(args.file)) is not None:
+        _emit_error("CaptureError", f"{args.file}: {why}")
+        return 1
     if args.ports or args.types:
         _emit_error("UsageError", "--port and --type apply to pcap/pcapng captures only")
         return 2
@@ -269,7 +296,7 @@ def _decode(args: argparse.Namespace) -> int:
                     break
             job.leftover(decoder)
         return 1 if job.errors else 0
-    text = open(args.file, encoding="utf-8") if args.file != "-" else sys.stdin  # noqa: SIM115
+    text = open(args.file, encoding="utf-8", errors="replace") if args.file != "-" else sys.stdin  # noqa: SIM115
     with text:
         for number, label, hexdata in _hex_lines(text):
             where: dict[str, Any] = {"line": number}

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 
 from .capture import CaptureEvent, captured_messages
 from .constants import CommType, MotoCommand, MotoResult
-from .dialects import DIALECTS
+from .dialects import DIALECTS, any_dialect_answers
 from .errors import SimpleMessageError
 from .framing import FrameDecoder, detect_byte_order
 from .messages import (
@@ -217,23 +217,55 @@ class _Link:
     position: tuple[float, ...] | None = None
     state_seen: asyncio.Event = field(default_factory=asyncio.Event)
     task: asyncio.Task[None] | None = None
+    #: why the connection is over (None: it is not): the target closed it, or sent what cannot be framed
+    ended: str | None = None
+    #: wakes a wait for a reply when the connection ends
+    changed: asyncio.Event = field(default_factory=asyncio.Event)
 
     async def read(self) -> None:
         decoder = FrameDecoder(self.wire.byte_order)
-        while data := await self.reader.read(65536):
-            decoder.feed(data)
-            while (frame := decoder.next_frame()) is not None:
-                try:
-                    msg = decode(frame, self.wire)
-                except SimpleMessageError as exc:
-                    log.warning("the target sent a frame that does not decode: %s", exc)
-                    continue
-                if msg.comm_type == CommType.SERVICE_REPLY:
-                    self.replies.put_nowait(msg)
-                elif isinstance(msg, JointFeedback | JointPosition) and self.position is None:
-                    values = msg.positions if isinstance(msg, JointFeedback) else msg.joint_data
-                    self.position = tuple(values)
-                    self.state_seen.set()
+        try:
+            while data := await self.reader.read(65536):
+                decoder.feed(data)
+                while (frame := decoder.next_frame()) is not None:
+                    self._received(frame)
+            self.ended = "the target closed the connection"
+        except SimpleMessageError as exc:  # a length prefix no frame has: wrong byte order?
+            self.ended = f"the target's bytes cannot be framed ({exc}): is the byte order right?"
+        except (OSError, ConnectionError) as exc:
+            self.ended = f"the connection failed: {exc}"
+        self.changed.set()
+
+    def _received(self, frame: bytes) -> None:
+        try:
+            msg = decode(frame, self.wire)
+        except SimpleMessageError as exc:
+            log.warning("the target sent a frame that does not decode: %s", exc)
+            return
+        if msg.comm_type == CommType.SERVICE_REPLY:
+            self.replies.put_nowait(msg)
+            self.changed.set()
+        elif isinstance(msg, JointFeedback | JointPosition) and self.position is None:
+            values = msg.positions if isinstance(msg, JointFeedback) else msg.joint_data
+            self.position = tuple(values)
+            self.state_seen.set()
+
+    async def reply_to(self, request: Message, timeout: float) -> Message | None:
+        """The next reply that answers ``request`` (its type by any dialect's rule, and its sequence
+        where both have one); replies that do not (late ones, replies to topics) are dropped.
+        None: none in time, or the connection ended (:attr:`ended` says why)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            while not self.replies.empty():
+                reply = self.replies.get_nowait()
+                if _answers(request, reply):
+                    return reply
+                log.info("a reply that answers nothing asked now dropped: %s", reply.name)
+            if self.ended is not None or time.monotonic() >= deadline:
+                return None
+            self.changed.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self.changed.wait(), max(deadline - time.monotonic(), 0.0))
 
 
 async def replay(
@@ -290,13 +322,28 @@ async def _shift(items: Sequence[Exchange], links: dict[int, _Link], joints: int
     first = next((_positions(e.message) for e in items if _positions(e.message) is not None), None)
     if first is None:
         return [0.0] * joints
+    waits = [asyncio.ensure_future(link.state_seen.wait()) for link in links.values()]
+    try:
+        await asyncio.wait(waits, timeout=5.0, return_when=asyncio.FIRST_COMPLETED)  # any link's first state
+    finally:
+        for wait in waits:
+            wait.cancel()
     for link in links.values():
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(link.state_seen.wait(), 5.0)
         if link.position is not None:
             here = link.position
-            return [here[j] - first[j] for j in range(joints)]
+            return [here[j] - first[j] for j in range(min(joints, len(here), len(first)))] + [0.0] * max(
+                0, joints - min(len(here), len(first))
+            )
     raise ReplayError("no joint state from the target to remap the trajectory to (is a state port in the capture?)")
+
+
+def _answers(request: Message, reply: Message) -> bool:
+    """Whether ``reply`` answers ``request``: its type by any registered dialect's rule (the echo,
+    MotoROS's MOTO_MOTION_REPLY, Fanuc's JOINT_POSITION), and the same sequence where both have one."""
+    if not any_dialect_answers(request.msg_type, reply):
+        return False
+    asked, answered = getattr(request, "sequence", None), getattr(reply, "sequence", None)
+    return asked is None or answered is None or asked == answered
 
 
 def _positions(msg: Message) -> tuple[float, ...] | None:
@@ -351,16 +398,22 @@ async def _one(
     is_request = exchange.message.comm_type == CommType.SERVICE_REQUEST
     deadline = time.monotonic() + busy_timeout
     while True:
-        link.writer.write(frame)
-        await link.writer.drain()
+        if link.ended is not None:
+            outcome.note = link.ended
+            return outcome
+        try:
+            link.writer.write(frame)
+            await link.writer.drain()
+        except (OSError, ConnectionError) as exc:
+            outcome.note = f"cannot send: {exc}"
+            return outcome
         if not is_request:
             outcome.match = True
             outcome.note = "topic: no reply expected"
             return outcome
-        try:
-            reply = await asyncio.wait_for(link.replies.get(), reply_timeout)
-        except TimeoutError:
-            outcome.note = f"no reply within {reply_timeout:g} s"
+        reply = await link.reply_to(exchange.message, reply_timeout)
+        if reply is None:
+            outcome.note = link.ended or f"no reply within {reply_timeout:g} s"
             return outcome
         if _busy(reply) and not _busy(exchange.expected) and time.monotonic() < deadline:
             outcome.busy += 1

@@ -649,3 +649,22 @@ def test_decode_capture_options(
     with pytest.raises(SystemExit):
         main(["decode", "--port", "0", str(path)])
     assert "a port is 1..65535" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "words"),
+    [
+        ("x.pcapng.gz", b"\x1f\x8b\x08\x00" + bytes(40), "gzip-compressed"),
+        ("empty.pcapng", b"", "an empty file"),
+        ("short.pcapng", b"\x0a\x0d\x0d", "not a pcap or pcapng capture"),
+        ("x.bin", bytes(range(256)) * 4, "a binary file"),
+    ],
+)
+def test_a_file_that_is_no_capture_and_no_text_is_one_line_of_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], name: str, content: bytes, words: str
+) -> None:
+    path = tmp_path / name
+    path.write_bytes(content)
+    assert main(["decode", str(path)]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == "" and len(captured.err.strip().splitlines()) == 1 and words in captured.err

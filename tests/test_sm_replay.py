@@ -110,3 +110,39 @@ async def test_replay_errors_are_one_line(tmp_path: Path, capsys: pytest.Capture
     # the wrong number of ports
     code, _, err = await asyncio.to_thread(run_cli, ["replay", FS100, "--against", "127.0.0.1:50240"], capsys)
     assert code == 2 and "give as many" in err
+
+
+async def test_a_target_that_closes_or_speaks_another_byte_order_gives_a_table_not_a_traceback(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    capture = tmp_path / "pings.pcapng"
+    ping = encode(Ping(), LE32)
+    async with emulator(capture=str(capture)) as emu:
+        reader, writer = await asyncio.open_connection("127.0.0.1", emu.ports["motion"])
+        for _ in range(3):
+            writer.write(ping)
+            await asyncio.wait_for(reader.readexactly(len(ping)), 5.0)
+        writer.close()
+        await writer.wait_closed()
+        motion = emu.ports["motion"]
+    argv = ["replay", str(capture), "--port", str(motion), "--reply-timeout", "2", "--against"]
+
+    async def answer_once_then_close(r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
+        frame = await r.readexactly(len(ping))
+        w.write(decode(frame, LE32).to_reply(ReplyCode.SUCCESS).encode(LE32))
+        await w.drain()
+        w.close()
+
+    server = await asyncio.start_server(answer_once_then_close, "127.0.0.1", 0)
+    async with server:
+        port = server.sockets[0].getsockname()[1]
+        code, out, err = await asyncio.to_thread(run_cli, [*argv, f"127.0.0.1:{port}"], capsys)
+    assert code == 1 and "Traceback" not in err
+    assert "1 of 3 exchanges match" in out
+    assert "the target closed the connection" in out or "Connection reset by peer" in out
+    # a big-endian target: its replies cannot be framed as little-endian ones
+    async with emulator(byte_order="big") as emu:
+        code, out, err = await asyncio.to_thread(run_cli, [*argv, f"127.0.0.1:{emu.ports['motion']}"], capsys)
+    assert code == 1 and "Traceback" not in err
+    assert "0 of 3 exchanges match" in out  # it closes on our little-endian frames, or we cannot frame its
+    assert "byte order" in out or "the target closed the connection" in out
