@@ -175,7 +175,7 @@ def parser() -> argparse.ArgumentParser:
         "--capture",
         metavar="FILE.pcapng",
         help="record the command's traffic to a pcapng file that Wireshark and 'simple-message decode' read "
-        "(replaced if it exists; not for demo)",
+        "(a name ending in .pcap: classic pcap; replaced if it exists)",
     )
     common.add_argument(
         "--capture-max-mb",
