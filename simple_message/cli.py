@@ -205,6 +205,17 @@ def _decode_capture(args: argparse.Namespace) -> int:
     return 1 if errors else 0
 
 
+def _host_and_ports(text: str) -> tuple[str, str]:
+    """``HOST[:PORT,...]``, an IPv6 address in brackets (``[::1]:50240,50241``) or alone (``::1``)."""
+    if text.startswith("["):
+        host, _, rest = text[1:].partition("]")
+        return host, rest.removeprefix(":")
+    if text.count(":") == 1:
+        host, _, listed = text.partition(":")
+        return host, listed
+    return text, ""  # a name, an IPv4 address, or a bare IPv6 address
+
+
 def _replay(args: argparse.Namespace) -> int:
     """``replay``: the capture's client side against ``--against``, a table, exit 0 iff all match."""
     import asyncio
@@ -212,9 +223,7 @@ def _replay(args: argparse.Namespace) -> int:
     from .replay import ReplayError, exchanges, format_table, from_capture, replay, server_ports
 
     wire, auto = wire_from_args(args, default="auto")
-    host, _, listed = args.against.rpartition(":") if ":" in args.against else (args.against, "", "")
-    if not host:
-        host, listed = listed, ""
+    host, listed = _host_and_ports(args.against)
     try:
         items, wire, problems = from_capture(args.file, wire, auto, ports=args.ports or None)
     except CaptureError as exc:

@@ -146,3 +146,12 @@ async def test_a_target_that_closes_or_speaks_another_byte_order_gives_a_table_n
     assert code == 1 and "Traceback" not in err
     assert "0 of 3 exchanges match" in out  # it closes on our little-endian frames, or we cannot frame its
     assert "byte order" in out or "the target closed the connection" in out
+
+
+def test_the_target_may_be_named_with_an_ipv6_address() -> None:
+    from simple_message.cli import _host_and_ports
+
+    assert _host_and_ports("127.0.0.1") == ("127.0.0.1", "")
+    assert _host_and_ports("robot:50240,50241") == ("robot", "50240,50241")
+    assert _host_and_ports("[::1]:50240,50241") == ("::1", "50240,50241")
+    assert _host_and_ports("::1") == ("::1", "")
