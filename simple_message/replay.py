@@ -38,9 +38,10 @@ import logging
 import time
 from collections.abc import Collection, Iterable, Sequence
 from dataclasses import dataclass, field
+from enum import IntEnum
 
 from .capture import CaptureEvent, captured_messages
-from .constants import CommType, MotoCommand, MotoResult
+from .constants import CommType, MotoCommand, MotoResult, ReplyCode
 from .dialects import DIALECTS, any_dialect_answers
 from .errors import SimpleMessageError
 from .framing import FrameDecoder, detect_byte_order
@@ -459,8 +460,8 @@ def _describe(msg: Message | None) -> str:
 
 def format_table(outcomes: Sequence[Outcome]) -> str:
     """One line per exchange, then the summary."""
-    header = f"{'#':<5} {'time (s)':>9}  {'port':<5}  {'request':<32} {'captured reply':<33} "
-    header += f"{'replayed reply':<33} busy  match"
+    header = f"{'#':<5} {'time (s)':>9}  {'port':<5}  {'request':<40} {'captured reply':<40} "
+    header += f"{'replayed reply':<40} busy  match"
     lines = [header]
     first = outcomes[0].exchange.time if outcomes else 0.0
     for o in outcomes:
@@ -471,10 +472,11 @@ def format_table(outcomes: Sequence[Outcome]) -> str:
             request += f" seq {sequence}"
         command = getattr(e.message, "command", None)
         if command is not None:
-            request += f" cmd {command}"
+            request += f" {_enum_name(MotoCommand, command)}"
+        verdict = ("yes" + (f" ({o.note})" if o.note else "")) if o.match else "NO: " + o.note
         lines.append(
-            f"{e.index:<5} {e.time - first:9.3f}  {e.port:<5}  {request:<32} {_short(e.expected):<33} "
-            f"{_short(o.reply):<33} {o.busy:>4}  {'yes' if o.match else 'NO: ' + o.note}"
+            f"{e.index:<5} {e.time - first:9.3f}  {e.port:<5}  {request:<40} {_short(e.expected):<40} "
+            f"{_short(o.reply):<40} {o.busy:>4}  {verdict}"
         )
     matched = sum(o.match for o in outcomes)
     tail = "" if matched == len(outcomes) else " (mismatches above)"
@@ -490,7 +492,14 @@ def _short(msg: Message | None) -> str:
     k = kind(msg)
     if msg is None or k is None:
         return "-"
-    text = f"{_name(msg.msg_type)}/{msg.reply_code}"
+    text = f"{_name(msg.msg_type)} {_enum_name(ReplyCode, msg.reply_code)}"
     if isinstance(msg, MotoMotionReply):
-        text += f" {msg.result}/{msg.subcode}"
+        text += f" {_enum_name(MotoResult, msg.result)}/{msg.subcode}"
     return text
+
+
+def _enum_name(enum: type[IntEnum], value: int) -> str:
+    try:
+        return enum(value).name
+    except ValueError:
+        return str(value)
