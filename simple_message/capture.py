@@ -717,6 +717,7 @@ class _Stream:
         "high",
         "isn",
         "key",
+        "late_start",
         "next_seq",
         "offset",
         "reverse",
@@ -742,6 +743,8 @@ class _Stream:
         self.fin_at: int | None = None
         self.done = False
         self.reverse: _Stream = self  # the other direction, once made
+        #: captured without its SYN, it began with a segment that earlier bytes came after (reported once)
+        self.late_start = False
 
 
 class _Tracker:
@@ -833,6 +836,20 @@ class _Tracker:
                     self._drain(s)
             elif delta >= _HALF:  # begins before the next byte: a retransmission, maybe with new bytes
                 old = (1 << 32) - delta
+                if at < 0 and s.isn is None and not s.late_start:  # before the capture's first byte of it
+                    s.late_start = True
+                    self.out.append(
+                        CaptureEvent(
+                            EventKind.GAP,
+                            f"{-at} bytes of {_arrow(s)} came after later ones at the capture's start (no SYN: "
+                            "the stream was taken to begin with the first segment seen); they are not decoded",
+                            ts,
+                            s.src,
+                            s.dst,
+                            at,
+                            0,
+                        )
+                    )
                 if n > old:
                     s.next_seq = (expected + n - old) & _SEQ
                     s.offset += n - old

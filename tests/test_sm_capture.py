@@ -443,6 +443,17 @@ def test_a_stream_without_syn_starts_at_its_first_segment(tmp_path: Path) -> Non
     assert events(items) == [] and [m.frame for m in got] == [a, b] and got[0].client is None
 
 
+def test_a_stream_without_syn_whose_first_segments_came_swapped_says_so(tmp_path: Path) -> None:
+    conv = Conversation()
+    a, b, c = frames(3)
+    first, second, third = conv.send(True, a), conv.send(True, b), conv.send(True, c)
+    items = decoded(write_capture(tmp_path / "swapped.pcap", [second, first, third], fmt="pcap"))
+    # the stream is taken to begin with b: a came late, reported (never silently lost), b and c decode
+    assert [m.frame for m in messages(items)] == [b, c]
+    [event] = events(items)
+    assert event.kind is EventKind.GAP and "came after later ones" in event.message and event.start == -len(a)
+
+
 def test_two_connections_interleaved(tmp_path: Path) -> None:
     one = Conversation()
     two = Conversation(("10.0.0.3", 40001), ("10.0.0.1", 11002), 50, 60)
