@@ -34,6 +34,7 @@ from robot_server.model import ModelError, RobotModel, rpy_matrix
 from simple_message.capture_writer import DEFAULT_MAX_BYTES, CaptureWriter
 from simple_message.cliargs import (
     ArgumentParser,
+    add_capture_arguments,
     add_import_argument,
     add_log_level_argument,
     add_profile_wire_arguments,
@@ -171,20 +172,7 @@ def parser() -> argparse.ArgumentParser:
     common.add_argument(
         "--timeout", type=positive_float, default=5.0, metavar="SECONDS", help="connect and reply timeout"
     )
-    common.add_argument(
-        "--capture",
-        metavar="FILE.pcapng",
-        help="record the command's traffic to a pcapng file that Wireshark and 'simple-message decode' read "
-        "(a name ending in .pcap: classic pcap; replaced if it exists)",
-    )
-    common.add_argument(
-        "--capture-max-mb",
-        type=positive_float,
-        default=DEFAULT_MAX_BYTES / 1e6,
-        metavar="MB",
-        help="the capture's bound in megabytes, its files together: the file rotates at half of it (FILE.pcapng "
-        "becomes FILE.1.pcapng), so the latest traffic is kept (default: %(default)g)",
-    )
+    add_capture_arguments(common, "the command's traffic", DEFAULT_MAX_BYTES / 1e6)
     add_log_level_argument(common)
     add_import_argument(common)  # e.g. a module that registers a dialect or an interpolation policy
 

@@ -29,6 +29,7 @@ from pathlib import Path
 from simple_message.capture_writer import DEFAULT_MAX_BYTES
 from simple_message.cliargs import (
     ArgumentParser,
+    add_capture_arguments,
     add_import_argument,
     add_log_level_argument,
     add_profile_wire_arguments,
@@ -210,20 +211,7 @@ def parser() -> argparse.ArgumentParser:
         help=f"keep the last SECONDS of the record, at most {MAX_RECORD_SECONDS:g} (about 0.3 MB a second for six "
         "joints at 1 ms; default: %(default)g)",
     )
-    p.add_argument(
-        "--capture",
-        metavar="FILE.pcapng",
-        help="record every connection's traffic (every port, and the serial link) to a pcapng file that Wireshark "
-        "and 'simple-message decode' read (replaced if it exists)",
-    )
-    p.add_argument(
-        "--capture-max-mb",
-        type=positive_float,
-        default=DEFAULT_MAX_BYTES / 1e6,
-        metavar="MB",
-        help="the capture's bound in megabytes, its files together: the file rotates at half of it (FILE.pcapng "
-        "becomes FILE.1.pcapng), so the latest traffic is kept (default: %(default)g)",
-    )
+    add_capture_arguments(p, "every connection's traffic (every port, and the serial link)", DEFAULT_MAX_BYTES / 1e6)
     p.add_argument(
         "--fault",
         type=_fault,

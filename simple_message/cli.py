@@ -388,6 +388,12 @@ _TYPES = """Every message type of the registry decodes and encodes by name; --im
 imports a module first, e.g. one that registers a vendor message set."""
 
 
+def _add_port_filter(parser: argparse.ArgumentParser, help: str) -> None:
+    parser.add_argument(
+        "--port", dest="ports", action="append", default=[], type=client_port, metavar="PORT", help=help
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(
         prog="simple-message",
@@ -405,15 +411,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_wire_arguments(dec, default=None, default_text="little for hex and bytes, auto for a capture")
     dec.add_argument("--raw", action="store_true", help="input is a binary byte stream, not hex lines")
     add_import_argument(dec)
-    dec.add_argument(
-        "--port",
-        dest="ports",
-        action="append",
-        default=[],
-        type=client_port,
-        metavar="PORT",
-        help="captures only: keep the connections with PORT at either end (repeatable)",
-    )
+    _add_port_filter(dec, "captures only: keep the connections with PORT at either end (repeatable)")
     dec.add_argument(
         "--type",
         dest="types",
@@ -446,15 +444,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="the controller to replay against; the capture's controller ports, ascending, map to the PORTs "
         "given (default: the same port numbers)",
     )
-    rep_.add_argument(
-        "--port",
-        dest="ports",
-        action="append",
-        default=[],
-        type=client_port,
-        metavar="PORT",
-        help="replay only the connections with PORT at either end (repeatable)",
-    )
+    _add_port_filter(rep_, "replay only the connections with PORT at either end (repeatable)")
     rep_.add_argument(
         "--keep-timing",
         action="store_true",

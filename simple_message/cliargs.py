@@ -26,6 +26,7 @@ __all__ = [
     "LOG_LEVELS",
     "ArgumentParser",
     "HelpFormatter",
+    "add_capture_arguments",
     "add_import_argument",
     "add_log_level_argument",
     "add_profile_wire_arguments",
@@ -215,6 +216,25 @@ def add_version_argument(parser: argparse.ArgumentParser) -> None:
         action="version",
         version=f"%(prog)s {distribution_version()}",
         help=f"print the version ({DISTRIBUTION}) and exit",
+    )
+
+
+def add_capture_arguments(parser: argparse.ArgumentParser, what: str, default_mb: float) -> None:
+    """``--capture FILE.pcapng`` (recording ``what``) and ``--capture-max-mb MB``, as
+    :class:`~.capture_writer.CaptureWriter` writes them (robot-server and robot-client)."""
+    parser.add_argument(
+        "--capture",
+        metavar="FILE.pcapng",
+        help=f"record {what} to a pcapng file that Wireshark and 'simple-message decode' read (a name ending in "
+        ".pcap: classic pcap; replaced if it exists)",
+    )
+    parser.add_argument(
+        "--capture-max-mb",
+        type=positive_float,
+        default=default_mb,
+        metavar="MB",
+        help="the capture's bound in megabytes, its files together: the file rotates at half of it (FILE.pcapng "
+        "becomes FILE.1.pcapng), so the latest traffic is kept (default: %(default)g)",
     )
 
 
