@@ -53,7 +53,7 @@ import contextlib
 import logging
 import math
 import time
-from collections.abc import AsyncIterator, Sequence
+from collections.abc import AsyncIterator, Callable, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import NamedTuple
@@ -700,58 +700,81 @@ class RobotDriver:
         def off(pose: tuple[Array, Array], position: Array, orientation: Array) -> tuple[float, float]:
             return float(np.linalg.norm(pose[0] - position)), quaternion_angle(pose[1], orientation)
 
+        def look(state: JointState) -> _Look | None:
+            tcp = self._tcp(group, state)
+            if tcp is None:  # TOOL_POSE came and went? (a group without it): nothing to compare yet
+                return None
+            distance, angle = off(tcp, goal_position, goal_orientation)
+            away, turned = off(tcp, *start)
+            return _Look(
+                distance <= self.tcp_tolerance and angle <= self.orientation_tolerance,
+                away > self.tcp_tolerance or turned > self.orientation_tolerance,
+                f"{distance * 1000:.3g} mm and {angle:.3g} rad from the last line's end",
+            )
+
         # a rough duration: the lengths at the TCP speed (the turns, accelerations and any slowing
         # down are the controller's; goal_timeout covers them)
         corners = np.array([start[0], *(p for p, _ in goals)])
         length = float(np.sum(np.linalg.norm(np.diff(corners, axis=0), axis=1)))
-        duration = length / speed
         moves = any(
             d > self.tcp_tolerance or a > self.orientation_tolerance for d, a in (off(start, p, q) for p, q in goals)
         )
+        wait = _Wait("line", "the last line's end", "the lines", length / speed, moves, stops=True)
+        state = await self._wait_done(wait, look, confirmed)
+        tcp = self._tcp(group, state)
+        assert tcp is not None  # done means it was compared
+        return self._final_pose(group, tcp, state)
+
+    async def _wait_done(self, wait: _Wait, look: Callable[[JointState], _Look | None], confirmed: int) -> JointState:
+        """Wait until the robot has done what was sent (``look`` says of each joint state where it
+        is: at the goal, moved from the start): see :meth:`_wait_goal`. Returns the last state."""
+        what = wait.what
         sent = time.monotonic()
-        deadline = sent + duration + self.goal_timeout
+        deadline = sent + wait.duration + self.goal_timeout
         stall = _Stall(self.stall_timeout)
         seen_moving = False
+        late = f"the robot did not reach {wait.goal} in time"
         while True:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                raise ExecutionAborted("the robot did not reach the last line's end in time", confirmed, what="line")
+                raise ExecutionAborted(late, confirmed, what=what)
             try:
                 state = await self.wait_state(min(self.watchdog, remaining))
             except DriverError:
                 if remaining < self.watchdog:
-                    raise ExecutionAborted(
-                        "the robot did not reach the last line's end in time", confirmed, what="line"
-                    ) from None
-                raise ExecutionAborted(self._no_state(), confirmed, what="line") from None
+                    raise ExecutionAborted(late, confirmed, what=what) from None
+                raise ExecutionAborted(self._no_state(), confirmed, what=what) from None
+            seen = look(state)
             status = state.status
             if status is not None and status.in_error == TriState.TRUE:
-                raise ExecutionAborted(f"the controller is in error (code {status.error_code})", confirmed, what="line")
-            if status is not None and (status.e_stopped == TriState.TRUE or status.drives_powered == TriState.FALSE):
-                raise ExecutionAborted(f"the robot stopped: {self._why()}", confirmed, what="line")
-            tcp = self._tcp(group, state)
-            if tcp is None:  # TOOL_POSE came and went? (a group without it): nothing to compare yet
-                continue
-            distance, angle = off(tcp, goal_position, goal_orientation)
-            at_goal = distance <= self.tcp_tolerance and angle <= self.orientation_tolerance
-            away, turned = off(tcp, *start)
-            if (status is not None and status.in_motion == TriState.TRUE) or (
-                away > self.tcp_tolerance or turned > self.orientation_tolerance
+                raise ExecutionAborted(f"the controller is in error (code {status.error_code})", confirmed, what=what)
+            if (
+                wait.stops
+                and status is not None
+                and (status.e_stopped == TriState.TRUE or status.drives_powered == TriState.FALSE)
             ):
+                raise ExecutionAborted(f"the robot stopped: {self._why()}", confirmed, what=what)
+            if seen is None:
+                continue
+            if (status is not None and status.in_motion == TriState.TRUE) or seen.moved:
                 seen_moving = True
             waited = time.monotonic() - sent
-            ran = seen_moving or not moves or waited > duration + self.stall_timeout
-            if at_goal and ran and status is not None and status.in_motion != TriState.TRUE:
+            if not wait.stops and wait.moves and not seen_moving and waited > self.stall_timeout and self._faulted():
+                # a trajectory the controller dropped before it began (a download has no replies)
+                raise ExecutionAborted(f"the robot did not move: {self._why()}", confirmed, what=what)
+            ran = seen_moving or not wait.moves or waited > wait.duration + self.stall_timeout
+            if seen.at_goal and ran and status is not None and status.in_motion != TriState.TRUE:
                 if status.in_motion == TriState.UNKNOWN:
-                    log.warning("the lines' end reached, but the controller reports in_motion UNKNOWN")
-                return self._final_pose(group, tcp, state)
-            if stall.standing(not at_goal and status is not None and status.in_motion == TriState.FALSE):
+                    log.warning("%s reached, but the controller reports in_motion UNKNOWN", wait.goal)
+                return state
+            # standing still short of the goal: the controller dropped the motion (a refused
+            # download point has no reply to say so) or someone stopped the robot
+            if stall.standing(not seen.at_goal and status is not None and status.in_motion == TriState.FALSE):
                 raise ExecutionAborted(
-                    f"the robot stands still {distance * 1000:.3g} mm and {angle:.3g} rad from the last line's "
-                    f"end (in_motion FALSE for {self.stall_timeout} s): the controller dropped or stopped the "
-                    f"lines{f': {self._why()}' if self._faulted() else ''}",
+                    f"the robot stands still {seen.short} (in_motion FALSE for {self.stall_timeout} s): the "
+                    f"controller dropped or stopped {wait.motion}{f': {self._why()}' if self._faulted() else ''}",
                     confirmed,
-                    what="line",
+                    what=what,
                 )
 
     def _final_pose(self, group: int, tcp: tuple[Array, Array], state: JointState) -> ToolPose:
@@ -997,62 +1020,52 @@ class RobotDriver:
             )
 
     async def _wait_goal(self, trajectory: Trajectory, confirmed: int) -> JointState:
-        goal = trajectory.positions[-1]
-        sent = time.monotonic()
-        deadline = sent + trajectory.duration + self.goal_timeout
-        stall = _Stall(self.stall_timeout)
         # "at the goal and not moving" means done only once the robot has run the trajectory: a path
         # that ends where it starts is "at the goal" before it begins, and the STATUS that comes with
         # a joint state may be older than the last point. So the robot must have been seen moving
         # (in_motion TRUE, or away from the start), unless the trajectory does not move it, or the
         # planned duration (and stall_timeout) has passed since everything was sent.
+        goal = trajectory.positions[-1]
         start = trajectory.positions[0]
         moves = bool(np.max(np.abs(trajectory.positions - start)) > self.goal_tolerance)
-        seen_moving = False
-        while True:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                raise ExecutionAborted("the robot did not reach the goal in time", confirmed)
-            try:
-                state = await self.wait_state(min(self.watchdog, remaining))
-            except DriverError:
-                if remaining < self.watchdog:
-                    raise ExecutionAborted("the robot did not reach the goal in time", confirmed) from None
-                raise ExecutionAborted(self._no_state(), confirmed) from None
-            error = float(np.max(np.abs(state.positions[: goal.size] - goal)))
+
+        def look(state: JointState) -> _Look:
+            here = state.positions[: goal.size]
             if self.path_tolerance is not None:
-                deviation = _path_deviation(trajectory, state.positions[: goal.size])
+                deviation = _path_deviation(trajectory, here)
                 if deviation > self.path_tolerance:
                     raise ExecutionAborted(
                         f"the robot is {deviation:.4g} from the path (tolerance {self.path_tolerance})", confirmed
                     )
-            status = state.status
-            if status is not None and status.in_error == TriState.TRUE:
-                raise ExecutionAborted(f"the controller is in error (code {status.error_code})", confirmed)
-            at_goal = error <= self.goal_tolerance
-            here = state.positions[: goal.size]
-            if (status is not None and status.in_motion == TriState.TRUE) or bool(
-                np.max(np.abs(here - start)) > self.goal_tolerance
-            ):
-                seen_moving = True
-            waited = time.monotonic() - sent
-            if moves and not seen_moving and waited > self.stall_timeout and self._faulted():
-                # a trajectory the controller dropped before it began (a download has no replies)
-                raise ExecutionAborted(f"the robot did not move: {self._why()}", confirmed)
-            ran = seen_moving or not moves or waited > trajectory.duration + self.stall_timeout
-            if at_goal and ran and status is not None and status.in_motion != TriState.TRUE:
-                if status.in_motion == TriState.UNKNOWN:
-                    log.warning("goal reached, but the controller reports in_motion UNKNOWN")
-                return state
-            # standing still short of the goal: the controller dropped the trajectory (a refused
-            # download point has no reply to say so) or someone stopped the robot
-            if stall.standing(not at_goal and status is not None and status.in_motion == TriState.FALSE):
-                raise ExecutionAborted(
-                    f"the robot stands still {error:.4g} from the goal (in_motion FALSE for "
-                    f"{self.stall_timeout} s): the controller dropped or stopped the trajectory"
-                    f"{f': {self._why()}' if self._faulted() else ''}",
-                    confirmed,
-                )
+            error = float(np.max(np.abs(here - goal)))
+            moved = bool(np.max(np.abs(here - start)) > self.goal_tolerance)
+            return _Look(error <= self.goal_tolerance, moved, f"{error:.4g} from the goal")
+
+        wait = _Wait("point", "the goal", "the trajectory", trajectory.duration, moves, stops=False)
+        return await self._wait_done(wait, look, confirmed)
+
+
+class _Look(NamedTuple):
+    """Where one joint state finds the robot: at the goal, moved from the start, and how far off (words)."""
+
+    at_goal: bool
+    moved: bool
+    short: str
+
+
+@dataclass(frozen=True)
+class _Wait:
+    """What :meth:`RobotDriver._wait_done` waits for: ``what`` the items confirmed (``point``,
+    ``line``), ``goal`` and ``motion`` in words, the planned ``duration``, whether it ``moves`` the
+    robot at all, and whether an e-stop or drives off ends it at once (``stops``; else a trajectory
+    that never moved is given up on once the controller shows a fault)."""
+
+    what: str
+    goal: str
+    motion: str
+    duration: float
+    moves: bool
+    stops: bool
 
 
 class _Stall:
