@@ -6,7 +6,7 @@ import json
 import xml.etree.ElementTree as ET
 
 from simple_message import LE32, Ping, encode
-from simple_message.conformance_report import Evidence, Report, RuleResult, Verdict
+from simple_message.conformance.report import Evidence, Report, RuleResult, Verdict
 
 
 def sample() -> Report:

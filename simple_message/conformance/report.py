@@ -16,8 +16,8 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from typing import Any
 
-from .jsonio import message_to_json
-from .messages import Message
+from ..jsonio import message_to_json
+from ..messages import Message
 
 __all__ = ["Verdict", "Evidence", "RuleResult", "Report"]
 

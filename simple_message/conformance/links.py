@@ -1,0 +1,228 @@
+"""What the server suite sees: TCP links that cut frames tolerantly and keep every frame with its
+time, byte order and decoded form, so that a rule can cite it as evidence.
+
+The project's own :class:`~simple_message.connection.Connection` is made to *speak* the protocol:
+it closes a link on a bad length and hides a frame in the wrong byte order behind an error. A
+conformance probe must instead *describe* what the peer did: a frame whose length prefix reads as a
+plausible length only in the other byte order is kept, marked ``swapped`` and decoded in that order
+(simple-message.md §10 pitfall 1, the dissector's heuristic); a prefix plausible in neither order
+ends the link with the bytes shown. Nothing here judges: the rules in :mod:`.server` do.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import struct
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+from ..constants import HEADER_SIZE, LENGTH_SIZE
+from ..errors import MalformedMessage
+from ..framing import decode_or_error
+from ..messages import Message
+from ..wire import ByteOrder, WireFormat
+from .report import Evidence
+
+__all__ = ["Seen", "Link", "MAX_FRAME", "other_order"]
+
+log = logging.getLogger(__name__)
+
+#: the largest length prefix taken as a frame (64 KiB, the project's decoder's default; the
+#: largest standard message is about 1 KiB)
+MAX_FRAME = 64 * 1024
+#: frames a link keeps (its reader goes on, the oldest are dropped)
+KEEP = 20_000
+
+_ORDER = {ByteOrder.LITTLE: struct.Struct("<i"), ByteOrder.BIG: struct.Struct(">i")}
+
+
+def other_order(order: ByteOrder) -> ByteOrder:
+    return ByteOrder.BIG if order is ByteOrder.LITTLE else ByteOrder.LITTLE
+
+
+def _plausible(length: int) -> bool:
+    return HEADER_SIZE <= length <= MAX_FRAME
+
+
+@dataclass(frozen=True)
+class Seen:
+    """One frame on a link: ``outgoing`` (the suite sent it) or received, at ``time`` (monotonic).
+    ``swapped``: its length prefix was plausible only in the other byte order, and it was decoded in
+    that order. ``message`` is its decoded form, ``problem`` why it does not decode."""
+
+    role: str
+    outgoing: bool
+    time: float
+    raw: bytes
+    order: ByteOrder
+    swapped: bool = False
+    message: Message | None = None
+    problem: str | None = None
+
+    def evidence(self, real_size: int = 4) -> Evidence:
+        direction = f"{self.role} sent" if self.outgoing else f"{self.role} received"
+        if self.swapped:
+            direction += f" ({self.order.value}-endian)"
+        ev = Evidence.frame(direction, self.raw, self.message, real_size)
+        if self.problem and self.message is None:
+            ev = Evidence(ev.kind, f"{ev.text}  [{self.problem}]")
+        return ev
+
+
+class Link:
+    """One TCP connection to a port of the server under test.
+
+    Frames are read by a background task into :attr:`frames`; :meth:`next_frame` waits for the
+    next one. ``wire`` is the byte order and float size frames are read in; ``None`` until
+    :meth:`set_wire` (the first received frame then decides the order, as the dissector does).
+    """
+
+    def __init__(self, role: str, wire: WireFormat | None, on_frame: Callable[[Seen], None] | None = None) -> None:
+        self.role = role
+        self.wire = wire
+        self.frames: list[Seen] = []
+        self.closed_by_peer = False
+        self.close_reason: str | None = None
+        self._on_frame = on_frame
+        self._reader: asyncio.StreamReader | None = None
+        self._writer: asyncio.StreamWriter | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._arrived = asyncio.Event()
+        self._read = 0  # frames handed out by next_frame
+
+    async def open(self, host: str, port: int, timeout: float) -> Link:
+        self._reader, self._writer = await asyncio.wait_for(asyncio.open_connection(host, port), timeout)
+        self._task = asyncio.get_running_loop().create_task(self._run(), name=f"conformance {self.role} reader")
+        return self
+
+    @property
+    def alive(self) -> bool:
+        return self._task is not None and not self._task.done()
+
+    def set_wire(self, wire: WireFormat) -> None:
+        """Read frames in ``wire`` from now on, and decode those kept again in its float size."""
+        self.wire = wire
+        for i, seen in enumerate(self.frames):
+            decoded = decode_or_error(seen.raw, WireFormat(seen.order, wire.real_size))
+            if isinstance(decoded, MalformedMessage):
+                self.frames[i] = replace(seen, message=None, problem=str(decoded))
+            else:
+                self.frames[i] = replace(seen, message=decoded, problem=None)
+
+    def send(self, data: bytes, message: Message | None = None) -> Seen:
+        """Write ``data`` (one frame or any bytes) and keep it as sent."""
+        assert self._writer is not None
+        wire = self.wire
+        order = wire.byte_order if wire else ByteOrder.LITTLE
+        seen = Seen(self.role, True, time.monotonic(), bytes(data), order, message=message)
+        with contextlib.suppress(ConnectionError, RuntimeError):
+            self._writer.write(data)
+        return seen
+
+    def send_message(self, message: Message) -> Seen:
+        assert self.wire is not None, "the wire format is decided before a message is sent"
+        return self.send(message.encode(self.wire), message)
+
+    async def next_frame(self, timeout: float) -> Seen | None:
+        """The next frame not yet handed out, or ``None`` when none came within ``timeout`` or the
+        link ended."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        while self._read >= len(self.frames):
+            if not self.alive:
+                return None
+            self._arrived.clear()
+            remaining = deadline - loop.time()
+            if remaining <= 0:
+                return None
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._arrived.wait(), remaining)
+        seen = self.frames[self._read]
+        self._read += 1
+        return seen
+
+    def skip_pending(self) -> None:
+        """Forget frames received but not handed out (before a fresh exchange)."""
+        self._read = len(self.frames)
+
+    async def wait_closed(self, timeout: float) -> bool:
+        """Whether the peer closed the link within ``timeout``."""
+        if self._task is None:
+            return True
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(asyncio.shield(self._task), timeout)
+        return self._task.done()
+
+    async def close(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(self._writer.wait_closed(), 1.0)
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await self._task
+
+    async def _run(self) -> None:
+        assert self._reader is not None
+        try:
+            while True:
+                prefix = await self._reader.readexactly(LENGTH_SIZE)
+                seen = await self._frame(prefix)
+                if seen is None:
+                    return
+                self._keep(seen)
+        except asyncio.IncompleteReadError as exc:
+            self.closed_by_peer = True
+            if exc.partial:
+                self.close_reason = f"closed in the middle of a frame ({len(exc.partial)} bytes)"
+        except (ConnectionError, OSError) as exc:
+            self.closed_by_peer = True
+            self.close_reason = f"connection error: {exc}"
+        finally:
+            self._arrived.set()
+
+    async def _frame(self, prefix: bytes) -> Seen | None:
+        assert self._reader is not None
+        if self.wire is None:
+            order = ByteOrder.LITTLE if _plausible(_ORDER[ByteOrder.LITTLE].unpack(prefix)[0]) else ByteOrder.BIG
+        else:
+            order = self.wire.byte_order
+        length = _ORDER[order].unpack(prefix)[0]
+        swapped = False
+        if not _plausible(length):
+            other = other_order(order)
+            other_length = _ORDER[other].unpack(prefix)[0]
+            if not _plausible(other_length):
+                rest = await _read_some(self._reader, 60)
+                raw = prefix + rest
+                self._keep(Seen(self.role, False, time.monotonic(), raw, order, problem=f"length prefix {length}"))
+                self.close_reason = f"a length prefix that is no length in either byte order ({prefix.hex()})"
+                return None
+            order, length, swapped = other, other_length, self.wire is not None
+        body = await self._reader.readexactly(length)
+        raw = prefix + body
+        real_size = self.wire.real_size if self.wire else 4
+        decoded = decode_or_error(raw, WireFormat(order, real_size))
+        if isinstance(decoded, MalformedMessage):
+            return Seen(self.role, False, time.monotonic(), raw, order, swapped, problem=str(decoded))
+        return Seen(self.role, False, time.monotonic(), raw, order, swapped, message=decoded)
+
+    def _keep(self, seen: Seen) -> None:
+        if len(self.frames) >= KEEP:
+            drop = KEEP // 2
+            del self.frames[:drop]
+            self._read = max(0, self._read - drop)
+        self.frames.append(seen)
+        self._arrived.set()
+        if self._on_frame is not None:
+            self._on_frame(seen)
+
+
+async def _read_some(reader: asyncio.StreamReader, n: int) -> bytes:
+    with contextlib.suppress(Exception):
+        return await asyncio.wait_for(reader.read(n), 0.05)
+    return b""
