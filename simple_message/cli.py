@@ -473,6 +473,9 @@ def build_parser() -> argparse.ArgumentParser:
         "file", nargs="?", default="-", metavar="FILE", help="input file: JSON objects, one a line (default: stdin)"
     )
     enc.set_defaults(func=_encode)
+    from .conformance.command import add_conformance_parser
+
+    add_conformance_parser(sub)
     return parser
 
 

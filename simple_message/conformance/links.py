@@ -83,7 +83,8 @@ class Link:
     def __init__(self, role: str, wire: WireFormat | None, on_frame: Callable[[Seen], None] | None = None) -> None:
         self.role = role
         self.wire = wire
-        self.frames: list[Seen] = []
+        self.frames: list[Seen] = []  # received
+        self.sent: list[Seen] = []
         self.closed_by_peer = False
         self.close_reason: str | None = None
         self._on_frame = on_frame
@@ -118,6 +119,8 @@ class Link:
         wire = self.wire
         order = wire.byte_order if wire else ByteOrder.LITTLE
         seen = Seen(self.role, True, time.monotonic(), bytes(data), order, message=message)
+        if len(self.sent) < KEEP:
+            self.sent.append(seen)
         with contextlib.suppress(ConnectionError, RuntimeError):
             self._writer.write(data)
         return seen
