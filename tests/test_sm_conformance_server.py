@@ -248,6 +248,12 @@ def run_command(*args: str, timeout: float = 120) -> subprocess.CompletedProcess
     )
 
 
+def against(ports: dict[str, int], *args: str) -> subprocess.CompletedProcess[str]:
+    """``conformance server`` against the emulator's ports."""
+    where = ["--motion-port", str(ports["motion"]), "--state-port", str(ports["state"])]
+    return run_command("server", "127.0.0.1", *where, *args)
+
+
 def start_robot_server(*args: str) -> tuple[subprocess.Popen[str], dict[str, int]]:
     proc = subprocess.Popen(
         [sys.executable, "-m", "robot_server", "--motion-port", "0", "--state-port", "0", "--no-stdin", *args],
@@ -277,13 +283,8 @@ def stopped(proc: subprocess.Popen[str]) -> Callable[[], None]:
 def test_the_command_writes_json_and_junit_and_exits_0(tmp_path: Path) -> None:
     proc, ports = start_robot_server("--byte-order", "big")
     try:
-        result = run_command(
-            "server",
-            "127.0.0.1",
-            "--motion-port",
-            str(ports["motion"]),
-            "--state-port",
-            str(ports["state"]),
+        result = against(
+            ports,
             "--byte-order",
             "big",
             "--observe",
@@ -310,13 +311,8 @@ def test_the_command_exits_1_on_a_fail_and_names_the_rule() -> None:
     proc, ports = start_robot_server()
     try:
         # the emulator speaks little-endian: demanding big makes framing.byte-order FAIL
-        result = run_command(
-            "server",
-            "127.0.0.1",
-            "--motion-port",
-            str(ports["motion"]),
-            "--state-port",
-            str(ports["state"]),
+        result = against(
+            ports,
             "--byte-order",
             "big",
             "--only",
