@@ -1016,27 +1016,32 @@ class ServerSuite:
                 ["motoros.traj-mode", "motoros.busy", "motoros.start-position"],
                 f"not a MotoROS server (profile {self.options.profile})",
             )
+        steps: list[tuple[str, Callable[[], Awaitable[_Verdict]]]] = [
+            ("motion.small-move", self._small_move),
+            ("motion.stop", self._stop),
+        ]
+        if moroso:
+            steps += [("motoros.busy", self._busy), ("motoros.start-position", self._start_position)]
+        steps.append(("motion.out-of-limit", self._out_of_limit))
         try:
             if moroso:
                 ready = await self._rule("motoros.traj-mode", self._start_traj_mode)
                 if ready is not None and ready.verdict is Verdict.FAIL:
                     raise _Abort("trajectory mode could not be started")
-            await self._rule("motion.small-move", self._small_move)
-            if self._aborted:
-                raise _Abort(self._aborted)
-            await self._rule("motion.stop", self._stop)
-            if moroso:
-                await self._rule("motoros.busy", self._busy)
-                await self._rule("motoros.start-position", self._start_position)
-            await self._rule("motion.out-of-limit", self._out_of_limit)
+            for rule, check in steps:
+                await self._rule(rule, check)
+                if self._aborted:
+                    # the robot may not be where the next rule needs it: no more motion
+                    raise _Abort(self._aborted)
         except _Abort as abort:
             self._skip_all(names, f"an earlier motion rule failed: {abort}")
         finally:
-            with contextlib.suppress(Exception):
-                await self._exchange(self.motion, self._stop_message()) if self.motion else None
-            if moroso and self.motion is not None:
+            if self.motion is not None:
                 with contextlib.suppress(Exception):
-                    await self._stop_traj_mode_end()
+                    await self._exchange(self.motion, self._stop_message())
+                if moroso:
+                    with contextlib.suppress(Exception):
+                        await self._stop_traj_mode_end()
 
     async def _preconditions(self) -> _Verdict:
         status = self._current_status()
