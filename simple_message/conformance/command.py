@@ -16,7 +16,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..cliargs import client_port, non_negative_float, positive_float, positive_int, server_port
+from ..cliargs import ArgumentParser, client_port, non_negative_float, positive_float, positive_int, server_port
 from .report import Report
 from .server import EXPECTATIONS, ServerSuiteOptions, run_server_suite
 
@@ -49,7 +49,7 @@ point 2, FAILURE on the second trajectory's point 1, the connection dropped afte
 trajectory's point 1. Exit 0 when no rule FAILed."""
 
 
-def add_conformance_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+def add_conformance_parser(sub: argparse._SubParsersAction[ArgumentParser]) -> None:
     """Add ``conformance`` with its ``server`` and ``client`` suites to ``sub``."""
     from ..cliargs import add_import_argument
 
