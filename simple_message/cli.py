@@ -14,7 +14,14 @@
 ``simple-message encode [--byte-order little|big] [--float64] [--raw] [--import MODULE] [FILE]``
     Reads JSON objects, one per line, and prints each frame as a hex line (``--raw``: binary).
 
-FILE defaults to standard input. Both commands know every message type in the registry of
+``simple-message replay FILE --against HOST[:PORT,...]``
+    Plays a capture's client side against a controller and compares the replies (:mod:`.replay`).
+
+``simple-message conformance server HOST ...`` / ``simple-message conformance client ...``
+    The conformance suites (:mod:`.conformance`): judge a server or a client by the real peers'
+    behaviour; a table, ``--json``, ``--junit``; exit 0 when no rule FAILed.
+
+FILE defaults to standard input. Decode and encode know every message type in the registry of
 :mod:`.messages`; ``--import MODULE`` (repeatable) imports a module first, e.g. one that registers
 a vendor message set, so that its types decode and encode by name too.
 """
@@ -397,7 +404,7 @@ def _add_port_filter(parser: argparse.ArgumentParser, help: str) -> None:
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(
         prog="simple-message",
-        description="Decode and encode ROS-Industrial simple_message frames.",
+        description="Decode, encode and replay ROS-Industrial simple_message frames; judge servers and clients.",
         epilog="Run 'simple-message COMMAND --help' for a command's options.",
     )
     add_version_argument(parser)

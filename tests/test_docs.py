@@ -22,7 +22,16 @@ pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the pages with examples, in the order docs/README.md lists them
-PAGES = ["protocol.md", "emulator.md", "kinematics.md", "cartesian.md", "demo.md", "ros.md", "troubleshooting.md"]
+PAGES = [
+    "protocol.md",
+    "emulator.md",
+    "kinematics.md",
+    "cartesian.md",
+    "demo.md",
+    "ros.md",
+    "troubleshooting.md",
+    "conformance.md",
+]
 BLOCK = re.compile(r"^```(bash|python)\n(.*?)^```\s*$", re.MULTILINE | re.DOTALL)
 #: one block's bound (s): the longest, the demo, takes a few seconds
 TIMEOUT = 120.0
@@ -53,6 +62,9 @@ def test_every_relative_link_in_the_docs_points_at_a_file_the_repository_has() -
 
 def _free(port: int) -> bool:
     with socket.socket() as probe:
+        # as robot-server binds: a port whose closed connections wait in TIME_WAIT is free (the
+        # conformance examples make the server close some), one that something listens on is not
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             probe.bind(("127.0.0.1", port))
         except OSError:
