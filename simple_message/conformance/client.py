@@ -194,6 +194,11 @@ class ClientSuiteOptions:
         _check_options(self)  # ValueError at once, naming the option
 
 
+def _number(value: object) -> bool:
+    """A finite int or float (not a bool)."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
 def _check_options(options: ClientSuiteOptions) -> _Profile:
     """The profile, once every option is known to be usable; :class:`ValueError` says which is not."""
     profile = PROFILES.get(options.profile)
@@ -213,13 +218,11 @@ def _check_options(options: ClientSuiteOptions) -> _Profile:
         raise ValueError(
             f"unknown injection {', '.join(sorted(map(repr, unknown)))} (known: {', '.join(sorted(INJECTIONS))})"
         )
-    if not (isinstance(options.start_tolerance, int | float) and math.isfinite(options.start_tolerance)):
-        raise ValueError(f"start_tolerance must be a finite number of radians, not {options.start_tolerance!r}")
-    if options.start_tolerance <= 0:
-        raise ValueError(f"start_tolerance must be > 0 rad, not {options.start_tolerance}")
-    if options.duration is not None and not (math.isfinite(options.duration) and options.duration > 0):
+    if not (_number(options.start_tolerance) and options.start_tolerance > 0):
+        raise ValueError(f"start_tolerance must be a finite number of radians > 0, not {options.start_tolerance!r}")
+    if options.duration is not None and not (_number(options.duration) and options.duration > 0):
         raise ValueError(f"duration must be > 0 s or None, not {options.duration!r}")
-    if not (math.isfinite(options.linger) and options.linger >= 0):
+    if not (_number(options.linger) and options.linger >= 0):
         raise ValueError(f"linger must be >= 0 s, not {options.linger!r}")
     if options.upstream is not None:
         roles = set(options.upstream)

@@ -195,6 +195,8 @@ class LinkState:
     after_stop: Point | None = None
     seen_point: bool = False
     prev: dict[int, _Prev] = field(default_factory=dict)
+    #: the cutter gave up on this connection's bytes (warned once)
+    uncut: bool = False
 
     @property
     def name(self) -> str:
@@ -493,6 +495,9 @@ class Observer:
         """Note one frame from the client; a motion port's point or STOP comes back as a :class:`Point`."""
         rule = self.rules["client.byte-order"]
         if order is None:
+            if link.uncut:
+                return None  # said once per connection: the rest of it is passed on uncut
+            link.uncut = True
             rule.warn(
                 f"{link.name}: a length prefix plausible in neither byte order "
                 f"({frame[:4].hex()}); the rest of that connection was passed on uncut",
@@ -811,11 +816,13 @@ class Observer:
             return problems
         if seq == prev.seq:  # the same point again (after BUSY)
             return problems
-        if seq > 0 and group.time <= prev.time:
-            problems.append(
-                f"{name}time {group.time:g} s is not after point {prev.seq}'s {prev.time:g} s (MotoROS: no motion for "
-                "a segment of 0 s or less, §8.1)"
-            )
+        if group.time <= prev.time:
+            if seq > 0:
+                problems.append(
+                    f"{name}time {group.time:g} s is not after point {prev.seq}'s {prev.time:g} s (MotoROS: no motion "
+                    "for a segment of 0 s or less, §8.1)"
+                )
+            # a special or reserved sequence (judged by client.sequence) with no time step: no speeds to imply
             return problems
         dt = group.time - prev.time
         speeds = tuple(abs(b - a) / dt for a, b in zip(prev.positions, group.positions, strict=False))
@@ -987,7 +994,8 @@ class Observer:
             link.pending_stop = None
             link.after_stop = point
         if point.kind == "point" and point.outcome == "success" and point.seq is not None:
-            link.acked[point.seq] = point.positions or ()
+            if point.positions:  # a point without group 0 has nothing to compare a resend by
+                link.acked[point.seq] = point.positions
             while len(link.acked) > MAX_ACKED:
                 del link.acked[next(iter(link.acked))]
         if point.injected is not None:
