@@ -325,19 +325,21 @@ async def test_bad_bytes_are_evidence_not_a_crash() -> None:
 async def test_a_special_sequence_at_the_same_time_is_judged_not_a_crash() -> None:
     """A JOINT_TRAJ_PT_FULL with a reserved sequence and the previous point's time (no time step to
     imply a speed from): a sequence FAIL, and the connection goes on being served."""
-    async with emulator("motoros") as (emu, upstream):
-        async with ClientSuite(options("motoros", upstream, inject=frozenset())) as suite:
-            start = await current_position(suite.ports["state"])
-            client = await RawClient.open(suite.ports["motion"])
-            try:
-                fields = ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY
-                for seq in (0, -5):
-                    point = JointTrajPtFull(0, seq, fields, 0.0, start, (0.0,) * 10)
-                    assert await client.request(point) is not None
-                assert await client.request(Ping()) is not None  # still served
-            finally:
-                await client.close()
-            report = await suite.finish()
+    async with (
+        emulator("motoros") as (_, upstream),
+        ClientSuite(options("motoros", upstream, inject=frozenset())) as suite,
+    ):
+        start = await current_position(suite.ports["state"])
+        client = await RawClient.open(suite.ports["motion"])
+        try:
+            fields = ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY
+            for seq in (0, -5):
+                point = JointTrajPtFull(0, seq, fields, 0.0, start, (0.0,) * 10)
+                assert await client.request(point) is not None
+            assert await client.request(Ping()) is not None  # still served
+        finally:
+            await client.close()
+        report = await suite.finish()
     assert verdicts(report)["client.sequence"] is Verdict.FAIL, report.table()
 
 
