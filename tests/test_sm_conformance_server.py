@@ -77,8 +77,10 @@ async def test_passes_against_the_emulator_without_motion(profile: str, config: 
     for rule in ("motion.small-move", "motion.stop", "motion.out-of-limit"):
         assert seen[rule] is Verdict.SKIP
         assert "--allow-motion" in next(r.detail for r in report.results if r.rule == rule)
-    for rule in ("framing.byte-order", "framing.body", "malformed.survival", "state.rate", "state.status"):
+    for rule in ("framing.byte-order", "framing.body", "malformed.survival", "state.status"):
         assert seen[rule] is Verdict.PASS, failed(report)
+    # the rate is measured on this machine's clock: its jitter may WARN on a loaded one, never FAIL
+    assert seen["state.rate"] in (Verdict.PASS, Verdict.WARN)
     order = next(r for r in report.results if r.rule == "framing.byte-order").detail
     assert order.startswith(config.get("byte_order", "little"))
     size = next(r for r in report.results if r.rule == "framing.float-size").detail
