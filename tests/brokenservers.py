@@ -14,7 +14,12 @@ Defects (``defects``):
 * ``out-of-order``: the reply to an unknown type is sent after the next request's reply;
 * ``header-only-status``: STATUS is sent header-only;
 * ``slow-state``: the state topics at 0.4 Hz;
-* ``moves-beyond-limits``: a point beyond the limits is accepted and run.
+* ``moves-beyond-limits``: a point beyond the limits is accepted and run;
+* ``state-dies``: the state port closes its connections half a second after they open.
+
+Not defects, but what some real servers do: ``single_client`` (serve one motion connection at a
+time, as the C++ TcpServer, ABB's and Fanuc's servers do, §6), ``status_first`` (STATUS before the
+joint state in each round), ``real`` ``"d"`` (float64 reals).
 """
 
 from __future__ import annotations
@@ -31,16 +36,36 @@ TOPIC, REQUEST, REPLY = 1, 2, 3
 SUCCESS, FAILURE = 1, 2
 LIMIT = 3.0
 DEFECTS = frozenset(
-    {"wrong-order-reply", "missing-reply", "out-of-order", "header-only-status", "slow-state", "moves-beyond-limits"}
+    {
+        "wrong-order-reply",
+        "missing-reply",
+        "out-of-order",
+        "header-only-status",
+        "slow-state",
+        "moves-beyond-limits",
+        "state-dies",
+    }
 )
 
 
 class BrokenServer:
-    def __init__(self, defects: frozenset[str] = frozenset(), order: str = "<", rate: float = 40.0) -> None:
+    def __init__(
+        self,
+        defects: frozenset[str] = frozenset(),
+        order: str = "<",
+        rate: float = 40.0,
+        *,
+        single_client: bool = False,
+        status_first: bool = False,
+        real: str = "f",
+    ) -> None:
         unknown = defects - DEFECTS
         assert not unknown, unknown
         self.defects = defects
         self.order = order
+        self.real = real
+        self.status_first = status_first
+        self._one_client = asyncio.Lock() if single_client else None
         self.rate = 0.4 if "slow-state" in defects else rate
         self.joints = [0.0] * 10
         self.target: list[float] | None = None
@@ -91,7 +116,10 @@ class BrokenServer:
         self._state.add(writer)
         self._publish(writer)
         with contextlib.suppress(Exception):
-            await reader.read()  # until the client goes
+            if "state-dies" in self.defects:
+                await asyncio.wait_for(reader.read(), 0.5)
+            else:
+                await reader.read()  # until the client goes
         self._state.discard(writer)
         self._writers.discard(writer)
         writer.close()
@@ -99,12 +127,12 @@ class BrokenServer:
     def _publish(self, writer: asyncio.StreamWriter) -> None:
         o = self.order
         moving = 1 if self.target is not None else 0
-        joint = self.frame(JOINT_POSITION, TOPIC, 0, struct.pack(f"{o}i10f", 0, *self.joints))
+        joint = self.frame(JOINT_POSITION, TOPIC, 0, struct.pack(f"{o}i10{self.real}", 0, *self.joints))
         if "header-only-status" in self.defects:
             status = self.frame(STATUS, TOPIC, 0)
         else:
             status = self.frame(STATUS, TOPIC, 0, struct.pack(f"{o}7i", 1, 0, 0, 0, moving, 2, 1 - moving))
-        writer.write(joint + status)
+        writer.write(status + joint if self.status_first else joint + status)
 
     async def _tick(self) -> None:
         period = 1.0 / self.rate
@@ -135,6 +163,13 @@ class BrokenServer:
     # -- motion ---------------------------------------------------------------------------------
 
     async def _motion(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        if self._one_client is None:
+            await self._serve_motion(reader, writer)
+            return
+        async with self._one_client:  # the next connection waits, unanswered, until this one closes
+            await self._serve_motion(reader, writer)
+
+    async def _serve_motion(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         self._writers.add(writer)
         held: bytes | None = None
         o = self.order
@@ -172,9 +207,10 @@ class BrokenServer:
             return self.frame(PING, REPLY, SUCCESS, order=order)
         if msg_type != JOINT_TRAJ_PT:
             return None if "missing-reply" in self.defects else self.frame(msg_type, REPLY, FAILURE)
-        if len(body) != 52:
+        size = 4 + 12 * struct.calcsize(self.real)
+        if len(body) != size:
             return self.frame(msg_type, REPLY, FAILURE)
-        sequence, *rest = struct.unpack(f"{o}i12f", body)
+        sequence, *rest = struct.unpack(f"{o}i12{self.real}", body)
         joints, duration = list(rest[:10]), rest[11]
         if sequence == -4:
             self.target = None

@@ -29,7 +29,7 @@ from simple_message.conformance.client import (
 )
 from simple_message.conformance.report import Report, RuleResult, Verdict
 from simple_message.constants import MotoResult, ReplyCode, ValidFields
-from simple_message.messages import JointTrajPtFull, Ping
+from simple_message.messages import JointTrajPt, JointTrajPtFull, Ping
 from tests.conformance_clients import (
     TIMEOUT,
     RawClient,
@@ -318,7 +318,7 @@ async def test_bad_bytes_are_evidence_not_a_crash() -> None:
     fields = rule(report, "client.point-fields")
     assert fields.verdict is Verdict.FAIL and "fits no layout" in fields.detail, report.table()
     order = rule(report, "client.byte-order")
-    assert order.verdict is Verdict.WARN and "plausible in neither byte order" in order.detail, report.table()
+    assert order.verdict is Verdict.FAIL and "plausible in neither byte order" in order.detail, report.table()
     assert verdicts(report)["client.stop-and-wait"] is Verdict.PASS
 
 
@@ -341,6 +341,21 @@ async def test_a_special_sequence_at_the_same_time_is_judged_not_a_crash() -> No
             await client.close()
         report = await suite.finish()
     assert verdicts(report)["client.sequence"] is Verdict.FAIL, report.table()
+
+
+async def test_a_stop_while_a_point_awaits_its_reply_is_not_two_in_flight() -> None:
+    """STOP must be sent even while a point waits for its reply (a controller delays the reply when
+    its queue is full): stop-and-wait allows it; a point sent while the STOP waits it does not."""
+    async with emulator() as (_, upstream), ClientSuite(options("generic", upstream, inject=frozenset())) as suite:
+        start = await current_position(suite.ports["state"])
+        client = await RawClient.open(suite.ports["motion"])
+        try:
+            await client.send(JointTrajPt(0, start, velocity=0.1), JointTrajPt(-4))
+            assert await client.reply() is not None and await client.reply() is not None
+        finally:
+            await client.close()
+        report = await suite.finish()
+    assert verdicts(report)["client.stop-and-wait"] is Verdict.PASS, report.table()
 
 
 async def test_a_controller_that_does_not_start_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:

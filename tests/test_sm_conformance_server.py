@@ -18,8 +18,8 @@ import pytest
 
 from robot_server.emulator import Emulator, EmulatorConfig
 from simple_message.conformance import Report, Verdict
-from simple_message.conformance.malformed import malformed_cases
-from simple_message.conformance.server import SERVER_RULES, ServerSuite, ServerSuiteOptions, run_server_suite
+from simple_message.conformance.malformed import FANUC_MIN_READ, malformed_cases
+from simple_message.conformance.server import ServerSuite, ServerSuiteOptions, run_server_suite
 from simple_message.constants import MotoCommand
 from simple_message.messages import JointTrajPt, JointTrajPtFull, Message, MotoMotionCtrl, decode
 from simple_message.wire import BE32, LE32
@@ -42,6 +42,8 @@ async def against_emulator(profile: str, allow_motion: bool, **config: Any) -> R
     if profile == "abb":
         config["reply_style"] = "header"
         profile = "generic"
+    if profile == "fanuc":
+        profile = "generic"
     cfg = EmulatorConfig(profile=profile, motion_port=0, state_port=0, io_port=0, **config)
     async with Emulator(cfg) as emu:
         options = ServerSuiteOptions(
@@ -60,6 +62,9 @@ EMULATOR_CASES = [
     ("generic", {"byte_order": "big"}),
     ("generic", {"float64": True}),
     ("abb", {}),
+    # the emulator has no Fanuc reply style; its generic profile in big-endian is what the fanuc
+    # suite expects of ports, byte order and topics (a reply of the request's own type is accepted)
+    ("fanuc", {"byte_order": "big"}),
     ("motoros", {}),
     ("motoros", {"byte_order": "big"}),
     ("motoros", {"float64": True}),
@@ -143,11 +148,15 @@ def cut(data: bytes) -> list[Message]:
 
 
 def test_the_malformed_cases_carry_no_motion_type() -> None:
+    """No case is a motion message, and none is long enough for Fanuc's parser to read as a point
+    (it takes any 56 bytes as one, whatever their type, §8.3)."""
     for wire, fmt in ((LE32, "<"), (BE32, ">")):
         for case in malformed_cases(wire):
             if len(case.data) >= 8:
                 msg_type = struct.unpack_from(f"{fmt}i", case.data, 4)[0]
                 assert msg_type not in (11, 12, 14, 2001, 2016, 65001), case.name
+            assert len(case.data) < FANUC_MIN_READ, case.name
+    assert len(set(malformed_cases(LE32)[-1].data)) > 10  # the noise is noise
 
 
 # -- the negative tests: each broken server caught by its rule ------------------------------------------
@@ -215,8 +224,63 @@ def test_options_are_checked() -> None:
         ServerSuiteOptions(only=("nothing.*",))
     with pytest.raises(ValueError, match="amplitude"):
         ServerSuiteOptions(amplitude=1.0)
+    with pytest.raises(ValueError, match="known message type"):
+        ServerSuiteOptions(unknown_type=11)  # JOINT_TRAJ_PT: it could move the robot
     assert ServerSuiteOptions(profile="motoros").ports == {"motion": 50240, "state": 50241, "io": 50242}
     assert ServerSuiteOptions().ports == {"motion": 11000, "state": 11002}
+
+
+async def test_a_server_of_one_client_at_a_time_survives_the_malformed_frames() -> None:
+    """The C++ TcpServer, ABB's and Fanuc's serve one motion connection at a time (§6): the suite
+    frees its own before each case's connection and opens it again after."""
+    async with BrokenServer(single_client=True) as server:
+        report = await run_server_suite(
+            ServerSuiteOptions(motion_port=server.ports["motion"], state_port=server.ports["state"], **QUICK)
+        )
+    seen = verdicts(report)
+    assert seen["malformed.survival"] is Verdict.PASS, failed(report)
+    assert report.exit_code == 0, failed(report)
+
+
+async def test_float64_is_read_from_the_joint_state_not_the_first_frame() -> None:
+    async with BrokenServer(status_first=True, real="d") as server:
+        report = await run_server_suite(
+            ServerSuiteOptions(
+                motion_port=server.ports["motion"], state_port=server.ports["state"], float_size=8, **QUICK
+            )
+        )
+    assert report.exit_code == 0, failed(report)
+    assert next(r for r in report.results if r.rule == "framing.float-size").detail.startswith("float64")
+
+
+async def test_a_state_port_gone_silent_stops_the_motion_rules() -> None:
+    """No motion is sent on what the suite knew of the robot before its state port went silent, and
+    the silence is a gap the rate rule FAILs."""
+    async with BrokenServer(frozenset({"state-dies"})) as server:
+        report = await run_server_suite(
+            ServerSuiteOptions(
+                motion_port=server.ports["motion"], state_port=server.ports["state"], allow_motion=True, **QUICK
+            )
+        )
+        moved = server.target is not None or any(server.joints)
+    seen = verdicts(report)
+    assert seen["state.rate"] is Verdict.FAIL, failed(report)
+    assert seen["motion.preconditions"] is Verdict.WARN, failed(report)
+    assert seen["motion.small-move"] is Verdict.SKIP and seen["motion.out-of-limit"] is Verdict.SKIP
+    assert not moved
+
+
+async def test_a_server_in_another_byte_order_than_demanded_fails_once() -> None:
+    """The suite speaks the order the server speaks: the demanded one FAILs framing.byte-order, and
+    the other rules still judge the server."""
+    async with BrokenServer(order=">") as server:
+        report = await run_server_suite(
+            ServerSuiteOptions(
+                motion_port=server.ports["motion"], state_port=server.ports["state"], byte_order="little", **QUICK
+            )
+        )
+    failed_rules = [r.rule for r in report.results if r.verdict is Verdict.FAIL]
+    assert failed_rules == ["framing.byte-order"], failed(report)
 
 
 async def test_only_and_skip_choose_the_rules() -> None:
@@ -225,14 +289,16 @@ async def test_only_and_skip_choose_the_rules() -> None:
             ServerSuiteOptions(
                 motion_port=server.ports["motion"],
                 state_port=server.ports["state"],
-                only=("reply.*", "connect.*"),
+                only=("reply.*",),
                 skip=("reply.unknown-topic",),
                 **QUICK,
             )
         )
-    rules = {r.rule for r in report.results}
-    assert "reply.ping" in rules and "reply.unknown-topic" not in rules and "state.rate" not in rules
-    assert rules <= set(SERVER_RULES)
+    rules = [r.rule for r in report.results]
+    assert len(rules) == len(set(rules)), rules  # each once
+    assert set(rules) == {"reply.ping", "reply.order", "reply.unknown-type", "reply.comm-type"}, failed(report)
+    # the connections the rules need are made though their own rules were not chosen
+    assert all(r.verdict is Verdict.PASS for r in report.results), failed(report)
 
 
 # -- the command -------------------------------------------------------------------------------------------

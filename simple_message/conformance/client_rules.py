@@ -10,9 +10,11 @@ not by what the protocol would allow (the sections cited are simple-message.md's
 * ``client.byte-order``: every frame in the controller's byte order. Every peer is built for one
   byte order and cannot detect another (§1.3, §10 pitfall 1: Fanuc and the FS100 big-endian, the
   rest little-endian).
-* ``client.stop-and-wait``: one point request (STOP included) awaits its reply at a time, as in the
-  reference streamer (§4.2): replies carry no request id, and MotoROS and Fanuc keep a one-point
-  buffer (§8.1, §8.3).
+* ``client.stop-and-wait``: one point request awaits its reply at a time, as in the reference
+  streamer (§4.2): replies carry no request id, and MotoROS and Fanuc keep a one-point buffer (§8.1,
+  §8.3). A STOP is the exception: it must be sent even while a point waits for its reply (§12 test
+  8; a server that delays a point's reply for flow control must still be stoppable); a point sent
+  while the STOP waits is not.
 * ``client.sequence``: sequences count 0, 1, 2... per trajectory, the special values used as the
   reference streamer and downloader use them (REP-I0006, §4.1, §4.2, §4.4); MotoROS refuses
   negative sequences (§8.1).
@@ -498,7 +500,7 @@ class Observer:
             if link.uncut:
                 return None  # said once per connection: the rest of it is passed on uncut
             link.uncut = True
-            rule.warn(
+            rule.fail(
                 f"{link.name}: a length prefix plausible in neither byte order "
                 f"({frame[:4].hex()}); the rest of that connection was passed on uncut",
                 Evidence.note(f"{len(frame)} bytes that could not be cut: {frame[:64].hex()}"),
@@ -572,7 +574,7 @@ class Observer:
         rule = self.rules["client.stop-and-wait"]
         rule.checked += 1
         self.point_requests += 1
-        if link.in_flight:
+        if link.in_flight and point.kind != "stop":
             pending = link.in_flight[-1]
             rule.fail(
                 f"{link.name}: {point.what} sent at {self.at()} while {pending.what} still awaited its reply",

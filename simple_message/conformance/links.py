@@ -33,8 +33,9 @@ log = logging.getLogger(__name__)
 #: the largest length prefix taken as a frame (64 KiB, the project's decoder's default; the
 #: largest standard message is about 1 KiB)
 MAX_FRAME = 64 * 1024
-#: frames a link keeps (its reader goes on, the oldest are dropped)
+#: frames and bytes a link keeps (its reader goes on, the oldest are dropped)
 KEEP = 20_000
+KEEP_BYTES = 8 * 1024 * 1024
 
 _ORDER = {ByteOrder.LITTLE: struct.Struct("<i"), ByteOrder.BIG: struct.Struct(">i")}
 
@@ -86,6 +87,7 @@ class Link:
         self.frames: list[Seen] = []  # received
         self.sent: list[Seen] = []
         self.closed_by_peer = False
+        self.closed_at: float | None = None  # monotonic time the peer closed it
         self.close_reason: str | None = None
         self._on_frame = on_frame
         self._reader: asyncio.StreamReader | None = None
@@ -93,6 +95,7 @@ class Link:
         self._task: asyncio.Task[None] | None = None
         self._arrived = asyncio.Event()
         self._read = 0  # frames handed out by next_frame
+        self._bytes = 0  # in self.frames
 
     async def open(self, host: str, port: int, timeout: float) -> Link:
         self._reader, self._writer = await asyncio.wait_for(asyncio.open_connection(host, port), timeout)
@@ -186,6 +189,8 @@ class Link:
             self.closed_by_peer = True
             self.close_reason = f"connection error: {exc}"
         finally:
+            if self.closed_by_peer:
+                self.closed_at = time.monotonic()
             self._arrived.set()
 
     async def _frame(self, prefix: bytes) -> Seen | None:
@@ -215,11 +220,13 @@ class Link:
         return Seen(self.role, False, time.monotonic(), raw, order, swapped, message=decoded)
 
     def _keep(self, seen: Seen) -> None:
-        if len(self.frames) >= KEEP:
-            drop = KEEP // 2
+        if len(self.frames) >= KEEP or self._bytes > KEEP_BYTES:
+            drop = len(self.frames) // 2
+            self._bytes -= sum(len(f.raw) for f in self.frames[:drop])
             del self.frames[:drop]
             self._read = max(0, self._read - drop)
         self.frames.append(seen)
+        self._bytes += len(seen.raw)
         self._arrived.set()
         if self._on_frame is not None:
             self._on_frame(seen)

@@ -6,7 +6,9 @@ than the type needs), what makes it drop the connection (a length ≤ 0), what i
 length beyond its 1024-byte buffer), plus what a byte stream can always bring: a frame cut short,
 a frame in the other byte order, noise. None of them is a motion message, so that a server that
 misreads one still cannot be made to move by it: a short *body* is tried on JOINT_POSITION (10) as a
-request, not on a trajectory point.
+request, not on a trajectory point. And every case is shorter than :data:`FANUC_MIN_READ` bytes:
+Fanuc's KAREL parser reads any 56 bytes as a trajectory point without looking at the type (§8.3),
+so a longer case could be run as a move to the zero pose.
 
 Each case is sent on a connection of its own; the suite then watches another connection (the state
 port's) stay served and checks that a fresh connection is answered (:mod:`.server`, rule
@@ -22,7 +24,10 @@ from dataclasses import dataclass
 from ..constants import CommType, MsgType, ReplyCode
 from ..wire import ByteOrder, WireFormat
 
-__all__ = ["MalformedCase", "malformed_cases"]
+__all__ = ["MalformedCase", "malformed_cases", "FANUC_MIN_READ"]
+
+#: the bytes Fanuc's KAREL parser waits for before it reads a point, whatever the type (§8.3)
+FANUC_MIN_READ = 56
 
 
 @dataclass(frozen=True)
@@ -48,7 +53,7 @@ def malformed_cases(wire: WireFormat, seed: int = 1) -> list[MalformedCase]:
 
     ping, req, rep, topic = int(MsgType.PING), int(CommType.SERVICE_REQUEST), int(CommType.SERVICE_REPLY), 1
     invalid, success = int(ReplyCode.INVALID), int(ReplyCode.SUCCESS)
-    noise = bytes(random.Random(seed).getrandbits(8) for _ in range(64))
+    noise = random.Random(seed).randbytes(48)
     return [
         MalformedCase(
             "length-zero", "length 0: the C++ receiver marks the link disconnected (§1.5)", struct.pack(f"{o}i", 0)
@@ -78,8 +83,8 @@ def malformed_cases(wire: WireFormat, seed: int = 1) -> list[MalformedCase]:
         ),
         MalformedCase(
             "length-oversize",
-            "length 1,000,000 with 64 bytes sent: beyond the C++ peers' 1024-byte buffer (§1.5)",
-            frame(1_000_000, ping, req, invalid, bytes(52)),
+            "length 1,000,000 with 48 bytes sent: beyond the C++ peers' 1024-byte buffer (§1.5)",
+            frame(1_000_000, ping, req, invalid, bytes(36)),
             hold=True,
         ),
         MalformedCase(
@@ -95,5 +100,5 @@ def malformed_cases(wire: WireFormat, seed: int = 1) -> list[MalformedCase]:
             "a PING in the other byte order (its length reads 201,326,592; §10 pitfall 1)",
             frame(12, ping, req, invalid, order=other),
         ),
-        MalformedCase("noise", "64 random bytes", noise),
+        MalformedCase("noise", "48 random bytes", noise),
     ]

@@ -50,10 +50,17 @@ class Evidence:
         return cls("note", text)
 
     def line(self) -> str:
+        """One line for the terminal: the hex, and the decoded header and body (cut at 240 characters)."""
         if self.kind == "note":
             return self.text
-        name = f" ({self.decoded.get('name')})" if self.decoded else ""
-        return f"{self.kind}{name}: {self.text}"
+        if not self.decoded:
+            return f"{self.kind}: {self.text}"
+        d = self.decoded
+        body = json.dumps(d.get("body", {}), separators=(",", ":"))
+        if len(body) > 240:
+            body = body[:237] + "..."
+        header = f"{d.get('name')} comm {d.get('comm_type')} reply {d.get('reply_code')}"
+        return f"{self.kind}: {self.text}\n        = {header} {body}"
 
 
 @dataclass
