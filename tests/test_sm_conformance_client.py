@@ -358,6 +358,21 @@ async def test_a_stop_while_a_point_awaits_its_reply_is_not_two_in_flight() -> N
     assert verdicts(report)["client.stop-and-wait"] is Verdict.PASS, report.table()
 
 
+async def test_a_move_with_neither_duration_nor_velocity_is_warned() -> None:
+    async with emulator() as (_, upstream), ClientSuite(options("generic", upstream, inject=frozenset())) as suite:
+        start = await current_position(suite.ports["state"])
+        client = await RawClient.open(suite.ports["motion"])
+        try:
+            moved = (start[0] + 0.01, *start[1:])
+            for point in (JointTrajPt(0, start, velocity=0.1), JointTrajPt(1, moved)):
+                assert await client.request(point) is not None
+        finally:
+            await client.close()
+        report = await suite.finish()
+    fields = rule(report, "client.point-fields")
+    assert fields.verdict is Verdict.WARN and "neither a duration nor a velocity" in fields.detail, report.table()
+
+
 async def test_a_controller_that_does_not_start_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
     broken = [sys.executable, "-c", "import sys; print('no such model: puma', file=sys.stderr); sys.exit(2)"]
     monkeypatch.setattr(ClientSuite, "command", lambda self: broken)

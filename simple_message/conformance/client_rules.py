@@ -199,6 +199,8 @@ class LinkState:
     prev: dict[int, _Prev] = field(default_factory=dict)
     #: the cutter gave up on this connection's bytes (warned once)
     uncut: bool = False
+    #: the last JOINT_TRAJ_PT's positions (a segment's timing is judged against them)
+    jtp_positions: Positions | None = None
 
     @property
     def name(self) -> str:
@@ -779,6 +781,14 @@ class Observer:
                 problems.append(f"velocity {msg.velocity:g} is not a ratio in [0, 1] (§4.3)")
             if not (math.isfinite(msg.duration) and 0.0 <= msg.duration < MAX_TIME):
                 problems.append(f"duration {msg.duration:g} s is not a segment time in [0, {MAX_TIME:g}) s")
+            before, link.jtp_positions = link.jtp_positions, msg.joint_data
+            moves = before is not None and point.seq is not None and point.seq > 0
+            if moves and before is not None and not _same(before, msg.joint_data) and msg.duration == msg.velocity == 0:
+                rule.warn(
+                    f"{link.name}: {point.what} moves with neither a duration nor a velocity: no controller can "
+                    "time it (ABB times by duration, the C++ servers and Fanuc by velocity, §4.3)",
+                    self.ev(point),
+                )
         else:
             if self.profile in ("abb", "fanuc"):
                 problems.append(f"the {self.profile} controller takes JOINT_TRAJ_PT only (§8.2, §8.3)")
