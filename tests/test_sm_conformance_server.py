@@ -21,6 +21,7 @@ from simple_message.conformance import Report, Verdict
 from simple_message.conformance.malformed import FANUC_MIN_READ, malformed_cases
 from simple_message.conformance.server import ServerSuite, ServerSuiteOptions, run_server_suite
 from simple_message.constants import MotoCommand
+from simple_message.framing import FrameDecoder
 from simple_message.messages import JointTrajPt, JointTrajPtFull, Message, MotoMotionCtrl, decode
 from simple_message.wire import BE32, LE32
 from tests.brokenservers import BrokenServer
@@ -137,13 +138,12 @@ async def test_no_motion_is_sent_without_allow_motion() -> None:
 
 
 def cut(data: bytes) -> list[Message]:
+    """The messages in what the suite sent at once (a burst is several frames)."""
+    decoder = FrameDecoder()
+    decoder.feed(data)
     out: list[Message] = []
-    while len(data) >= 16:
-        (length,) = struct.unpack_from("<i", data)
-        if not 12 <= length <= len(data) - 4:
-            break
-        out.append(decode(data[: 4 + length], LE32))
-        data = data[4 + length :]
+    while (frame := decoder.next_frame()) is not None:
+        out.append(decode(frame, LE32))
     return out
 
 

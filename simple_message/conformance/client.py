@@ -65,7 +65,6 @@ import logging
 import math
 import re
 import signal
-import struct
 import sys
 from collections import deque
 from collections.abc import Callable, Mapping
@@ -73,7 +72,6 @@ from dataclasses import dataclass
 from typing import Final
 
 from ..constants import (
-    HEADER_SIZE,
     LENGTH_SIZE,
     CommType,
     InvalidSubcode,
@@ -99,7 +97,7 @@ from ..messages import (
 )
 from ..wire import ByteOrder, WireFormat
 from .client_rules import RULES, SAME, LinkState, Observer, Point, Positions
-from .links import other_order
+from .links import prefix_order
 from .report import Report
 
 __all__ = [
@@ -123,8 +121,6 @@ STOP_TIMEOUT = 10.0
 CONNECT_TIMEOUT = 5.0
 #: start() waits at most this long for the first joint state from the controller
 FIRST_STATE_TIMEOUT = 5.0
-#: the tolerant cutter's largest plausible length prefix (§10 pitfall 1: above it, the other order)
-MAX_FRAME = 0xFFFF
 #: replies owed to the client on one connection before the suite reads no more from it (a real
 #: controller, too, stops reading a client that does not wait for its replies)
 MAX_PENDING = 256
@@ -250,10 +246,6 @@ def _check_options(options: ClientSuiteOptions) -> _Profile:
 # -- the tolerant cutter ------------------------------------------------------------------------------
 
 
-def _plausible(length: int) -> bool:
-    return HEADER_SIZE <= length <= MAX_FRAME
-
-
 class _Cutter:
     """Cuts a byte stream into frames, each in the byte order its length prefix is plausible in.
 
@@ -266,7 +258,6 @@ class _Cutter:
 
     def __init__(self, order: ByteOrder) -> None:
         self.order = order
-        self.other = other_order(order)
         self._buf = bytearray()
         #: the stream could not be cut any further
         self.lost = False
@@ -278,17 +269,13 @@ class _Cutter:
         out: list[tuple[bytes, ByteOrder | None]] = []
         buf = self._buf
         while len(buf) >= LENGTH_SIZE:
-            order: ByteOrder | None = None
-            for candidate in (self.order, self.other):
-                (length,) = struct.unpack_from(candidate.struct_char + "i", buf, 0)
-                if _plausible(length):
-                    order = candidate
-                    break
-            if order is None:
+            found = prefix_order(buf, self.order)
+            if found is None:
                 out.append((bytes(buf), None))
                 buf.clear()
                 self.lost = True
                 break
+            order, length = found
             end = LENGTH_SIZE + length
             if len(buf) < end:
                 break

@@ -26,13 +26,14 @@ from ..messages import Message
 from ..wire import ByteOrder, WireFormat
 from .report import Evidence
 
-__all__ = ["Seen", "Link", "MAX_FRAME", "other_order"]
+__all__ = ["Seen", "Link", "MAX_FRAME", "other_order", "prefix_order"]
 
 log = logging.getLogger(__name__)
 
-#: the largest length prefix taken as a frame (64 KiB, the project's decoder's default; the
-#: largest standard message is about 1 KiB)
-MAX_FRAME = 64 * 1024
+#: the largest length prefix taken as a frame (the largest standard message is about 1 KiB). Every
+#: length from 12 to 0xFFFF reads as at least 0x10000 the other way round, so the byte order of a
+#: plausible prefix is never in doubt (§10 pitfall 1)
+MAX_FRAME = 0xFFFF
 #: frames and bytes a link keeps (its reader goes on, the oldest are dropped)
 KEEP = 20_000
 KEEP_BYTES = 8 * 1024 * 1024
@@ -44,8 +45,14 @@ def other_order(order: ByteOrder) -> ByteOrder:
     return ByteOrder.BIG if order is ByteOrder.LITTLE else ByteOrder.LITTLE
 
 
-def _plausible(length: int) -> bool:
-    return HEADER_SIZE <= length <= MAX_FRAME
+def prefix_order(prefix: bytes | bytearray, expected: ByteOrder) -> tuple[ByteOrder, int] | None:
+    """The byte order a length prefix is a plausible length in, ``expected`` first, and that
+    length; ``None`` when it is one in neither (the stream cannot be cut further)."""
+    for order in (expected, other_order(expected)):
+        (length,) = _ORDER[order].unpack_from(prefix, 0)
+        if HEADER_SIZE <= length <= MAX_FRAME:
+            return order, length
+    return None
 
 
 @dataclass(frozen=True)
@@ -195,22 +202,19 @@ class Link:
 
     async def _frame(self, prefix: bytes) -> Seen | None:
         assert self._reader is not None
-        if self.wire is None:
-            order = ByteOrder.LITTLE if _plausible(_ORDER[ByteOrder.LITTLE].unpack(prefix)[0]) else ByteOrder.BIG
-        else:
-            order = self.wire.byte_order
-        length = _ORDER[order].unpack(prefix)[0]
-        swapped = False
-        if not _plausible(length):
-            other = other_order(order)
-            other_length = _ORDER[other].unpack(prefix)[0]
-            if not _plausible(other_length):
-                rest = await _read_some(self._reader, 60)
-                raw = prefix + rest
-                self._keep(Seen(self.role, False, time.monotonic(), raw, order, problem=f"length prefix {length}"))
-                self.close_reason = f"a length prefix that is no length in either byte order ({prefix.hex()})"
-                return None
-            order, length, swapped = other, other_length, self.wire is not None
+        expected = self.wire.byte_order if self.wire is not None else ByteOrder.LITTLE
+        found = prefix_order(prefix, expected)
+        if found is None:
+            rest = await _read_some(self._reader, 60)
+            (length,) = _ORDER[expected].unpack(prefix)
+            self._keep(
+                Seen(self.role, False, time.monotonic(), prefix + rest, expected, problem=f"length prefix {length}")
+            )
+            self.close_reason = f"a length prefix that is no length in either byte order ({prefix.hex()})"
+            return None
+        order, length = found
+        # before the order is known, the first frame decides it; after, another order is a finding
+        swapped = self.wire is not None and order is not expected
         body = await self._reader.readexactly(length)
         raw = prefix + body
         real_size = self.wire.real_size if self.wire else 4

@@ -25,7 +25,6 @@ import itertools
 import logging
 import math
 import statistics
-import struct
 import time
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
@@ -43,9 +42,11 @@ from ..constants import (
     ValidFields,
 )
 from ..dialects import ABB, FANUC, GENERIC, MOTOROS, Dialect, ReplyStyle
+from ..framing import decode_or_error
 from ..messages import (
     HeaderOnly,
     JointFeedback,
+    JointFeedbackEx,
     JointPosition,
     JointTrajPt,
     JointTrajPtFull,
@@ -56,6 +57,7 @@ from ..messages import (
     RawMessage,
     Status,
     message_class,
+    type_name,
 )
 from ..wire import ByteOrder, WireFormat
 from .links import Link, Seen
@@ -479,8 +481,14 @@ class ServerSuite:
             return MotoMotionCtrl(0, 0, MotoCommand.STOP_MOTION)
         return JointTrajPt(SpecialSeq.STOP_TRAJECTORY)
 
-    async def _exchange(self, link: Link, message: Message, timeout: float | None = None) -> tuple[Seen, Seen | None]:
-        link.skip_pending()
+    async def _exchange(
+        self, link: Link, message: Message, timeout: float | None = None, *, keep: bool = False
+    ) -> tuple[Seen, Seen | None]:
+        """Send ``message`` and take the next frame as its reply, within ``timeout`` (default the
+        reply timeout). Frames received before it are forgotten first, unless ``keep``: an extra
+        reply already waiting is then what comes back."""
+        if not keep:
+            link.skip_pending()
         sent = link.send_message(message)
         reply = await link.next_frame(self.options.reply_timeout if timeout is None else timeout)
         return sent, reply
@@ -558,19 +566,13 @@ class ServerSuite:
             if not self._answers(request, reply):
                 return _Verdict(Verdict.FAIL, f"reply {k + 1} does not answer request {k + 1} ({_name(request)})", ev)
         # one per request, none extra: the sentinel's reply must be the very next frame
-        s_sent, s_reply = await self._exchange_keep(link, sentinel)
+        s_sent, s_reply = await self._exchange(link, sentinel, keep=True)
         ev += [s_sent.evidence()] + ([s_reply.evidence()] if s_reply else [])
         if s_reply is None:
             return _Verdict(Verdict.FAIL, "no reply to the request sent after the burst", ev)
         if not self._answers(sentinel, s_reply) or s_reply.time < s_sent.time:
             return _Verdict(Verdict.FAIL, "an extra frame came before the next request's reply", ev)
         return _Verdict(Verdict.PASS, f"{len(burst)} replies in order, then the next request's reply", ev)
-
-    async def _exchange_keep(self, link: Link, message: Message) -> tuple[Seen, Seen | None]:
-        """Send and take the next frame without forgetting those already received (an extra reply
-        already waiting is then what comes back)."""
-        sent = link.send_message(message)
-        return sent, await link.next_frame(self.options.reply_timeout)
 
     async def _unknown_type(self) -> _Verdict:
         if not self.expect.unknown_types:
@@ -1502,21 +1504,13 @@ async def run_server_suite(options: ServerSuiteOptions) -> Report:
 
 
 def _real_size(seen: Seen) -> int | None:
-    """The float size a joint-state frame implies (JOINT_POSITION is 56 bytes in float32, 96 in
-    float64; JOINT_FEEDBACK 148 or 280); ``None`` for a frame that tells nothing (STATUS has no
-    reals)."""
-    length = len(seen.raw) - 4
-    header = 12
-    body = length - header
-    sizes = {
-        MsgType.JOINT_POSITION: (4 + 10 * 4, 4 + 10 * 8),
-        MsgType.JOINT_FEEDBACK: (8 + 31 * 4, 8 + 31 * 8),
-        MsgType.JOINT_FEEDBACK_EX: (4 + 4 * (8 + 31 * 4), 4 + 4 * (8 + 31 * 8)),
-    }
-    msg_type = struct.unpack_from("<i" if seen.order is ByteOrder.LITTLE else ">i", seen.raw, 4)[0]
-    if msg_type not in sizes or body not in sizes[msg_type]:
-        return None
-    return 8 if body == sizes[msg_type][1] else 4
+    """The float size a joint-state frame decodes in (its layout fits one real size only); ``None``
+    for a frame that tells nothing (STATUS has no reals)."""
+    for size in (4, 8):
+        decoded = decode_or_error(seen.raw, WireFormat(seen.order, size))
+        if isinstance(decoded, JointPosition | JointFeedback | JointFeedbackEx):
+            return size
+    return None
 
 
 def _joints_of(msg: Message | None) -> tuple[float, ...] | None:
@@ -1549,10 +1543,7 @@ def _has_reals(msg: Message) -> bool:
 
 
 def _type_name(msg_type: int) -> str:
-    try:
-        return MsgType(msg_type).name
-    except ValueError:
-        return str(msg_type)
+    return type_name(msg_type) or str(msg_type)
 
 
 def _name(msg: Message) -> str:
