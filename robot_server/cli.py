@@ -25,6 +25,7 @@ import sys
 import threading
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from simple_message.capture_writer import DEFAULT_MAX_BYTES
 from simple_message.cliargs import (
@@ -43,11 +44,15 @@ from simple_message.cliargs import (
 from simple_message.endpoints import run
 
 from .control import DEFAULT_POLICY, POLICIES, Recorder
-from .emulator import FAULT_COMMANDS, PROFILES, Emulator, EmulatorConfig, FaultError, apply_fault_command
+from .emulator import FAULT_COMMANDS, PROFILES, Emulator, EmulatorConfig, FaultError
 from .emulator.owner import OnDisconnect
 from .emulator.server import MAX_STATE_RATE
 from .loader import load_model, shipped_cells, shipped_models
 from .model import ModelError
+from .web import MAX_RATE, WebUnavailable, web_address, web_view
+
+if TYPE_CHECKING:
+    from .web.server import WebView
 
 log = logging.getLogger("robot_server.cli")
 
@@ -68,6 +73,13 @@ def _fault(text: str) -> tuple[float, str]:
     if not sep or seconds < 0.0 or not command.strip():
         raise argparse.ArgumentTypeError(f"expected SECONDS:COMMAND (e.g. 2.5:estop), not {text!r}")
     return seconds, command
+
+
+def _web_address(text: str) -> tuple[str, int]:
+    try:
+        return web_address(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def parser() -> argparse.ArgumentParser:
@@ -221,6 +233,20 @@ def parser() -> argparse.ArgumentParser:
         help="apply a fault command (below) at SECONDS >= 0 of controller time from the start (repeatable)",
     )
     p.add_argument("--no-stdin", action="store_true", help="do not read fault commands from stdin")
+    p.add_argument(
+        "--web",
+        type=_web_address,
+        metavar="[HOST:]PORT",
+        help="serve a live web view of the controller there (3D robot, joint plots, STATUS, traffic, fault buttons; "
+        "HOST default 127.0.0.1, PORT 0: any free one; needs the web extra: pip install 'simple-message-stack[web]')",
+    )
+    p.add_argument(
+        "--web-rate",
+        type=positive_float,
+        default=30.0,
+        metavar="HZ",
+        help=f"updates per second sent to each web page, at most {MAX_RATE:g} (default: %(default)g)",
+    )
     add_log_level_argument(p, default="INFO")
     return p
 
@@ -239,6 +265,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ValueError(f"unknown profile {args.profile!r} (known: {', '.join(sorted(PROFILES))})")
         if args.state_rate > MAX_STATE_RATE:
             raise ValueError(f"--state-rate is at most {MAX_STATE_RATE:g} Hz")
+        if args.web_rate > MAX_RATE:
+            raise ValueError(f"--web-rate is at most {MAX_RATE:g} updates a second")
         if args.record_seconds > MAX_RECORD_SECONDS:
             raise ValueError(f"--record-seconds is at most {MAX_RECORD_SECONDS:g} s")
         for _, command in args.fault:
@@ -276,14 +304,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         models = [load_model(m) for m in config.models]
         emulator = Emulator(config, models)
         recorders = emulator.record(args.record_seconds) if args.record else []
-    except (ValueError, ModelError, OSError) as exc:
+        view = None if args.web is None else web_view(emulator, *args.web, rate=args.web_rate)
+    except (ValueError, ModelError, OSError, WebUnavailable) as exc:
         print(f"robot-server: {exc}", file=sys.stderr)
         return 2
     except MemoryError:
         print("robot-server: not enough memory for the record: a smaller --record-seconds", file=sys.stderr)
         return 2
     try:
-        code = run(_serve(emulator, args.fault, read_stdin=not args.no_stdin))  # on uvloop when installed
+        code = run(_serve(emulator, args.fault, read_stdin=not args.no_stdin, view=view))  # on uvloop when installed
     except OSError as exc:  # e.g. the port is taken
         print(f"robot-server: {exc}", file=sys.stderr)
         return 1
@@ -325,13 +354,23 @@ def _check_command(command: str) -> None:
         raise ValueError(f"unknown fault command {command!r}")
 
 
-async def _serve(emulator: Emulator, faults: list[tuple[float, str]], read_stdin: bool) -> int:
+async def _serve(
+    emulator: Emulator, faults: list[tuple[float, str]], read_stdin: bool, view: WebView | None = None
+) -> int:
     loop = asyncio.get_running_loop()
     done = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, done.set)
     await emulator.start()
-    print(emulator.describe(), flush=True)
+    ready = emulator.describe()
+    if view is not None:
+        try:
+            await view.start()
+        except BaseException:
+            await emulator.close()
+            raise
+        ready += f", web view {view.url}"
+    print(ready, flush=True)
     if emulator.capture is not None:
         log.info("recording every connection to %s", emulator.capture.path)
     tasks = [loop.create_task(_scheduled(emulator, at, command)) for at, command in faults]
@@ -343,13 +382,15 @@ async def _serve(emulator: Emulator, faults: list[tuple[float, str]], read_stdin
         log.info("shutting down")
         for task in tasks:
             task.cancel()
+        if view is not None:
+            await view.close()
         await emulator.close()
     return 0
 
 
 def _apply(emulator: Emulator, command: str) -> None:
     try:
-        applied = apply_fault_command(emulator.cell, command)
+        applied = emulator.command(command)
     except FaultError as exc:
         log.warning("%s", exc)
         return

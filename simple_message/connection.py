@@ -46,7 +46,7 @@ import logging
 import socket
 import time
 from collections import deque
-from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Protocol, cast
 
@@ -79,7 +79,7 @@ from .messages import Message, type_name
 from .transport import StreamPair, set_nodelay, take_over, unread_by_peers
 from .wire import DEFAULT_FORMAT, WireFormat
 
-__all__ = ["Connection", "ConnectionState", "Subscription", "MessageHandler", "Tap", "TapLink"]
+__all__ = ["Connection", "ConnectionState", "Subscription", "MessageHandler", "Tap", "TapLink", "TapTee"]
 
 log = logging.getLogger(__name__)
 frames_log = logging.getLogger(__name__ + ".frames")
@@ -116,6 +116,26 @@ class Tap(Protocol):
     def closed(self, link: TapLink, by_peer: bool, time_ns: int) -> None:
         """The connection is over (called once, last); ``by_peer``: the peer's input had ended
         (EOF, reset) before this end closed."""
+
+
+class TapTee:
+    """Several taps seen as one: each is told everything, in the order given (e.g. a capture file
+    and a live traffic display on the same server)."""
+
+    def __init__(self, taps: Sequence[Tap]) -> None:
+        self.taps = tuple(taps)
+
+    def opened(self, link: TapLink, time_ns: int) -> None:
+        for tap in self.taps:
+            tap.opened(link, time_ns)
+
+    def data(self, link: TapLink, outgoing: bool, data: bytes, time_ns: int) -> None:
+        for tap in self.taps:
+            tap.data(link, outgoing, data, time_ns)
+
+    def closed(self, link: TapLink, by_peer: bool, time_ns: int) -> None:
+        for tap in self.taps:
+            tap.closed(link, by_peer, time_ns)
 
 
 class ConnectionState(enum.Enum):

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from simple_message.constants import RobotMode, SpecialSeq, TriState
 from simple_message.lograte import lane
@@ -71,6 +71,9 @@ class RobotCell:
         self._was_moving = [False] * len(self.groups)
         self._points = [0] * len(self.groups)
         self._started = [0.0] * len(self.groups)
+        #: called with (group, point) for every joint point a controller accepted, in order (e.g. a
+        #: display marking the waypoints); must not raise or block
+        self.point_listeners: list[Callable[[int, Point], None]] = []
 
     # -- state -------------------------------------------------------------------------------------
 
@@ -140,6 +143,8 @@ class RobotCell:
         before = controller.trajectories
         dispatch(controller, sequence, point)
         self._count(group, before)
+        for listener in self.point_listeners:
+            listener(group, point)
 
     def submit_together(self, sequence: int, points: Sequence[tuple[int, Point]]) -> None:
         """One streamed point per group, all accepted or none (sequence 0 starts a trajectory)."""
@@ -149,8 +154,10 @@ class RobotCell:
         pairs = [(self.group(g), p) for g, p in points]
         before = [c.trajectories for c, _ in pairs]
         submit_together(pairs, first=sequence in STREAM_STARTS)
-        for (g, _), n in zip(points, before, strict=True):
+        for (g, p), n in zip(points, before, strict=True):
             self._count(g, n)
+            for listener in self.point_listeners:
+                listener(g, p)
 
     def submit_line(self, group: int, sequence: int, target: LineTarget) -> None:
         """A straight line for a group's controller (:meth:`~..control.Controller.add_line`):

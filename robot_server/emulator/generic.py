@@ -49,6 +49,7 @@ from simple_message.messages import (
     JointPosition,
     JointTrajPtFull,
     Message,
+    Status,
     ToolPose,
 )
 
@@ -257,6 +258,7 @@ class GenericBehaviour:
     """The generic profile's :class:`~.profiles.Behaviour`: its motion and state ports."""
 
     def __init__(self, context: ProfileContext) -> None:
+        self.cell = context.cell
         self.motion = GenericMotion(context.cell)
         self.state = GenericState(context.cell, feedback=context.feedback)
 
@@ -266,6 +268,9 @@ class GenericBehaviour:
 
     def publish(self, server: Server, sessions: Iterable[Session]) -> None:
         self.state.publish(server, sessions)
+
+    def status(self) -> Status:
+        return self.cell.status()
 
 
 GENERIC_PROFILE = register_profile(

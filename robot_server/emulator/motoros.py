@@ -93,6 +93,7 @@ from simple_message.messages import (
     ReadSingleIo,
     ReadSingleIoReply,
     SelectTool,
+    Status,
     WriteGroupIo,
     WriteGroupIoReply,
     WriteMRegister,
@@ -583,7 +584,11 @@ class MotorosState:
             server.broadcast(JointFeedback(index, fields, 0.0, position, velocity), recipients)
         if len(groups) >= 2:
             server.broadcast(JointFeedbackEx(len(groups), tuple(groups)), recipients)
-        server.broadcast(cell.status(motion_possible=cell.motion_possible and self.motion.traj_mode), recipients)
+        server.broadcast(self.status(), recipients)
+
+    def status(self) -> Status:
+        """STATUS as MotoROS reports it: motion possible only in trajectory mode."""
+        return self.cell.status(motion_possible=self.cell.motion_possible and self.motion.traj_mode)
 
 
 class MotorosBehaviour:
@@ -603,6 +608,9 @@ class MotorosBehaviour:
 
     def publish(self, server: Server, sessions: Iterable[Session]) -> None:
         self.state.publish(server, sessions)
+
+    def status(self) -> Status:
+        return self.state.status()
 
 
 MOTOROS_PROFILE = register_profile(

@@ -83,6 +83,9 @@ class Behaviour(Protocol):
     def publish(self, server: Server, sessions: Iterable[Session]) -> None:
         """Send one round of state topics to ``sessions`` (through the state ``server``)."""
 
+    # A behaviour may also have ``status() -> Status``: STATUS as its state topic reports it (the
+    # web view shows that one; without it, the cell's own, :meth:`~.cell.RobotCell.status`).
+
 
 @dataclass(frozen=True)
 class EmulatorProfile:

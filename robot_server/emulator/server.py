@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Literal
 
 from simple_message.capture_writer import DEFAULT_MAX_BYTES, CaptureWriter
+from simple_message.connection import Tap, TapTee
 from simple_message.constants import MAX_JOINTS
 from simple_message.dialects import ReplyStyle, reply_style_of
 from simple_message.endpoints import DEFAULT_IDLE_AFTER, Server, Session
@@ -51,7 +52,7 @@ from ..control import (
 from ..loader import load_model, load_supervision
 from ..model import ModelError, RobotModel
 from . import motoros  # noqa: F401 - registers the MotoROS profile
-from .cell import RobotCell
+from .cell import RobotCell, apply_fault_command
 from .generic import GENERIC_PROFILE
 from .io_table import IoTable
 from .owner import MotionOwner, OnDisconnect
@@ -334,6 +335,9 @@ class Emulator:
         self._closed = False
         #: the pcapng recording of every connection (``config.capture``), from ``start()`` on
         self.capture: CaptureWriter | None = None
+        #: more taps told every connection's traffic, installed by :meth:`start` (e.g. the web view's
+        #: traffic list; :class:`~simple_message.connection.Tap`)
+        self.taps: list[Tap] = []
         #: the ceiling over :data:`PEER_LOGGERS` while the emulator runs
         self._log_ceiling: BudgetFilter | None = None
 
@@ -348,8 +352,11 @@ class Emulator:
             self.capture = CaptureWriter(
                 cfg.capture, max_bytes=cfg.capture_max_bytes, application=f"robot-server ({cfg.profile} profile)"
             )
+        taps: list[Tap] = [*([] if self.capture is None else [self.capture]), *self.taps]
+        if taps:
+            tap = taps[0] if len(taps) == 1 else TapTee(taps)
             for server in {*self.servers.values(), self.state_server}:
-                server.tap = self.capture
+                server.tap = tap
         self._started = True
         try:
             for name, server in self.servers.items():
@@ -483,6 +490,12 @@ class Emulator:
         """End the recording :meth:`record` started (the recorders keep what they hold)."""
         self.control.recorder = None
         self.control.other_recorders = []
+
+    def command(self, line: str) -> str:
+        """Apply one fault command (``estop``, ``reset``, ... :data:`~.cell.FAULT_COMMANDS`): the
+        same for stdin, ``--fault`` and the web view's buttons. Returns what was done; raises
+        :class:`~.cell.FaultError` for an unknown or malformed command."""
+        return apply_fault_command(self.cell, line)
 
     @property
     def in_motion(self) -> bool:

@@ -1,0 +1,57 @@
+"""A live web view of the emulated controller: ``robot-server --web [HOST:]PORT``.
+
+One page shows the robot in 3D (three.js), per-joint plots of the last seconds (uPlot), STATUS as
+lights, the policy, the queues and the clients, the last frames on the wire, and the fault
+injector's buttons; its data comes over one WebSocket (docs/web.md). It needs aiohttp, the optional
+``web`` extra: ``pip install 'simple-message-stack[web]'``.
+
+:mod:`.feed` (what pages are sent) and :mod:`.traffic` (the frames) need no web server; the server
+itself is imported on first use (:func:`web_view`), so that a missing aiohttp is one clear error.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from .feed import MAX_RATE, Feed, Page
+from .traffic import TrafficTap
+
+if TYPE_CHECKING:
+    from ..emulator import Emulator
+    from .server import WebView
+
+__all__ = ["Feed", "Page", "TrafficTap", "MAX_RATE", "web_view", "web_address", "WebUnavailable"]
+
+
+class WebUnavailable(RuntimeError):
+    """The web view's web server (aiohttp) is not installed."""
+
+
+def web_view(emulator: Emulator, host: str = "127.0.0.1", port: int = 0, *, rate: float = 30.0) -> WebView:
+    """A :class:`~.server.WebView` of ``emulator`` (before it starts); raises :class:`WebUnavailable`
+    without aiohttp."""
+    try:
+        from .server import WebView
+    except ImportError as exc:
+        raise WebUnavailable(f"the web view needs aiohttp ({exc}): pip install 'simple-message-stack[web]'") from None
+    return WebView(emulator, host, port, rate=rate)
+
+
+def web_address(text: str) -> tuple[str, int]:
+    """``[HOST:]PORT`` (an IPv6 host in brackets: ``[::1]:8080``) as ``(host, port)``; the host is
+    127.0.0.1 when not given, the port 0..65535 (0: any free one). Raises ValueError."""
+    host, sep, port = text.rpartition(":")
+    if not sep:
+        host, port = "127.0.0.1", text
+    host = host.strip()
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    if not host:
+        host = "127.0.0.1"
+    try:
+        number = int(port)
+    except ValueError:
+        raise ValueError(f"expected [HOST:]PORT (e.g. 8080 or 127.0.0.1:8080), not {text!r}") from None
+    if not 0 <= number <= 65535:
+        raise ValueError(f"a port is 0..65535 (0: any free port), not {number}")
+    return host, number
