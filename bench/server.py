@@ -53,15 +53,18 @@ JOINT_POSITION, JOINT_TRAJ_PT, STATUS = 10, 11, 13
 STATE_RATE = 250.0
 PERIOD_NS = round(1e9 / STATE_RATE)
 WARMUP = 0.5  # s of rounds dropped after the clients connected
+PAGES = 5  # web pages open in the web part
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux; SCM_TIMESTAMPNS has the same value
 
 
 class Server:
     def __init__(self, proc: asyncio.subprocess.Process, ports: dict[str, int]) -> None:
         self.proc, self.ports = proc, ports
+        self.web_url: str | None = None
 
     @classmethod
-    async def start(cls, *args: str, cpus: set[int] | None = None) -> Server:
+    async def start(cls, *args: str, cpus: set[int] | None = None, log: bool = False) -> Server:
+        """``log``: at INFO level, stderr kept for :meth:`stop` to return (the closing statistics)."""
         proc = await asyncio.create_subprocess_exec(
             sys.executable,
             "-m",
@@ -71,25 +74,33 @@ class Server:
             "--state-port",
             "0",
             "--log-level",
-            "WARNING",
+            "INFO" if log else "WARNING",
             "--no-stdin",
             *args,
             stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.PIPE if log else None,
         )
         if cpus is not None:
             os.sched_setaffinity(proc.pid, cpus)
         assert proc.stdout is not None
         line = (await asyncio.wait_for(proc.stdout.readline(), 30.0)).decode()
         ports = {name: int(port) for name, port in re.findall(r"(motion|state) [\d.]+:(\d+)", line)}
-        return cls(proc, ports)
+        server = cls(proc, ports)
+        web = re.search(r"web view (http://\S+/)", line)
+        server.web_url = web.group(1) if web else None
+        return server
 
     def cpu_seconds(self) -> float:
         fields = Path(f"/proc/{self.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
         return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
-    async def stop(self) -> None:
+    async def stop(self) -> str:
+        """Terminate it; its log (what ``log=True`` kept, else "")."""
         self.proc.terminate()
+        err = self.proc.stderr
+        text = (await asyncio.wait_for(err.read(), 30.0)).decode(errors="replace") if err is not None else ""
         await asyncio.wait_for(self.proc.wait(), 30.0)
+        return text
 
 
 async def read_frame(reader: asyncio.StreamReader) -> tuple[int, bytes]:
@@ -190,6 +201,74 @@ async def jitter(clients: int, seconds: float, pin: str, rt: bool = False) -> di
         await server.stop()
     stamps = json.loads(out)
     return {kind: summary(deviations(stamps[kind])) for kind in ("sent", "read")}
+
+
+async def web_pages(pages: int | None, seconds: float, pin: str, rt: bool = False) -> dict[str, float]:
+    """State-topic jitter (one state client) and the control loop's overruns with the web view off
+    (``pages`` None) or on with ``pages`` pages reading it (WebSocket clients that parse every update
+    as the page does)."""
+    server_cpus, client_cpus = placement(pin)
+    args = ["--state-rate", f"{STATE_RATE:g}"] + ([] if pages is None else ["--web", "0", "--web-rate", "60"])
+    server = await Server.start(*args, cpus=server_cpus, log=True)
+    counts: list[int] = []
+    try:
+        if rt:
+            await asyncio.sleep(0.2)
+            real_time(server.proc.pid)
+        children = []
+        cmd = [sys.executable, __file__, "--measure-state", str(server.ports["state"]), "1", str(seconds)]
+        children.append(await asyncio.create_subprocess_exec(*cmd, stdout=asyncio.subprocess.PIPE))
+        if pages:
+            assert server.web_url is not None
+            cmd = [sys.executable, __file__, "--measure-pages", server.web_url, str(pages), str(seconds + 1.0)]
+            children.append(await asyncio.create_subprocess_exec(*cmd, stdout=asyncio.subprocess.PIPE))
+        for child in children:
+            if client_cpus is not None:
+                os.sched_setaffinity(child.pid, client_cpus)
+            if rt:
+                real_time(child.pid)
+        outs = [await asyncio.wait_for(c.communicate(), seconds + 60.0) for c in children]
+        if any(c.returncode != 0 for c in children):
+            raise RuntimeError("the measuring clients failed")
+        stamps = json.loads(outs[0][0])
+        if pages:
+            counts = json.loads(outs[1][0])["messages"]
+    finally:
+        log = await server.stop()
+    found = re.search(r"control loop: (\d+) wake-ups, (\d+) overruns .*?latest ([\d.]+) ms", log)
+    if found is None:
+        raise RuntimeError("the emulator did not log its control-loop statistics:\n" + log[-2000:])
+    result = summary(deviations(stamps["sent"]))
+    result.update(
+        wakes=int(found.group(1)),
+        overruns=int(found.group(2)),
+        latest=float(found.group(3)) / 1e3,
+        updates=(statistics.median(counts) / (seconds + 1.0)) if counts else 0.0,
+    )
+    return result
+
+
+def measure_pages(url: str, pages: int, seconds: float) -> dict[str, list[int]]:
+    """``pages`` WebSocket clients on the web view for ``seconds``: messages each received."""
+    import aiohttp
+
+    async def page(session: aiohttp.ClientSession, counts: list[int], i: int) -> None:
+        async with session.ws_connect(url + "ws") as ws:
+            async for msg in ws:
+                json.loads(msg.data)  # what a page does with each
+                counts[i] += 1
+
+    async def main() -> list[int]:
+        counts = [0] * pages
+        async with aiohttp.ClientSession() as session:
+            tasks = [asyncio.create_task(page(session, counts, i)) for i in range(pages)]
+            await asyncio.sleep(seconds)  # measuring an interval
+            for t in tasks:
+                t.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+        return counts
+
+    return {"messages": asyncio.run(main())}
 
 
 def real_time(pid: int) -> None:
@@ -296,6 +375,26 @@ async def run(quick: bool, clients: list[int], runs: int, pin: str, only: str | 
             print(f"| {n} | " + " | ".join(cells) + f" | {intervals} |")
         if runs > 1:
             print(f"\n(median over {runs} runs, range in brackets)")
+    if only in (None, "web"):
+        print()
+        print(
+            f"| web view ({STATE_RATE:g} Hz state, 1 state client) | state jitter p50 (ms) | p99 (ms) | max (ms) "
+            "| control-loop overruns | latest wake-up (ms) | updates/s per page |"
+        )
+        print("|---|---:|---:|---:|---:|---:|---:|")
+        p99 = {}
+        for label, pages in (("off", None), ("on, 0 pages", 0), (f"on, {PAGES} pages", PAGES)):
+            results = [await web_pages(pages, seconds, pin, rt) for _ in range(runs)]
+            cells = [spread([r[q] for r in results]) for q in ("p50", "p99", "max")]
+            overruns = "/".join(str(r["overruns"]) for r in results)
+            latest = spread([r["latest"] for r in results])
+            updates = statistics.median(r["updates"] for r in results)
+            p99[pages] = statistics.median(r["p99"] for r in results)
+            print(f"| {label} | " + " | ".join(cells) + f" | {overruns} | {latest} | {updates:.1f} |")
+        rise = (p99[PAGES] - p99[0]) * 1e3
+        print(f"\np99 jitter rise with {PAGES} pages open over none: {rise:+.3f} ms (target: at most +0.5 ms)")
+        if runs > 1:
+            print(f"(median over {runs} runs, range in brackets; overruns per run)")
     if only in (None, "streaming"):
         print()
         points = 500 if quick else 2000
@@ -323,7 +422,7 @@ def main() -> None:
     parser.add_argument("--clients", default="1,10,50", help="state client counts (default 1,10,50)")
     parser.add_argument("--runs", type=int, default=1, help="jitter runs per client count (default 1)")
     parser.add_argument("--pin", choices=["none", "same", "split"], default="none", help="CPU placement")
-    parser.add_argument("--only", choices=["jitter", "streaming"], help="one part only")
+    parser.add_argument("--only", choices=["jitter", "web", "streaming"], help="one part only")
     parser.add_argument(
         "--rt",
         action="store_true",
@@ -331,7 +430,12 @@ def main() -> None:
         "a shared machine is left out of the measure",
     )
     parser.add_argument("--measure-state", nargs=3, metavar=("PORT", "CLIENTS", "SECONDS"), help=argparse.SUPPRESS)
+    parser.add_argument("--measure-pages", nargs=3, metavar=("URL", "PAGES", "SECONDS"), help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.measure_pages:
+        url, pages, seconds = args.measure_pages
+        json.dump(measure_pages(url, int(pages), float(seconds)), sys.stdout)
+        return
     if args.measure_state:
         port, clients, seconds = args.measure_state
         json.dump(measure_state(int(port), int(clients), float(seconds)), sys.stdout)

@@ -335,6 +335,9 @@ class Emulator:
         self._closed = False
         #: the pcapng recording of every connection (``config.capture``), from ``start()`` on
         self.capture: CaptureWriter | None = None
+        #: called right after each round of state topics (even with no state client): work that
+        #: should not delay the next round is best done then (the web view samples then)
+        self.after_state: list[Callable[[], None]] = []
         #: more taps told every connection's traffic, installed by :meth:`start` (e.g. the web view's
         #: traffic list; :class:`~simple_message.connection.Tap`)
         self.taps: list[Tap] = []
@@ -422,6 +425,8 @@ class Emulator:
                     self.publish_state()
                 except Exception:  # pragma: no cover - a bug must not end the topics
                     log.exception("publishing state failed")
+                for hook in self.after_state:
+                    hook()
         finally:
             if ticker is not None:
                 ticker.close()
@@ -458,6 +463,18 @@ class Emulator:
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+        stats = self.control.stats
+        if self.clock.realtime and stats.wakes:
+            log.info(
+                "control loop: %d wake-ups, %d overruns (a wake-up more than one interpolation period late), "
+                "latest %.3f ms; state topics: %d rounds, %d skipped, latest %.3f ms",
+                stats.wakes,
+                stats.overruns,
+                stats.max_lateness * 1e3,
+                self.state_stats.sent,
+                self.state_stats.skipped,
+                self.state_stats.max_lateness * 1e3,
+            )
         for server in {*self.servers.values(), self.state_server}:
             await server.close()
         if self.capture is not None:  # after the connections: their ends are in the file

@@ -66,6 +66,8 @@ class WebView:
         self._pages: set[web.WebSocketResponse] = set()
         self._runner: web.AppRunner | None = None
         self._sampler: asyncio.Task[None] | None = None
+        #: resolved by the next round of state topics (the sampler waits on it)
+        self._round: asyncio.Future[None] | None = None
         self._budget = LogBudget("web view", rate=2.0, burst=10)
         #: wall-clock seconds each sample took (feed and sends), the last few thousand, for benchmarks
         self.sample_cost: list[float] = []
@@ -95,11 +97,19 @@ class WebView:
             raise
         self._runner = runner
         self.port = int(runner.addresses[0][1])  # the port bound (0 asks for any free one)
+        self.emulator.after_state.append(self._state_sent)
         self._sampler = asyncio.get_running_loop().create_task(self._sample(), name="web view sampler")
         log.info("web view at %s", self.url)
         return self
 
+    def _state_sent(self) -> None:
+        round_sent, self._round = self._round, None
+        if round_sent is not None and not round_sent.done():
+            round_sent.set_result(None)
+
     async def close(self) -> None:
+        with contextlib.suppress(ValueError):
+            self.emulator.after_state.remove(self._state_sent)
         if self._sampler is not None:
             self._sampler.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -113,7 +123,11 @@ class WebView:
             self._runner = None
 
     async def _sample(self) -> None:
+        """``rate`` samples a second on absolute deadlines. Each is taken just after the state topics'
+        next round (when they come at least as often): the sample and the sends to the pages then
+        run in the gap before the following round instead of delaying it."""
         period = 1.0 / self.feed.rate
+        state_period = self.emulator.state_stats.period
         origin = time.monotonic()
         k = 0
         while True:
@@ -122,6 +136,12 @@ class WebView:
             if delay < -period:  # fell behind: skip, never burst
                 k += int(-delay // period)
             await asyncio.sleep(max(0.0, delay))
+            if state_period <= period:
+                round_sent = asyncio.get_running_loop().create_future()
+                self._round = round_sent
+                with contextlib.suppress(TimeoutError):
+                    async with asyncio.timeout(2.0 * state_period):
+                        await round_sent
             start = time.perf_counter()
             self.feed.sample()
             cost = self.sample_cost
@@ -139,7 +159,8 @@ class WebView:
             return web.Response(status=403, text="a WebSocket from another site's page is refused\n")
         if len(self._pages) >= MAX_PAGES:
             return web.Response(status=503, text=f"at most {MAX_PAGES} pages at once\n")
-        ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE, heartbeat=30.0)
+        # no per-message compression: on loopback it would only cost the controller's CPU
+        ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE, heartbeat=30.0, compress=False)
         await ws.prepare(request)
         self._pages.add(ws)
         page = Page()
