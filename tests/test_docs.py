@@ -31,6 +31,7 @@ PAGES = [
     "ros.md",
     "troubleshooting.md",
     "conformance.md",
+    "web.md",
 ]
 BLOCK = re.compile(r"^```(bash|python)\n(.*?)^```\s*$", re.MULTILINE | re.DOTALL)
 #: one block's bound (s): the longest, the demo, takes a few seconds
