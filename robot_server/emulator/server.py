@@ -423,10 +423,10 @@ class Emulator:
                 self.state_stats.add(late - (late // period) * period if late > period else late)
                 try:
                     self.publish_state()
+                    for hook in self.after_state:
+                        hook()
                 except Exception:  # pragma: no cover - a bug must not end the topics
                     log.exception("publishing state failed")
-                for hook in self.after_state:
-                    hook()
         finally:
             if ticker is not None:
                 ticker.close()
