@@ -28,6 +28,7 @@ from robot_server.control import SteppedClock
 from robot_server.emulator import Emulator, EmulatorConfig
 from robot_server.kinematics import link_frames
 from robot_server.web import Feed, Page, TrafficTap, web_address
+from robot_server.web.feed import MAX_FRAMES_PER_UPDATE
 from robot_server.web.server import COMMAND_BURST, MAX_MESSAGE, WebView
 from robot_server.web.traffic import summary
 from simple_message.connection import TapLink
@@ -102,11 +103,29 @@ def chain_frames(group: dict[str, Any], q: list[float]) -> list[np.ndarray]:
 # -- the hello: the model as the page builds it ----------------------------------------------------
 
 
-@pytest.mark.parametrize("model", ["jibot_zxs", "puma560", "ur5", "kuka_kr6_r900_sixx.urdf"])
-async def test_hello_chain_is_the_controllers_kinematics(model: str) -> None:
+GANTRY = """<?xml version="1.0"?>
+<robot name="gantry">
+  <link name="world"/><link name="l1"/><link name="l2"/><link name="l3"/><link name="tool"/>
+  <joint name="x" type="prismatic"><parent link="world"/><child link="l1"/><origin xyz="0 0 0.5" rpy="0 0 0"/>
+    <axis xyz="1 0 0"/><limit lower="-0.5" upper="0.5" velocity="1" effort="1"/></joint>
+  <joint name="z" type="prismatic"><parent link="l1"/><child link="l2"/><origin xyz="0 0 0.2" rpy="0 0.3 0"/>
+    <axis xyz="0 0 1"/><limit lower="-0.3" upper="0.3" velocity="1" effort="1"/></joint>
+  <joint name="r" type="continuous"><parent link="l2"/><child link="l3"/><origin xyz="0.1 0 0" rpy="0.2 0 0"/>
+    <axis xyz="0 0 1"/></joint>
+  <joint name="f" type="fixed"><parent link="l3"/><child link="tool"/><origin xyz="0.2 0 0" rpy="0 0 0"/></joint>
+</robot>
+"""
+
+
+@pytest.mark.parametrize("model", ["jibot_zxs", "puma560", "ur5", "kuka_kr6_r900_sixx.urdf", "gantry"])
+async def test_hello_chain_is_the_controllers_kinematics(model: str, tmp_path: Path) -> None:
     """The page's chain (base, pre, axis, post, offset, tool) put together as the page does gives the
-    controller's own link frames, for D-H (standard and modified) and URDF models."""
+    controller's own link frames, for D-H (standard and modified) and URDF models, revolute and
+    prismatic joints. (The browser test checks the page's own tool frame against the controller's.)"""
     name = model if not model.endswith(".urdf") else str(Path(robot_server.__file__).parent / "models" / model)
+    if model == "gantry":
+        (tmp_path / "gantry.urdf").write_text(GANTRY)
+        name = str(tmp_path / "gantry.urdf")
     async with (
         web_emulator(models=(name,)) as (emu, _, view),
         aiohttp.ClientSession() as http,
@@ -117,6 +136,8 @@ async def test_hello_chain_is_the_controllers_kinematics(model: str) -> None:
         (group,) = hello["groups"]
         m = emu.cell.groups[0].model
         assert [j["name"] for j in group["joints"]] == list(m.joint_names)
+        if model == "gantry":
+            assert [j["type"] for j in group["joints"]] == ["prismatic", "prismatic", "revolute"]
         rng = np.random.default_rng(7)
         for _ in range(5):
             q = rng.uniform(m.lower, m.upper)
@@ -272,11 +293,30 @@ def test_traffic_tap_keeps_the_newest_and_counts_what_a_slow_page_missed() -> No
     assert tap.count == 6 and tap.first == 3
     assert [json.loads(f)["n"] for f in tap.since(1)] == [3, 4, 5, 6]
     assert [json.loads(f)["n"] for f in tap.since(5)] == [5, 6]
+
+
+async def test_a_page_behind_is_told_how_many_frames_it_missed() -> None:
+    """Frames that left the list before a page could be sent them, and frames beyond the newest
+    MAX_FRAMES_PER_UPDATE of one update, are counted in ``skipped``, not sent."""
+    emu = Emulator(EmulatorConfig(motion_port=0, state_port=0))
+    link = TapLink("motion 127.0.0.1:5", ("127.0.0.1", 11000), ("127.0.0.1", 5), accepted=True)
+    small = Feed(emu, frames=4)
+    small.traffic.opened(link, 0)
     page = Page()
-    page.frame = 1
-    # a page behind the ring is told how many it missed
-    first = tap.first
-    assert first - page.frame == 2
+    small.hello(page)
+    small.traffic.data(link, False, PING * 6, 1)
+    small.sample()
+    update = json.loads(small.update(page) or "")
+    assert [f["n"] for f in update["traffic"]] == [3, 4, 5, 6] and update["skipped"] == 2
+    big = Feed(emu)
+    big.traffic.opened(link, 0)
+    page = Page()
+    big.hello(page)
+    big.traffic.data(link, False, PING * (MAX_FRAMES_PER_UPDATE + 25), 1)
+    big.sample()
+    update = json.loads(big.update(page) or "")
+    assert len(update["traffic"]) == MAX_FRAMES_PER_UPDATE and update["skipped"] == 25
+    assert update["traffic"][-1]["n"] == MAX_FRAMES_PER_UPDATE + 25
 
 
 def test_traffic_tap_survives_garbage_and_malformed_bodies() -> None:
@@ -318,6 +358,8 @@ async def test_bad_messages_are_answered_and_hurt_no_one() -> None:
             ('{"type": "command", "command": 5}', "fault command"),
             ('{"type": "command", "command": "explode"}', "unknown fault command"),
             ('{"type": "command", "command": "alarm x"}', "numeric code"),
+            ('{"type": "command", "command": "alarm 99999999999 x"}', "1 to 2147483647"),
+            ("[" * 3000, "not JSON"),  # deeper than the parser recurses
         ]:
             await ws.send_str(bad)
             result = await receive(ws, "result")
@@ -344,6 +386,11 @@ async def test_a_page_of_another_site_is_refused() -> None:
     async with web_emulator() as (emu, _, view), aiohttp.ClientSession() as http:
         with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
             await http.ws_connect(view.url + "ws", origin="http://evil.example")
+        assert refused.value.status == 403
+        # DNS rebinding: another site's name made to point at 127.0.0.1, Host and Origin agreeing
+        rebound = {"Host": f"evil.example:{view.port}"}
+        with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
+            await http.ws_connect(view.url + "ws", origin=f"http://evil.example:{view.port}", headers=rebound)
         assert refused.value.status == 403
         async with http.ws_connect(view.url + "ws", origin=f"http://127.0.0.1:{view.port}") as ws:
             await receive(ws, "hello")
@@ -373,7 +420,7 @@ def test_web_address() -> None:
     assert web_address("8080") == ("127.0.0.1", 8080)
     assert web_address("0.0.0.0:80") == ("0.0.0.0", 80)
     assert web_address("[::1]:0") == ("::1", 0)
-    for bad in ("http", "1:2:x", "70000", ":-1"):
+    for bad in ("http", "1:2:x", "70000", ":-1", "::1"):
         with pytest.raises(ValueError):
             web_address(bad)
 

@@ -20,9 +20,12 @@ import sys
 from collections.abc import AsyncIterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 from playwright.async_api import ConsoleMessage, Page, async_playwright
 
+from robot_server.kinematics import fk
+from robot_server.loader import load_model
 from tests.rawpeer import RawPeer, joint_position, status, vectors
 
 pytestmark = pytest.mark.slow
@@ -30,6 +33,7 @@ pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parent.parent
 SCREENSHOT = ROOT / "docs" / "figures" / "web-view.png"
 PING = vectors("<")["PING_REQUEST"]
+MODEL = load_model("jibot_zxs")
 JOINT_POSITION, STATUS = 10, 13
 #: Chromium's own console warning with --disable-gpu (WebGL frames read back in software): not the page's
 CHROMIUM_OWN = re.compile(
@@ -195,6 +199,10 @@ async def test_plots_advance_while_a_trajectory_runs(tmp_path: Path) -> None:
         assert after["xmax"] > before["xmax"] and after["points"] > 10
         # the waypoints of the move were received and are kept for the marks on the plot
         assert await page.evaluate("() => window.webview.waypoints") > 0
+        # the 3D robot is the controller's kinematics: the page's tool frame is the controller's FK
+        drawn = await page.evaluate("() => window.webview.toolPose(0)")
+        assert abs(drawn["q"][0] - 0.6) < 0.01
+        np.testing.assert_allclose(np.reshape(drawn["pose"], (4, 4)), fk(MODEL, drawn["q"]), atol=1e-9)
         await page.wait_for_selector('[data-light="in_motion"][data-state="off"]')
         # the clients table showed the move's connections; the plot keeps scrolling with the clock
         await page.wait_for_function(f"() => ({_POSITION_PLOT})().xmax > {after['xmax']} + 0.2")

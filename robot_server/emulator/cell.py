@@ -40,6 +40,8 @@ from .points import STREAM_STARTS, dispatch
 
 __all__ = ["RobotCell", "FaultError", "apply_fault_command", "FAULT_COMMANDS"]
 
+#: the largest alarm code: STATUS carries it as a 32-bit integer
+INT32_MAX = 2**31 - 1
 log = logging.getLogger(__name__)
 #: the lines that say the robot stopped or may not move: a lane of their own under a log ceiling
 SAFETY = lane("safety")
@@ -215,8 +217,8 @@ class RobotCell:
         self._interrupted()
 
     def alarm(self, code: int, message: str = "") -> None:
-        if code <= 0:
-            raise FaultError(f"an alarm code must be a positive number, not {code}")
+        if not 0 < code <= INT32_MAX:
+            raise FaultError(f"an alarm code is a number from 1 to {INT32_MAX}, not {code}")
         log.info("fault: alarm %d %s", code, message, extra=SAFETY)
         for g in self.groups:
             g.raise_alarm(code, message or f"alarm {code}")

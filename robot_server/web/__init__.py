@@ -40,6 +40,8 @@ def web_view(emulator: Emulator, host: str = "127.0.0.1", port: int = 0, *, rate
 def web_address(text: str) -> tuple[str, int]:
     """``[HOST:]PORT`` (an IPv6 host in brackets: ``[::1]:8080``) as ``(host, port)``; the host is
     127.0.0.1 when not given, the port 0..65535 (0: any free one). Raises ValueError."""
+    if text.count(":") > 1 and not text.startswith("["):
+        raise ValueError(f"an IPv6 host goes in brackets: [{text}]:PORT (e.g. [::1]:8080), not {text!r}")
     host, sep, port = text.rpartition(":")
     if not sep:
         host, port = "127.0.0.1", text

@@ -16,6 +16,7 @@ The messages are JSON text; docs/web.md describes them field by field.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import math
 from collections import deque
@@ -30,20 +31,22 @@ from simple_message.messages import Status
 
 from ..model import JointType, RobotModel
 from ..workspace import Box, Supervision
-from .traffic import TrafficTap, link_peer
+from .traffic import DEFAULT_CAPACITY, TrafficTap, link_peer
 
 if TYPE_CHECKING:
     from ..control import Point
     from ..emulator import Emulator
 
-__all__ = ["Feed", "Page", "PROTOCOL_VERSION", "MAX_RATE"]
+__all__ = ["Feed", "Page", "PROTOCOL_VERSION", "MAX_RATE", "MAX_FRAMES_PER_UPDATE"]
 
-#: the version of the messages (docs/web.md); a page refuses another
+#: the version of the messages (docs/web.md); the page says so when it gets another
 PROTOCOL_VERSION = 1
 #: updates per second per page, at most
 MAX_RATE = 60.0
 #: waypoints kept for pages that connect later (the last window's, at most this many)
 MAX_WAYPOINTS = 5000
+#: frames sent to a page in one update, at most (the newest; the others are counted as skipped)
+MAX_FRAMES_PER_UPDATE = 40
 
 
 def _compact(obj: object) -> str:
@@ -110,7 +113,9 @@ class Feed:
     """Samples an emulator for the web view's pages (see the module doc). Make it before the
     emulator starts: its traffic tap goes on the servers then."""
 
-    def __init__(self, emulator: Emulator, *, rate: float = 30.0, window: float = 10.0) -> None:
+    def __init__(
+        self, emulator: Emulator, *, rate: float = 30.0, window: float = 10.0, frames: int = DEFAULT_CAPACITY
+    ) -> None:
         if not 0.0 < rate <= MAX_RATE:
             raise ValueError(f"the web view's update rate must be in (0, {MAX_RATE:g}] per second, not {rate}")
         if not window > 0.0:
@@ -119,7 +124,7 @@ class Feed:
         self.rate = rate
         self.window = window
         config = emulator.config
-        self.traffic = TrafficTap(real_size=config.wire.real_size)
+        self.traffic = TrafficTap(real_size=config.wire.real_size, capacity=frames)
         emulator.taps.append(self.traffic)
         emulator.cell.point_listeners.append(self._accepted)
         self._groups = [describe_model(g.model, g.supervision) for g in emulator.cell.groups]
@@ -130,6 +135,11 @@ class Feed:
         self.waypoints = 0  # points accepted so far (the number of the newest)
         self._state = "{}"  # the JSON pieces of the newest sample that are not numbered
         self._waiters: list[asyncio.Future[None]] = []
+
+    def detach(self) -> None:
+        """Stop hearing of accepted points (the traffic tap stays on the servers until they close)."""
+        with contextlib.suppress(ValueError):
+            self.emulator.cell.point_listeners.remove(self._accepted)
 
     # -- taking samples --------------------------------------------------------------------------
 
@@ -247,9 +257,13 @@ class Feed:
         if self.samples == page.sample or not self._samples:
             return None
         page.sample = self.samples
-        waypoints = [w for n, _, w in self._waypoints if n >= page.waypoint]
+        kept = self._waypoints
+        start = max(0, page.waypoint - kept[0][0]) if kept else 0
+        waypoints = [kept[i][2] for i in range(start, len(kept))]
         page.waypoint = self.waypoints + 1
-        first = self.traffic.first
+        # at most MAX_FRAMES_PER_UPDATE of the newest frames: a list scrolling faster than that is
+        # unreadable, and decoding more would hold up the controller's loop
+        first = max(self.traffic.first, self.traffic.count + 1 - MAX_FRAMES_PER_UPDATE)
         if page.frame < first:
             page.skipped += first - page.frame
             page.frame = first

@@ -11,14 +11,16 @@ A page sends ``{"type": "command", "command": "estop"}`` (the fault commands of 
 Input is bounded: a message longer than :data:`MAX_MESSAGE` closes that page's socket, more than
 :data:`COMMAND_BURST` commands within a second are refused, anything else malformed is answered
 with an error; none of it reaches the robot or the other pages. A WebSocket opened by a page of
-another site (its ``Origin`` names another host than the request's ``Host``) is refused, so that a
-web page the user visits cannot press the buttons.
+another site (its ``Origin`` names another host than the request's ``Host``, or, on a loopback
+address, a ``Host`` that is not this machine's) is refused, so that a web page the user visits
+cannot press the buttons.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import ipaddress
 import json
 import logging
 import time
@@ -69,8 +71,6 @@ class WebView:
         #: resolved by the next round of state topics (the sampler waits on it)
         self._round: asyncio.Future[None] | None = None
         self._budget = LogBudget("web view", rate=2.0, burst=10)
-        #: wall-clock seconds each sample took (feed and sends), the last few thousand, for benchmarks
-        self.sample_cost: list[float] = []
 
     @property
     def url(self) -> str:
@@ -110,6 +110,7 @@ class WebView:
     async def close(self) -> None:
         with contextlib.suppress(ValueError):
             self.emulator.after_state.remove(self._state_sent)
+        self.feed.detach()
         if self._sampler is not None:
             self._sampler.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -142,12 +143,7 @@ class WebView:
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(2.0 * state_period):
                         await round_sent
-            start = time.perf_counter()
             self.feed.sample()
-            cost = self.sample_cost
-            cost.append(time.perf_counter() - start)
-            if len(cost) > 4096:
-                del cost[:2048]
 
     # -- HTTP ------------------------------------------------------------------------------------
 
@@ -155,7 +151,7 @@ class WebView:
         return web.FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-cache"})
 
     async def _socket(self, request: web.Request) -> web.StreamResponse:
-        if not _same_origin(request):
+        if not _same_origin(request, self.host):
             return web.Response(status=403, text="a WebSocket from another site's page is refused\n")
         if len(self._pages) >= MAX_PAGES:
             return web.Response(status=503, text=f"at most {MAX_PAGES} pages at once\n")
@@ -206,7 +202,7 @@ class WebView:
     def _command(self, text: str, sent: list[float]) -> dict[str, object]:
         try:
             request = json.loads(text)
-        except ValueError:
+        except (ValueError, RecursionError):  # nesting deeper than the parser goes: not JSON we read
             return {"type": "result", "ok": False, "error": "not JSON"}
         if not isinstance(request, dict) or request.get("type") != "command":
             return {"type": "result", "ok": False, "error": 'expected {"type": "command", "command": "..."}'}
@@ -226,10 +222,23 @@ class WebView:
         return {"type": "result", "ok": True, "text": applied}
 
 
-def _same_origin(request: web.Request) -> bool:
-    """No ``Origin`` (not a browser), or one whose host and port are the request's ``Host``."""
+def _same_origin(request: web.Request, bound: str) -> bool:
+    """No ``Origin`` (not a browser), or one whose host and port are the request's ``Host``; and,
+    on a loopback address, a ``Host`` that names this machine (so that a site whose name was made
+    to point at 127.0.0.1, DNS rebinding, is refused too)."""
+    host = (request.host or "").lower()
+    if _loopback(bound):
+        name = urlsplit(f"http://{host}").hostname or ""
+        if name != "localhost" and not _loopback(name):
+            return False
     origin = request.headers.get("Origin")
     if origin is None:
         return True
-    parts = urlsplit(origin)
-    return parts.netloc.lower() == (request.host or "").lower()
+    return urlsplit(origin).netloc.lower() == host
+
+
+def _loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False

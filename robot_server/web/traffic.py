@@ -29,6 +29,9 @@ __all__ = ["TrafficTap", "summary", "link_port", "link_peer"]
 DEFAULT_CAPACITY = 200
 #: the longest body summary sent (characters)
 SUMMARY_LENGTH = 160
+#: distinct frames whose decoding is remembered
+CACHE_SIZE = 1024
+_UNKNOWN: dict[str, object] = {"msg_type": None, "name": None, "comm": None, "reply": None, "summary": ""}
 
 
 @dataclass(eq=False)
@@ -54,6 +57,7 @@ class TrafficTap:
         self.real_size = real_size
         self._ring: deque[_Entry] = deque(maxlen=capacity)
         self._decoders: dict[tuple[TapLink, bool], FrameDecoder] = {}
+        self._cache: dict[tuple[bytes, ByteOrder | None], dict[str, object]] = {}
         #: frames seen so far (the number of the newest)
         self.count = 0
 
@@ -96,46 +100,51 @@ class TrafficTap:
         """The JSON objects (text) of the frames numbered ``n`` and later that are still kept,
         oldest first."""
         skip = max(0, n - self.first)
-        return [self._json(e) for i, e in enumerate(self._ring) if i >= skip]
+        ring = self._ring
+        return [self._json(ring[i]) for i in range(skip, len(ring))]
 
     def _json(self, entry: _Entry) -> str:
         if not entry.json:
-            entry.json = json.dumps(self._describe(entry), separators=(",", ":"))
+            out: dict[str, object] = {
+                "n": entry.n,
+                "time": entry.time_ns / 1e9,
+                "port": link_port(entry.link),
+                "peer": link_peer(entry.link),
+                "dir": "in" if entry.incoming else "out",
+            }
+            out.update(self._decoded(entry))
+            entry.json = json.dumps(out, separators=(",", ":"))
         return entry.json
 
-    def _describe(self, entry: _Entry) -> dict[str, object]:
-        out: dict[str, object] = {
-            "n": entry.n,
-            "time": entry.time_ns / 1e9,
-            "port": link_port(entry.link),
-            "peer": link_peer(entry.link),
-            "dir": "in" if entry.incoming else "out",
-            "msg_type": None,
-            "name": None,
-            "comm": None,
-            "reply": None,
-            "summary": "",
-        }
+    def _decoded(self, entry: _Entry) -> dict[str, object]:
+        """Type, comm, reply and summary of a frame, decoded once per distinct frame: the state
+        topics go to every state client in the same bytes, and are decoded once a round."""
         if entry.error:
-            out.update(name="UNFRAMEABLE", summary=f"not read further: {entry.error}"[:SUMMARY_LENGTH])
-            return out
+            return {**_UNKNOWN, "name": "UNFRAMEABLE", "summary": f"not read further: {entry.error}"[:SUMMARY_LENGTH]}
+        key = (entry.frame, entry.order)
+        known = self._cache.get(key)
+        if known is not None:
+            return known
         wire = WireFormat(entry.order or ByteOrder.LITTLE, self.real_size)
         msg = decode_or_error(entry.frame, wire)
         if isinstance(msg, Message):
             obj = message_to_json(msg, self.real_size)
             names = obj.get("names", {})
-            out.update(
-                msg_type=obj["msg_type"],
-                name=obj["name"],
-                comm=names.get("comm_type", str(obj["comm_type"])),
-                reply=names.get("reply_code", str(obj["reply_code"])),
-                summary=summary(obj["body"]),
-            )
+            known = {
+                "msg_type": obj["msg_type"],
+                "name": obj["name"],
+                "comm": names.get("comm_type", str(obj["comm_type"])),
+                "reply": names.get("reply_code", str(obj["reply_code"])),
+                "summary": summary(obj["body"]),
+            }
         else:  # a body that does not decode: the header did
             kind = msg.msg_type
             name = None if kind is None else type_name(kind)
-            out.update(msg_type=kind, name=name, summary=f"malformed: {msg}"[:SUMMARY_LENGTH])
-        return out
+            known = {**_UNKNOWN, "msg_type": kind, "name": name, "summary": f"malformed: {msg}"[:SUMMARY_LENGTH]}
+        if len(self._cache) >= CACHE_SIZE:
+            self._cache.clear()
+        self._cache[key] = known
+        return known
 
 
 def link_port(link: TapLink) -> str:
@@ -144,9 +153,9 @@ def link_port(link: TapLink) -> str:
 
 
 def link_peer(link: TapLink) -> str:
-    """``host:port`` of the peer, or the link's name (a serial port, a pty)."""
+    """``host:port`` of the peer, or what names a serial port or pty (its link's name after the role)."""
     if link.peer is None:
-        return link.name
+        return link.name.split(" ", 1)[-1]
     host, port = link.peer[0], link.peer[1]
     return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
 

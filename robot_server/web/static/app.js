@@ -18,6 +18,16 @@ const webview = {
   traffic: 0,
   renders: 0,
   waypoints: 0,
+  // the tool frame of group g drawn at the newest sample's actual position: {q, pose (16 numbers,
+  // row-major)}, for tests to check the 3D chain against the controller's kinematics
+  toolPose: (g = 0) => {
+    const robot = view.robots[g];
+    const sg = data.latest && data.latest.groups ? data.latest.groups[g] : null;
+    if (!robot || !sg) return null;
+    setChain(robot.actual, sg.ap);
+    robot.actual.root.updateMatrixWorld(true);
+    return { q: sg.ap, pose: robot.actual.tool.matrixWorld.clone().transpose().toArray() };
+  },
 };
 window.webview = webview;
 
@@ -244,6 +254,12 @@ function buildChain(group, gIndex, jointBase, ghost, radius, geoms) {
     const color = jointColor(jointBase + j);
     const pre = fixedNode(joint.pre, `g${gIndex} j${j + 1} pre`);
     parent.add(pre);
+    if (j === 0) {
+      // from the base to the first joint (a URDF's first origin; D-H puts it in post instead)
+      const preT = translationOf(joint.pre);
+      const l0 = linkMesh(new THREE.Vector3(), preT, radius, linkMat, geoms.cyl);
+      if (l0) { root.add(l0); length += preT.length(); }
+    }
     const axis = new THREE.Vector3(...(joint.axis || [0, 0, 1]).map(Number));
     if (axis.lengthSq() < 1e-12) axis.set(0, 0, 1);
     axis.normalize();
@@ -306,7 +322,7 @@ function buildChain(group, gIndex, jointBase, ghost, radius, geoms) {
     tool.add(flange);
   }
   if (ghost) root.traverse((o) => { o.renderOrder = 1; });
-  return { root, motions, length };
+  return { root, motions, length, tool };
 }
 
 function setChain(chain, positions) {
@@ -1011,7 +1027,17 @@ function handleMessage(msg) {
   }
 }
 
+const PROTOCOL_VERSION = 1;
+
 function onHello(msg) {
+  if (msg.version !== PROTOCOL_VERSION) {
+    // another version of the messages (docs/web.md): say so rather than draw nonsense
+    const out = $('#command-result');
+    out.textContent = `this page reads version ${PROTOCOL_VERSION} of the web view's messages; the server sent ${msg.version}: reload the page`;
+    out.dataset.ok = 'false';
+    hello = null;
+    return;
+  }
   hello = msg;
   webview.hello = msg;
   resetData(msg);
