@@ -1,6 +1,7 @@
-"""Emulator benchmark: state-topic period jitter, stop-and-wait streaming rate, CPU use.
+"""Emulator benchmark: state-topic period jitter, the web view's cost, stop-and-wait streaming rate, CPU use.
 
-    python bench/server.py [--quick] [--clients 1,10,50] [--runs N] [--pin none|same|split] [--only jitter]
+    python bench/server.py [--quick] [--clients 1,10,50] [--runs N] [--pin none|same|split]
+                           [--only jitter|web|streaming] [--web-clients 1,50] [--rt]
 
 The emulator runs as its own process (``python -m robot_server``, generic profile), as users run
 it; the clients here speak raw bytes over loopback TCP.
@@ -23,6 +24,12 @@ it; the clients here speak raw bytes over loopback TCP.
   On a machine shared with other work, their load decides the tail (a busy CPU delays the
   emulator's wake-up by a scheduler slice, milliseconds): ``--rt`` runs the emulator and the clients
   on SCHED_FIFO, which leaves that load out and measures the emulator alone.
+* **Web view** (issue 22): the same jitter with 1 and 50 state clients, and the control loop's
+  overruns (wake-ups more than one interpolation period late) and latest wake-up, as the emulator
+  logs them when it closes, with ``--web`` off, on with no page, and on with 5 pages reading 60
+  updates a second (WebSocket clients in a process of their own that parse every update as the page
+  does; a browser's drawing is the browser's CPU, not the controller's). Target: the p99 jitter
+  rises by at most 0.5 ms with the 5 pages open.
 * **Streaming**: JOINT_TRAJ_PT requests sent stop-and-wait (one in flight, as the generic client
   does), each accepted at once (a large queue, 10 ms segments): points per second.
 * **CPU**: the emulator's user + system CPU time over wall time (/proc), default settings (40 Hz
@@ -203,10 +210,10 @@ async def jitter(clients: int, seconds: float, pin: str, rt: bool = False) -> di
     return {kind: summary(deviations(stamps[kind])) for kind in ("sent", "read")}
 
 
-async def web_pages(pages: int | None, seconds: float, pin: str, rt: bool = False) -> dict[str, float]:
-    """State-topic jitter (one state client) and the control loop's overruns with the web view off
-    (``pages`` None) or on with ``pages`` pages reading it (WebSocket clients that parse every update
-    as the page does)."""
+async def web_pages(pages: int | None, clients: int, seconds: float, pin: str, rt: bool = False) -> dict[str, float]:
+    """State-topic jitter (``clients`` state clients) and the control loop's overruns with the web
+    view off (``pages`` None) or on with ``pages`` pages reading it (WebSocket clients that parse
+    every update as the page does; with many state clients the traffic list is busy)."""
     server_cpus, client_cpus = placement(pin)
     args = ["--state-rate", f"{STATE_RATE:g}"] + ([] if pages is None else ["--web", "0", "--web-rate", "60"])
     server = await Server.start(*args, cpus=server_cpus, log=True)
@@ -216,7 +223,7 @@ async def web_pages(pages: int | None, seconds: float, pin: str, rt: bool = Fals
             await asyncio.sleep(0.2)
             real_time(server.proc.pid)
         children = []
-        cmd = [sys.executable, __file__, "--measure-state", str(server.ports["state"]), "1", str(seconds)]
+        cmd = [sys.executable, __file__, "--measure-state", str(server.ports["state"]), str(clients), str(seconds)]
         children.append(await asyncio.create_subprocess_exec(*cmd, stdout=asyncio.subprocess.PIPE))
         if pages:
             assert server.web_url is not None
@@ -354,7 +361,9 @@ def spread(values: list[float]) -> str:
     return f"{statistics.median(ms):.3f} ({min(ms):.3f}-{max(ms):.3f})"
 
 
-async def run(quick: bool, clients: list[int], runs: int, pin: str, only: str | None, rt: bool) -> None:
+async def run(
+    quick: bool, clients: list[int], runs: int, pin: str, only: str | None, rt: bool, web_clients: list[int]
+) -> None:
     seconds = 2.0 if quick else 5.0
     if rt and not rt_allowed():
         print("(--rt: SCHED_FIFO is not permitted here (CAP_SYS_NICE); measuring without it)")
@@ -378,21 +387,23 @@ async def run(quick: bool, clients: list[int], runs: int, pin: str, only: str | 
     if only in (None, "web"):
         print()
         print(
-            f"| web view ({STATE_RATE:g} Hz state, 1 state client) | state jitter p50 (ms) | p99 (ms) | max (ms) "
+            f"| state clients ({STATE_RATE:g} Hz) | web view | state jitter p50 (ms) | p99 (ms) | max (ms) "
             "| control-loop overruns | latest wake-up (ms) | updates/s per page |"
         )
-        print("|---|---:|---:|---:|---:|---:|---:|")
-        p99 = {}
-        for label, pages in (("off", None), ("on, 0 pages", 0), (f"on, {PAGES} pages", PAGES)):
-            results = [await web_pages(pages, seconds, pin, rt) for _ in range(runs)]
-            cells = [spread([r[q] for r in results]) for q in ("p50", "p99", "max")]
-            overruns = "/".join(str(r["overruns"]) for r in results)
-            latest = spread([r["latest"] for r in results])
-            updates = statistics.median(r["updates"] for r in results)
-            p99[pages] = statistics.median(r["p99"] for r in results)
-            print(f"| {label} | " + " | ".join(cells) + f" | {overruns} | {latest} | {updates:.1f} |")
-        rise = (p99[PAGES] - p99[0]) * 1e3
-        print(f"\np99 jitter rise with {PAGES} pages open over none: {rise:+.3f} ms (target: at most +0.5 ms)")
+        print("|---:|---|---:|---:|---:|---:|---:|---:|")
+        rises = []
+        for n in web_clients:
+            p99 = {}
+            for label, pages in (("off", None), ("on, 0 pages", 0), (f"on, {PAGES} pages", PAGES)):
+                results = [await web_pages(pages, n, seconds, pin, rt) for _ in range(runs)]
+                cells = [spread([r[q] for r in results]) for q in ("p50", "p99", "max")]
+                overruns = "/".join(str(r["overruns"]) for r in results)
+                latest = spread([r["latest"] for r in results])
+                updates = statistics.median(r["updates"] for r in results)
+                p99[pages] = statistics.median(r["p99"] for r in results)
+                print(f"| {n} | {label} | " + " | ".join(cells) + f" | {overruns} | {latest} | {updates:.1f} |")
+            rises.append(f"{(p99[PAGES] - p99[0]) * 1e3:+.3f} ms with {n} state client{'s' if n > 1 else ''}")
+        print(f"\np99 jitter rise with {PAGES} pages open over none: {', '.join(rises)} (target: at most +0.5 ms)")
         if runs > 1:
             print(f"(median over {runs} runs, range in brackets; overruns per run)")
     if only in (None, "streaming"):
@@ -420,6 +431,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="shorter runs")
     parser.add_argument("--clients", default="1,10,50", help="state client counts (default 1,10,50)")
+    parser.add_argument("--web-clients", default="1,50", help="state client counts of the web view part (default 1,50)")
     parser.add_argument("--runs", type=int, default=1, help="jitter runs per client count (default 1)")
     parser.add_argument("--pin", choices=["none", "same", "split"], default="none", help="CPU placement")
     parser.add_argument("--only", choices=["jitter", "web", "streaming"], help="one part only")
@@ -441,7 +453,8 @@ def main() -> None:
         json.dump(measure_state(int(port), int(clients), float(seconds)), sys.stdout)
         return
     clients = [int(n) for n in args.clients.split(",")]
-    asyncio.run(run(args.quick, clients, max(1, args.runs), args.pin, args.only, args.rt))
+    web_clients = [int(n) for n in args.web_clients.split(",")]
+    asyncio.run(run(args.quick, clients, max(1, args.runs), args.pin, args.only, args.rt, web_clients))
 
 
 if __name__ == "__main__":
