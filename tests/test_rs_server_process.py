@@ -34,8 +34,10 @@ JOINT_POSITION, JOINT_TRAJ_PT, STATUS, JOINT_FEEDBACK = 10, 11, 13, 15
 
 
 class ServerProcess:
-    def __init__(self, proc: asyncio.subprocess.Process, log: Path, ports: dict[str, int]) -> None:
+    def __init__(self, proc: asyncio.subprocess.Process, log: Path, ports: dict[str, int], ready: str = "") -> None:
         self.proc, self.log, self.ports = proc, log, ports
+        #: the ready line it printed
+        self.ready = ready
 
     async def command(self, line: str) -> None:
         assert self.proc.stdin is not None
@@ -73,7 +75,7 @@ async def robot_server(tmp_path: Path, *args: str) -> AsyncIterator[ServerProces
         line = (await asyncio.wait_for(proc.stdout.readline(), 30.0)).decode()
         assert line.startswith("robot-server ready"), line + log.read_text()
         ports = {name: int(port) for name, port in re.findall(r"(motion|state|io) [\d.]+:(\d+)", line)}
-        yield ServerProcess(proc, log, ports)
+        yield ServerProcess(proc, log, ports, line.strip())
     finally:
         if proc.returncode is None:
             proc.kill()

@@ -14,7 +14,6 @@ import json
 import math
 import re
 import struct
-import sys
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -34,6 +33,7 @@ from robot_server.web.traffic import summary
 from simple_message.connection import TapLink
 from tests.rawpeer import RawPeer, joint_traj_pt, vectors
 from tests.stepped import settle, step
+from tests.test_rs_server_process import robot_server as server_process
 
 V = vectors("<")
 PING = V["PING_REQUEST"]
@@ -426,32 +426,14 @@ def test_web_address() -> None:
 
 
 @pytest.mark.slow
-async def test_ready_line_prints_the_url_and_the_page_answers(tmp_path: Any) -> None:
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable,
-        "-m",
-        "robot_server",
-        "--motion-port",
-        "0",
-        "--state-port",
-        "0",
-        "--web",
-        "0",
-        "--no-stdin",
-        stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.DEVNULL,
-    )
-    try:
-        assert proc.stdout is not None
-        line = (await asyncio.wait_for(proc.stdout.readline(), 30.0)).decode()
-        url = re.search(r"web view (http://127\.0\.0\.1:\d+/)$", line.strip())
-        assert url, line
+async def test_ready_line_prints_the_url_and_the_page_answers(tmp_path: Path) -> None:
+    async with server_process(tmp_path, "--web", "0") as server:
+        url = re.search(r"web view (http://127\.0\.0\.1:\d+/)$", server.ready)
+        assert url, server.ready
         async with aiohttp.ClientSession() as http, http.ws_connect(url.group(1) + "ws") as ws:
-            assert (await receive(ws, "hello"))["emulator"]["ready"] in line
+            assert (await receive(ws, "hello"))["emulator"]["ready"] in server.ready
             await receive(ws, "update")  # the process samples on its own
-    finally:
-        proc.terminate()
-        assert await asyncio.wait_for(proc.wait(), 20.0) == 0
+        assert await server.terminate() == 0
 
 
 @pytest.mark.parametrize(

@@ -27,6 +27,7 @@ from playwright.async_api import ConsoleMessage, Page, async_playwright
 from robot_server.kinematics import fk
 from robot_server.loader import load_model
 from tests.rawpeer import RawPeer, joint_position, status, vectors
+from tests.test_rs_server_process import ServerProcess, robot_server
 
 pytestmark = pytest.mark.slow
 
@@ -64,8 +65,11 @@ if CHROMIUM is None:
 
 
 class Server:
-    def __init__(self, proc: asyncio.subprocess.Process, ports: dict[str, int], url: str) -> None:
-        self.proc, self.ports, self.url = proc, ports, url
+    def __init__(self, process: ServerProcess) -> None:
+        self.process, self.ports = process, process.ports
+        url = re.search(r"web view (http://\S+/)$", process.ready)
+        assert url, process.ready
+        self.url = url.group(1)
 
     def client(self, *args: str) -> list[str]:
         """A robot-client command line against this server."""
@@ -75,30 +79,12 @@ class Server:
 
 @contextlib.asynccontextmanager
 async def web_server(tmp_path: Path) -> AsyncIterator[Server]:
-    err = (tmp_path / "robot-server.log").open("wb")
-    proc = await asyncio.create_subprocess_exec(
-        *[sys.executable, "-m", "robot_server", "--motion-port", "0", "--state-port", "0", "--web", "0"],
-        stdin=asyncio.subprocess.PIPE,
-        stdout=asyncio.subprocess.PIPE,
-        stderr=err,
-    )
-    try:
-        assert proc.stdout is not None
-        line = (await asyncio.wait_for(proc.stdout.readline(), 30.0)).decode()
-        assert line.startswith("robot-server ready"), line + (tmp_path / "robot-server.log").read_text()
-        ports = {name: int(port) for name, port in re.findall(r"(motion|state) [\d.]+:(\d+)", line)}
-        url = re.search(r"web view (http://\S+/)$", line.strip())
-        assert url, line
-        yield Server(proc, ports, url.group(1))
-    finally:
-        if proc.returncode is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                await asyncio.wait_for(proc.wait(), 20.0)
-            except TimeoutError:
-                proc.kill()
-                await proc.wait()
-        err.close()
+    """``robot-server --web 0`` on free ports; SIGTERM at the end (it stops the robot first)."""
+    async with robot_server(tmp_path, "--web", "0") as process:
+        try:
+            yield Server(process)
+        finally:
+            await process.terminate()
 
 
 @contextlib.asynccontextmanager
