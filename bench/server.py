@@ -188,25 +188,43 @@ def summary(dev: list[float]) -> dict[str, float]:
     return {"p50": dev[len(dev) // 2], "p99": dev[int(0.99 * (len(dev) - 1))], "max": dev[-1], "n": len(dev)}
 
 
-async def jitter(clients: int, seconds: float, pin: str, rt: bool = False) -> dict[str, dict[str, float]]:
+async def measured(
+    args: list[str], clients: int, seconds: float, pin: str, rt: bool, pages: int = 0
+) -> tuple[dict[str, list[list[int]]], list[int], str]:
+    """An emulator with ``args``, ``clients`` state clients measuring it for ``seconds`` in a child
+    process (and ``pages`` web pages in another): their timestamps, each page's message count, and
+    the emulator's log (INFO)."""
     server_cpus, client_cpus = placement(pin)
-    server = await Server.start("--state-rate", f"{STATE_RATE:g}", cpus=server_cpus)
+    server = await Server.start("--state-rate", f"{STATE_RATE:g}", *args, cpus=server_cpus, log=True)
+    counts: list[int] = []
     try:
         if rt:
             await asyncio.sleep(0.2)  # its threads started (the ones started later inherit the policy)
             real_time(server.proc.pid)
-        cmd = [sys.executable, __file__, "--measure-state", str(server.ports["state"]), str(clients), str(seconds)]
-        child = await asyncio.create_subprocess_exec(*cmd, stdout=asyncio.subprocess.PIPE)
-        if client_cpus is not None:
-            os.sched_setaffinity(child.pid, client_cpus)
-        if rt:
-            real_time(child.pid)
-        out, _ = await asyncio.wait_for(child.communicate(), seconds + 60.0)
-        if child.returncode != 0:
-            raise RuntimeError(f"the measuring clients failed (exit {child.returncode})")
+        cmds = [[sys.executable, __file__, "--measure-state", str(server.ports["state"]), str(clients), str(seconds)]]
+        if pages:
+            assert server.web_url is not None
+            cmds.append([sys.executable, __file__, "--measure-pages", server.web_url, str(pages), str(seconds + 1.0)])
+        children = [await asyncio.create_subprocess_exec(*cmd, stdout=asyncio.subprocess.PIPE) for cmd in cmds]
+        for child in children:
+            if client_cpus is not None:
+                os.sched_setaffinity(child.pid, client_cpus)
+            if rt:
+                real_time(child.pid)
+        outs = [await asyncio.wait_for(c.communicate(), seconds + 60.0) for c in children]
+        failed = [c.returncode for c in children if c.returncode != 0]
+        if failed:
+            raise RuntimeError(f"the measuring clients failed (exit {failed})")
+        stamps = json.loads(outs[0][0])
+        if pages:
+            counts = json.loads(outs[1][0])["messages"]
     finally:
-        await server.stop()
-    stamps = json.loads(out)
+        log = await server.stop()
+    return stamps, counts, log
+
+
+async def jitter(clients: int, seconds: float, pin: str, rt: bool = False) -> dict[str, dict[str, float]]:
+    stamps, _, _ = await measured([], clients, seconds, pin, rt)
     return {kind: summary(deviations(stamps[kind])) for kind in ("sent", "read")}
 
 
@@ -214,34 +232,8 @@ async def web_pages(pages: int | None, clients: int, seconds: float, pin: str, r
     """State-topic jitter (``clients`` state clients) and the control loop's overruns with the web
     view off (``pages`` None) or on with ``pages`` pages reading it (WebSocket clients that parse
     every update as the page does; with many state clients the traffic list is busy)."""
-    server_cpus, client_cpus = placement(pin)
-    args = ["--state-rate", f"{STATE_RATE:g}"] + ([] if pages is None else ["--web", "0", "--web-rate", "60"])
-    server = await Server.start(*args, cpus=server_cpus, log=True)
-    counts: list[int] = []
-    try:
-        if rt:
-            await asyncio.sleep(0.2)
-            real_time(server.proc.pid)
-        children = []
-        cmd = [sys.executable, __file__, "--measure-state", str(server.ports["state"]), str(clients), str(seconds)]
-        children.append(await asyncio.create_subprocess_exec(*cmd, stdout=asyncio.subprocess.PIPE))
-        if pages:
-            assert server.web_url is not None
-            cmd = [sys.executable, __file__, "--measure-pages", server.web_url, str(pages), str(seconds + 1.0)]
-            children.append(await asyncio.create_subprocess_exec(*cmd, stdout=asyncio.subprocess.PIPE))
-        for child in children:
-            if client_cpus is not None:
-                os.sched_setaffinity(child.pid, client_cpus)
-            if rt:
-                real_time(child.pid)
-        outs = [await asyncio.wait_for(c.communicate(), seconds + 60.0) for c in children]
-        if any(c.returncode != 0 for c in children):
-            raise RuntimeError("the measuring clients failed")
-        stamps = json.loads(outs[0][0])
-        if pages:
-            counts = json.loads(outs[1][0])["messages"]
-    finally:
-        log = await server.stop()
+    args = [] if pages is None else ["--web", "0", "--web-rate", "60"]
+    stamps, counts, log = await measured(args, clients, seconds, pin, rt, pages or 0)
     found = re.search(r"control loop: (\d+) wake-ups, (\d+) overruns .*?latest ([\d.]+) ms", log)
     if found is None:
         raise RuntimeError("the emulator did not log its control-loop statistics:\n" + log[-2000:])

@@ -69,7 +69,7 @@ class RobotCell:
         self._line_sequence: list[int | None] = [None] * len(self.groups)
         #: counts stops and faults: a point that waited for queue room across one is not run
         self.interruptions = 0
-        self._waiters: list[asyncio.Future[None]] = []
+        self._wakeup = Wakeup()
         self._was_moving = [False] * len(self.groups)
         self._points = [0] * len(self.groups)
         self._started = [0.0] * len(self.groups)
@@ -271,16 +271,30 @@ class RobotCell:
                     g.time - self._started[i],
                 )
         self._was_moving = moving
-        waiters, self._waiters = self._waiters, []
-        for w in waiters:
-            if not w.done():
-                w.set_result(None)
+        self._wakeup.wake()
 
     async def changed(self) -> None:
         """Wait for the next control-loop wake-up, stop or fault."""
+        await self._wakeup.wait()
+
+
+class Wakeup:
+    """Tasks waiting for the next time something happens: :meth:`wait` until the next :meth:`wake`
+    (which wakes every one waiting then; none is woken by an earlier call)."""
+
+    def __init__(self) -> None:
+        self._waiters: list[asyncio.Future[None]] = []
+
+    async def wait(self) -> None:
         future: asyncio.Future[None] = asyncio.get_running_loop().create_future()
         self._waiters.append(future)
         await future
+
+    def wake(self) -> None:
+        waiters, self._waiters = self._waiters, []
+        for w in waiters:
+            if not w.done():  # not cancelled meanwhile
+                w.set_result(None)
 
 
 def _tri(value: bool) -> int:

@@ -15,7 +15,6 @@ The messages are JSON text; docs/web.md describes them field by field.
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import json
 import math
@@ -29,6 +28,7 @@ from numpy.typing import NDArray
 from simple_message.constants import RobotMode
 from simple_message.messages import Status
 
+from ..emulator.cell import Wakeup
 from ..model import JointType, RobotModel
 from ..workspace import Box, Supervision
 from .traffic import DEFAULT_CAPACITY, TrafficTap, link_peer
@@ -134,7 +134,7 @@ class Feed:
         self._waypoints: deque[tuple[int, float, str]] = deque(maxlen=MAX_WAYPOINTS)
         self.waypoints = 0  # points accepted so far (the number of the newest)
         self._state = "{}"  # the JSON pieces of the newest sample that are not numbered
-        self._waiters: list[asyncio.Future[None]] = []
+        self._sampled = Wakeup()
 
     def detach(self) -> None:
         """Stop hearing of accepted points (the traffic tap stays on the servers until they close)."""
@@ -173,7 +173,7 @@ class Feed:
         self.samples += 1
         self._samples.append((t, _compact({"t": t, "groups": groups})))
         horizon = t - self.window
-        while self._waypoints and self._waypoints[0][1] < horizon and len(self._waypoints) > 1:
+        while self._waypoints and self._waypoints[0][1] < horizon:
             self._waypoints.popleft()
         status_of = getattr(emulator.behaviour, "status", None)
         status: Status = status_of() if callable(status_of) else cell.status()
@@ -192,16 +192,11 @@ class Feed:
             "clients": self.clients(),
         }
         self._state = _compact(state)[1:-1]  # the members, spliced into each update
-        waiters, self._waiters = self._waiters, []
-        for w in waiters:
-            if not w.done():
-                w.set_result(None)
+        self._sampled.wake()
 
     async def next_sample(self) -> None:
         """Wait for the next :meth:`sample`."""
-        future: asyncio.Future[None] = asyncio.get_running_loop().create_future()
-        self._waiters.append(future)
-        await future
+        await self._sampled.wait()
 
     def clients(self) -> list[dict[str, Any]]:
         """Who is connected: port, peer address, the profile played, the byte order and float size

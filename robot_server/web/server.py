@@ -32,7 +32,7 @@ from aiohttp import WSMsgType, web
 
 from simple_message.lograte import LogBudget
 
-from ..emulator.cell import FaultError
+from ..emulator.cell import FaultError, Wakeup
 from .feed import Feed, Page
 
 if TYPE_CHECKING:
@@ -68,19 +68,14 @@ class WebView:
         self._pages: set[web.WebSocketResponse] = set()
         self._runner: web.AppRunner | None = None
         self._sampler: asyncio.Task[None] | None = None
-        #: resolved by the next round of state topics (the sampler waits on it)
-        self._round: asyncio.Future[None] | None = None
+        #: woken by each round of state topics (the sampler waits for the next one)
+        self._rounds = Wakeup()
         self._budget = LogBudget("web view", rate=2.0, burst=10)
 
     @property
     def url(self) -> str:
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"http://{host}:{self.port}/"
-
-    @property
-    def pages(self) -> int:
-        """Pages connected now."""
-        return len(self._pages)
 
     async def start(self) -> WebView:
         app = web.Application()
@@ -97,19 +92,14 @@ class WebView:
             raise
         self._runner = runner
         self.port = int(runner.addresses[0][1])  # the port bound (0 asks for any free one)
-        self.emulator.after_state.append(self._state_sent)
+        self.emulator.after_state.append(self._rounds.wake)
         self._sampler = asyncio.get_running_loop().create_task(self._sample(), name="web view sampler")
         log.info("web view at %s", self.url)
         return self
 
-    def _state_sent(self) -> None:
-        round_sent, self._round = self._round, None
-        if round_sent is not None and not round_sent.done():
-            round_sent.set_result(None)
-
     async def close(self) -> None:
         with contextlib.suppress(ValueError):
-            self.emulator.after_state.remove(self._state_sent)
+            self.emulator.after_state.remove(self._rounds.wake)
         self.feed.detach()
         if self._sampler is not None:
             self._sampler.cancel()
@@ -138,11 +128,9 @@ class WebView:
                 k += int(-delay // period)
             await asyncio.sleep(max(0.0, delay))
             if state_period <= period:
-                round_sent = asyncio.get_running_loop().create_future()
-                self._round = round_sent
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(2.0 * state_period):
-                        await round_sent
+                        await self._rounds.wait()
             self.feed.sample()
 
     # -- HTTP ------------------------------------------------------------------------------------
