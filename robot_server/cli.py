@@ -75,6 +75,13 @@ def _fault(text: str) -> tuple[float, str]:
     return seconds, command
 
 
+def _profile_option(text: str) -> tuple[str, str]:
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip() or not value.strip():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE (e.g. speed=20), not {text!r}")
+    return key.strip(), value.strip()
+
+
 def _web_address(text: str) -> tuple[str, int]:
     try:
         return web_address(text)
@@ -137,9 +144,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--state-rate",
         type=positive_float,
-        default=40.0,
         metavar="HZ",
-        help=f"state topics per second, at most {MAX_STATE_RATE:g}",
+        help=f"state rounds per second, at most {MAX_STATE_RATE:g} (default: the controller's: 40 generic and "
+        "motoros, 10 abb, 41.7 fanuc, 50 staubli)",
     )
     p.add_argument("--feedback", action="store_true", help="generic: JOINT_FEEDBACK to every state client")
     p.add_argument(
@@ -189,9 +196,28 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--on-disconnect",
         choices=[o.value for o in OnDisconnect],
-        default=OnDisconnect.STOP.value,
-        help="when the motion client goes away while the robot is busy: stop it (controlled, as MotoROS does) "
-        "or let the queued motion run to its end (default: %(default)s)",
+        help="when the motion client goes away while the robot is busy: stop it (controlled, as MotoROS and "
+        "Staubli do) or let the queued motion run to its end (as ABB and Fanuc do) (default: the controller's)",
+    )
+    p.add_argument(
+        "--lenient",
+        action="store_true",
+        help="do not reproduce the played controller's harsh quirks (Fanuc's stalled or misframed input and its "
+        "STOP that stops nothing, Staubli's lost framing, ABB's motion server dying on a message it does not "
+        "expect): the message is dropped with a warning instead; the default reproduces them, each logged once",
+    )
+    p.add_argument(
+        "--profile-option",
+        type=_profile_option,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a setting of the played controller (repeatable): "
+        + "; ".join(
+            f"{name}: " + ", ".join(f"{key} ({text})" for key, text in entry.options.items())
+            for name, entry in PROFILES.items()
+            if entry.options
+        ),
     )
     p.add_argument(
         "--max-connections",
@@ -263,7 +289,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.profile not in PROFILES:
             raise ValueError(f"unknown profile {args.profile!r} (known: {', '.join(sorted(PROFILES))})")
-        if args.state_rate > MAX_STATE_RATE:
+        if args.state_rate is not None and args.state_rate > MAX_STATE_RATE:
             raise ValueError(f"--state-rate is at most {MAX_STATE_RATE:g} Hz")
         if args.web_rate > MAX_RATE:
             raise ValueError(f"--web-rate is at most {MAX_RATE:g} updates a second")
@@ -294,6 +320,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             queue_capacity=args.queue_size,
             serial=args.serial,
             on_disconnect=args.on_disconnect,
+            lenient=args.lenient,
+            profile_options=tuple(args.profile_option),
             max_connections=args.max_connections,
             frame_timeout=args.frame_timeout,
             cell=args.cell,

@@ -39,7 +39,7 @@ from .constants import (
     ValidFields,
     VendorRange,
 )
-from .dialects import ABB, DIALECTS, FANUC, GENERIC, MOTOROS, Dialect, ReplyStyle, dialect
+from .dialects import ABB, DIALECTS, FANUC, GENERIC, MOTOROS, STAUBLI, Dialect, ReplyStyle, dialect
 from .endpoints import Client, CloseConnection, ReconnectPolicy, Server, Session
 from .errors import (
     ConnectionClosed,
@@ -147,6 +147,7 @@ __all__ = [
     "FANUC",
     "GENERIC",
     "MOTOROS",
+    "STAUBLI",
     "Dialect",
     "ReplyStyle",
     "dialect",

@@ -60,6 +60,7 @@ from .errors import (
     RequestTimeout,
     UnexpectedReply,
 )
+from .fixed_reads import FixedReads
 from .framing import DEFAULT_MAX_LENGTH
 from .link import (
     NEED_DATA,
@@ -242,9 +243,14 @@ class Connection(asyncio.Protocol):
         frame_timeout: float | None = None,
         tap: Tap | None = None,
         accepted: bool = False,
+        reader: FixedReads | None = None,
+        write_split: Callable[[bytes], Sequence[bytes]] | None = None,
     ) -> None:
         #: the protocol state (sans-I/O): frames, byte order, requests and replies
-        self.link = Link(wire, autodetect=autodetect, max_length=max_length, answers=answers)
+        self.link = Link(wire, autodetect=autodetect, max_length=max_length, answers=answers, reader=reader)
+        #: how each frame is written: in one write (``None``), or in the pieces this returns, one
+        #: write each (a controller that sends a message's parts with separate calls)
+        self.write_split = write_split
         self._autodetect = autodetect
         self.drain_timeout = drain_timeout
         self.max_write_buffer = max_write_buffer
@@ -674,9 +680,17 @@ class Connection(asyncio.Protocol):
             frame = b"".join(self._queued)
             self._queued.clear()
         if not self.transport.is_closing():  # lost under us: connection_lost is on its way
-            self.transport.write(frame)
-            if self.tap is not None:
-                self._tapped(True, frame)
+            self._write(frame)
+
+    def _write(self, data: bytes) -> None:
+        """Hand ``data`` to the transport: in one write, or split as :attr:`write_split` says."""
+        if self.write_split is None:
+            self.transport.write(data)
+        else:
+            for piece in self.write_split(data):
+                self.transport.write(piece)
+        if self.tap is not None:
+            self._tapped(True, data)
 
     def queue_frame(self, frame: bytes) -> bool:
         """Queue a frame in this connection's :attr:`wire` format, to be written with the others
@@ -702,9 +716,7 @@ class Connection(asyncio.Protocol):
         transport = self.transport
         if transport.is_closing():  # lost under us: connection_lost is on its way
             return False
-        transport.write(data)
-        if self.tap is not None:
-            self._tapped(True, data)
+        self._write(data)
         if transport.get_write_buffer_size() > self.max_write_buffer:
             self.abort(ConnectionClosed(f"peer fell {transport.get_write_buffer_size()} bytes behind"))
             return False
@@ -783,9 +795,7 @@ class Connection(asyncio.Protocol):
             self._queued.append(frame)
             frame = b"".join(self._queued)
             self._queued.clear()
-        transport.write(frame)
-        if self.tap is not None:
-            self._tapped(True, frame)
+        self._write(frame)
         if transport.get_write_buffer_size() > self.max_write_buffer:
             self.abort(ConnectionClosed(f"peer fell {transport.get_write_buffer_size()} bytes behind"))
             return False

@@ -4,8 +4,9 @@ The protocol leaves open which ports a controller listens on, its byte order, ho
 request and which topics its state port sends. Each controller family settled these differently
 (the project's protocol notes, §1.3, §3, §6, §8): the reference C++ library echoes a request's body
 in its reply, ABB's RAPID server replies header-only, Fanuc's KAREL server acknowledges a
-JOINT_TRAJ_PT with a JOINT_POSITION reply and speaks big-endian, MotoROS answers every request but
-PING with a MOTO_MOTION_REPLY (type 2002) on its own ports. A link that knows its peer's dialect
+JOINT_TRAJ_PT with a JOINT_POSITION reply and speaks big-endian, Stäubli's VAL3 server answers with
+a message of the request's type whose fields are zero but the sequence, MotoROS answers every
+request but PING with a MOTO_MOTION_REPLY (type 2002) on its own ports. A link that knows its peer's dialect
 matches replies by that dialect's rule (:meth:`Dialect.answers`); one that does not accepts what
 any registered dialect would send (:func:`any_dialect_answers`), so registering a dialect widens
 that rule for every such link in the process. (Before the dialects, a link took a
@@ -34,6 +35,7 @@ __all__ = [
     "FANUC",
     "GENERIC",
     "MOTOROS",
+    "STAUBLI",
     "Dialect",
     "ReplyStyle",
     "any_dialect_answers",
@@ -55,6 +57,8 @@ class ReplyStyle(enum.Enum):
     JOINT_POSITION_ACK = "joint-position-ack"
     #: a MOTO_MOTION_REPLY whose body says the outcome (MotoROS; PING is echoed)
     MOTO_MOTION_REPLY = "moto-motion-reply"
+    #: the request's type at its full length, the sequence echoed and every other field zero (Stäubli)
+    ZEROED = "zeroed"
 
 
 def reply_style_of(value: ReplyStyle | str) -> ReplyStyle:
@@ -146,6 +150,15 @@ FANUC = Dialect(
     reply_style=ReplyStyle.JOINT_POSITION_ACK,
     replies={MsgType.JOINT_TRAJ_PT: frozenset({MsgType.JOINT_POSITION})},
 )
+STAUBLI = Dialect(
+    name="staubli",
+    description="Staubli CS8/CS9, staubli_val3_driver's VAL3 server",
+    motion_port=Port.MOTION,
+    state_port=Port.STATE,
+    io_port=None,
+    wire=LE32,
+    reply_style=ReplyStyle.ZEROED,
+)
 MOTOROS = Dialect(
     name="motoros",
     description="Yaskawa Motoman, MotoROS (DX100, DX200, YRC1000; the FS100 speaks big-endian)",
@@ -186,5 +199,5 @@ def any_dialect_answers(request_type: int, reply: Message) -> bool:
     return any(d.answers(request_type, reply) for d in DIALECTS.values())
 
 
-for _dialect in (GENERIC, ABB, FANUC, MOTOROS):
+for _dialect in (GENERIC, ABB, FANUC, MOTOROS, STAUBLI):
     register(_dialect)

@@ -22,15 +22,25 @@ arrival order and answers every SERVICE_REQUEST exactly once, in order (simple-m
   ``answer_topics``, malformed TOPICs go to ``malformed_request`` too;
 * a handler that raises is answered FAILURE and logged; the server goes on;
 * a handler may raise :class:`CloseConnection` to close the connection without a reply (MotoROS
-  does so for DISCONNECT and for message types its motion port refuses, §8.1);
+  does so for DISCONNECT and for message types its motion port refuses, §8.1), or return
+  :data:`NO_REPLY` to leave a request unanswered (a controller that answers only some requests);
 * ``answer_topics``: TOPICs of unknown type go to ``unknown_request`` too (MotoROS answers every
   message that is not a SERVICE_REPLY, §3);
 * a frame error (bad length prefix) closes only that connection;
 * at most ``max_connections`` connections per server: excess ones are accepted and closed at once,
-  with a log line, so the peer sees a clean EOF rather than a hang;
+  with a log line, so the peer sees a clean EOF rather than a hang; or, with ``excess="wait"``, they
+  wait unserved (not read, not written) until a connection ends, as in the listen backlog of a
+  controller that accepts its next client only when the last one has gone (at most
+  ``MAX_WAITING`` of them; more are closed);
 * writes are bounded per connection (:class:`~.connection.Connection`), so a stalled peer is closed
   and never delays the others. :meth:`Server.broadcast` publishes a topic to every connection: encoded
-  once per wire format, and what one loop iteration broadcasts is written in one go per connection.
+  once per wire format, and what one loop iteration broadcasts is written in one go per connection
+  (``batch_topics``; without it each message is written the moment it is broadcast, in its own
+  write, as a controller that sends each message with its own call does);
+* ``reader``: connections cut their input as a controller that reads fixed byte counts does
+  (:class:`~.fixed_reads.FixedReads`, one per connection), every read going to the handlers
+  (``validate_headers`` False skips the C++ header rules: such controllers check nothing);
+  ``write_split``: each frame is written in these pieces, one write each.
 
 An accepted TCP socket gets its :class:`~.connection.Connection` as its asyncio protocol before it
 reads a byte (no streams); serial, pty and other links come as stream pairs (:meth:`Server.serve_link`)
@@ -56,7 +66,8 @@ import os
 import random
 import socket
 import time
-from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine, Iterable
+from collections import deque
+from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
 
@@ -64,6 +75,7 @@ from .connection import Connection, ConnectionState, Subscription, Tap
 from .constants import CommType, MsgType, ReplyCode
 from .dialects import Dialect, ReplyStyle, any_dialect_answers, reply_style_of
 from .errors import ConnectionClosed, HeaderError, MalformedMessage, NotConnected
+from .fixed_reads import FixedReads
 from .framing import DEFAULT_MAX_LENGTH
 from .header import header_error
 from .lograte import LogBudget
@@ -83,6 +95,8 @@ __all__ = [
     "LOOP_VARIABLE",
     "DEFAULT_FRAME_TIMEOUT",
     "DEFAULT_IDLE_AFTER",
+    "MAX_WAITING",
+    "NO_REPLY",
 ]
 
 log = logging.getLogger(__name__)
@@ -96,8 +110,18 @@ DEFAULT_IDLE_AFTER = 10.0
 _DEAF_BYTES = 16 * 1024
 #: how long a full port trusts its last look at what its peers left unread (s)
 _UNREAD_SCAN_AGE = 1.0
+#: connections a full server with ``excess="wait"`` keeps waiting for their turn
+MAX_WAITING = 8
 
-HandlerResult = Message | ReplyCode | int | None
+
+class _NoReply(enum.Enum):
+    NO_REPLY = "no reply"
+
+
+#: a handler's result: send nothing, though the message is a request
+NO_REPLY = _NoReply.NO_REPLY
+
+HandlerResult = Message | ReplyCode | int | _NoReply | None
 #: ``handler(message, session)``: returns the reply (see the module docstring); may be async.
 Handler = Callable[[Message, "Session"], HandlerResult | Awaitable[HandlerResult]]
 #: ``handler(error, session)``: the reply to a request whose body does not decode, or ``None`` for
@@ -196,8 +220,28 @@ class Server:
         frame_timeout: float | None = DEFAULT_FRAME_TIMEOUT,
         idle_after: float | None = DEFAULT_IDLE_AFTER,
         tap: Tap | None = None,
+        batch_topics: bool = True,
+        reader: Callable[[WireFormat], FixedReads] | None = None,
+        write_split: Callable[[bytes], Sequence[bytes]] | None = None,
+        validate_headers: bool = True,
+        excess: Literal["close", "wait"] = "close",
     ) -> None:
         self.wire = wire
+        #: topics broadcast in one loop iteration go out in one write per connection (else one
+        #: write per message, at once)
+        self.batch_topics = batch_topics
+        #: makes each connection's frame cutter (None: the length prefix)
+        self.reader = reader
+        #: cuts each frame into the pieces written one by one (None: one write)
+        self.write_split = write_split
+        #: refuse requests whose header breaks the C++ rules (header.header_error)
+        self.validate_headers = validate_headers
+        if excess not in ("close", "wait"):
+            raise ValueError(f"excess must be 'close' or 'wait', not {excess!r}")
+        #: what a connection beyond ``max_connections`` gets: closed at once, or a wait for its turn
+        self.excess = excess
+        #: connections waiting for their turn (``excess="wait"``), oldest first
+        self._waiting: deque[asyncio.Transport] = deque()
         #: sees the traffic of every connection accepted from now on (:class:`~.connection.Tap`,
         #: e.g. a :class:`~.capture_writer.CaptureWriter`)
         self.tap = tap
@@ -275,6 +319,9 @@ class Server:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.socket_send_buffer)
         peer = transport.get_extra_info("peername")
         live = sum(1 for s in self.sessions if not s.connection.closed)  # not those closing meanwhile
+        if not self._closing and live >= self.max_connections and self.excess == "wait":
+            self._wait_turn(transport, peer)
+            return
         if self._closing or (live >= self.max_connections and not self._make_room(peer)):
             self.refused += 1
             self._log_budget.log(
@@ -282,11 +329,49 @@ class Server:
             )
             transport.close()
             return
+        self._serve_accepted(transport, peer)
+
+    def _serve_accepted(self, transport: asyncio.BaseTransport, peer: object) -> None:
         # The session is counted at once: connections accepted in the same loop iteration see it.
         session = self._open(self._connection(transport, f"{self.name} {peer}"), None)
         task = asyncio.get_running_loop().create_task(self._until_closed(session), name=f"sm-serve {session.name}")
         self._accepted.add(task)
         task.add_done_callback(self._accepted.discard)
+
+    def _wait_turn(self, transport: asyncio.BaseTransport, peer: object) -> None:
+        """A connection beyond the limit of a server whose excess waits: not read, not answered,
+        until a connection ends (:meth:`_next_turn`); beyond ``MAX_WAITING`` it is closed."""
+        assert isinstance(transport, asyncio.Transport)
+        if len(self._waiting) >= MAX_WAITING:
+            self.refused += 1
+            self._log_budget.log(log, logging.WARNING, "refused %s: %d connections wait already", peer, MAX_WAITING)
+            transport.close()
+            return
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            transport.pause_reading()
+        self._waiting.append(transport)
+        self._log_budget.log(
+            log,
+            logging.INFO,
+            "%s waits: %d connection(s) is the limit, it is served when one ends",
+            peer,
+            self.max_connections,
+        )
+
+    def _next_turn(self) -> None:
+        """A connection ended: serve the oldest waiting one still open, if there is room."""
+        while self._waiting and not self._closing:
+            live = sum(1 for s in self.sessions if not s.connection.closed)
+            if live >= self.max_connections:
+                return
+            transport = self._waiting.popleft()
+            if transport.is_closing():
+                continue
+            peer = transport.get_extra_info("peername")
+            log.info("%s: serving %s, which waited for its turn", self.name, peer)
+            self._serve_accepted(transport, peer)
+            with contextlib.suppress(NotImplementedError, RuntimeError):
+                transport.resume_reading()
 
     def _make_room(self, newcomer: object) -> bool:
         """The server is full and ``newcomer`` knocks: close the connection least likely to be a
@@ -365,6 +450,8 @@ class Server:
             frame_timeout=self.frame_timeout,
             tap=self.tap,
             accepted=True,
+            reader=None if self.reader is None else self.reader(self.wire),
+            write_split=self.write_split,
         )
         if not connection.is_socket:
             # a serial line cannot be dialled again: a byte of line noise must not end it
@@ -400,6 +487,8 @@ class Server:
             await connection.close()
             if self.on_disconnect is not None:
                 self.on_disconnect(session)
+            if self._waiting:
+                self._next_turn()
             # The session and its connection refer to each other through these: unlinked, they are
             # freed as soon as the last reference goes, not by a later garbage collection (which,
             # with connections coming and going, let memory pile up between collections).
@@ -437,6 +526,7 @@ class Server:
         frame = b""
         sent = 0
         queued = self._queued
+        batch = self.batch_topics
         for session in list(self.sessions if sessions is None else sessions):
             connection = session.connection
             wire = connection.link.wire
@@ -444,7 +534,9 @@ class Server:
                 last_wire = wire
                 got = frames.get(wire)
                 frame = frames[wire] = msg.encode(wire) if got is None else got
-            if connection.queue_frame(frame):
+            if not batch:
+                sent += connection.send_frame_nowait(frame)
+            elif connection.queue_frame(frame):
                 sent += 1
                 queued.add(connection)
         if queued and not self._flush_scheduled:
@@ -463,6 +555,8 @@ class Server:
         self._closing = True
         for server in self._servers:
             server.close()
+        while self._waiting:
+            self._waiting.popleft().close()
         for session in list(self.sessions):
             await session.connection.close()
         if self._accepted:  # each finishes its session (on_disconnect) once its connection is closed
@@ -505,7 +599,9 @@ class Server:
                 return None
         if isinstance(msg, Message) and msg.comm_type == _SERVICE_REQUEST:
             hook = self._arrival.get(msg.msg_type)
-            if hook is not None and _header_error(msg.msg_type, msg.comm_type, msg.reply_code) is None:
+            if hook is not None and (
+                not self.validate_headers or _header_error(msg.msg_type, msg.comm_type, msg.reply_code) is None
+            ):
                 try:
                     hook(msg, session)
                 except Exception:
@@ -586,7 +682,7 @@ class Server:
                     session.log(log, logging.ERROR, "the malformed-request handler failed; FAILURE", exc_info=True)
             return HeaderOnly(msg.msg_type or 0, reply_code=ReplyCode.FAILURE) if is_request else None
         msg_type = msg.msg_type
-        problem = _header_error(msg_type, msg.comm_type, msg.reply_code)
+        problem = _header_error(msg_type, msg.comm_type, msg.reply_code) if self.validate_headers else None
         if problem is not None:
             session.log(log, logging.WARNING, "%s", problem)
             return HeaderOnly(msg_type, reply_code=ReplyCode.FAILURE) if is_request else None
@@ -621,7 +717,7 @@ class Server:
         """Turn a handler's result into the reply (see the module docstring)."""
         if isinstance(result, Message):
             return result
-        if msg.comm_type != _SERVICE_REQUEST:
+        if msg.comm_type != _SERVICE_REQUEST or result is NO_REPLY:
             return None
         code = _SUCCESS if result is None else ReplyCode(result)
         if self.reply_style is _ECHO:

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from .constants import CommType
 from .dialects import any_dialect_answers
 from .errors import FrameError, LocalProtocolError, MalformedMessage
+from .fixed_reads import FixedReads
 from .framing import DEFAULT_MAX_LENGTH, FrameDecoder, decode_or_error
 from .messages import MESSAGE_CLASSES, HeaderOnly, Message, encode, type_name
 from .wire import DEFAULT_FORMAT, WireFormat
@@ -157,7 +158,10 @@ Event = Received | Malformed | Answered | Unanswerable | LateReply | StrayReply 
 class Link:
     """The protocol state of one link. ``autodetect`` takes the byte order from the peer's first
     frame (servers; until then, and for what is sent, ``wire`` applies); ``answers`` is the
-    peer's reply rule (:meth:`.dialects.Dialect.answers`; default: what any dialect may send)."""
+    peer's reply rule (:meth:`.dialects.Dialect.answers`; default: what any dialect may send).
+    ``reader``: cut the input as a controller that reads fixed byte counts does
+    (:class:`~.fixed_reads.FixedReads`: every read is received as it is, none is a reply) instead
+    of by the length prefix."""
 
     def __init__(
         self,
@@ -166,12 +170,16 @@ class Link:
         autodetect: bool = False,
         max_length: int = DEFAULT_MAX_LENGTH,
         answers: ReplyRule = any_dialect_answers,
+        reader: FixedReads | None = None,
     ) -> None:
         #: the wire format spoken (assignable: a server may guess what a peer that has not spoken yet
         #: understands; the peer's first frame still decides, if the link autodetects)
         self.wire = wire
         self.answers = answers
-        self._decoder = FrameDecoder(None if autodetect else wire.byte_order, max_length=max_length)
+        self._decoder: FrameDecoder | FixedReads = (
+            FrameDecoder(None if autodetect else wire.byte_order, max_length=max_length) if reader is None else reader
+        )
+        self._raw = reader is not None
         self._pending: deque[Request] = deque()
         self._events: deque[Event] = deque()
         self._ended = False
@@ -296,7 +304,10 @@ class Link:
             with contextlib.suppress(FrameError):  # decoder.failed says so, below
                 for frame in decoder:
                     on_frame(frame)
-                    self._message(decode_or_error(frame, self.wire))
+                    if isinstance(decoder, FixedReads):
+                        self._message(decoder.message(frame, self.wire))
+                    else:
+                        self._message(decode_or_error(frame, self.wire))
         if decoder.failed:
             self._backlog, self._backlog_pos = b"", 0
             self._end(decoder.error)
@@ -318,6 +329,9 @@ class Link:
 
     def _message(self, msg: Message | MalformedMessage) -> None:
         """A frame, decoded (or its body that does not decode): a reply, or something received."""
+        if self._raw:  # a read of a fixed-size reader: the server's handlers make of it what they will
+            self._events.append(Malformed(msg) if isinstance(msg, MalformedMessage) else Received(msg))
+            return
         if isinstance(msg, MalformedMessage):
             if msg.comm_type == _SERVICE_REPLY:
                 self._reply(None, msg)

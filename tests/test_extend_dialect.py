@@ -74,7 +74,7 @@ def test_the_module_registers_a_dialect_and_a_profile(acme: ModuleType) -> None:
 
 
 def test_unknown_profiles_name_the_known_ones() -> None:
-    with pytest.raises(ValueError, match=r"unknown profile 'acme' \(known: generic, motoros\)"):
+    with pytest.raises(ValueError, match=r"unknown profile 'acme' \(known: abb, fanuc, generic, motoros, staubli\)"):
         EmulatorConfig(profile="acme")
     with pytest.raises(ValueError, match="unknown reply style 'loud'"):
         EmulatorConfig(reply_style="loud")

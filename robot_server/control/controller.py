@@ -5,6 +5,10 @@ A :class:`Controller` is a sans-I/O state machine. Its verbs take received point
 the next ones, or :meth:`~Controller.start_download` ... :meth:`~Controller.finish_download` a whole
 trajectory; :meth:`~Controller.stop` aborts. What points mean over time (look-ahead, slowing down,
 a queue that runs dry) is :mod:`.motion`'s; how they are joined is the policy's (:mod:`.policies`).
+Besides trajectories it runs the controller's own kinds of motion: straight lines of the tool
+(:meth:`~Controller.add_line`, :mod:`.cartesian`) and joint moves at a share of the joints' speed
+(:meth:`~Controller.add_move`, :mod:`.moves`: Fanuc's and Stäubli's move instructions), one kind at
+a time.
 :meth:`~Controller.step` advances one servo period and :meth:`~Controller.run_for` many at once;
 nothing here waits or reads a clock: :class:`.loop.ControlLoop` drives controllers from a
 :mod:`.clock`. :func:`submit_together` accepts points for several controllers (motion groups) all
@@ -57,6 +61,7 @@ from ..model import RobotModel
 from ..workspace import TCP_SPEED_ALARM, Supervision, Violation, densify, first_violation, point_violation
 from .cartesian import LineLimits, LineMotion, LineTarget
 from .motion import MotionQueue, Plan
+from .moves import JointMoves
 from .points import Limits, Point, PointRejected, Reason, State, check_point
 from .policies import DEFAULT_POLICY, policy
 from .recorder import Recorder
@@ -205,6 +210,8 @@ class Controller:
             capacity=config.queue_capacity,
             path_check=self._check_path,
         )
+        #: joint moves at a share of the joints' speed (:mod:`.moves`)
+        self.moves = JointMoves(self.limits, start)
         self.command = Tick(0.0, hold, zeros, zeros, list(hold), list(zeros), list(zeros), list(zeros), 0, self.tool)
         self.error_code = 0
         self.error_message = ""
@@ -230,7 +237,7 @@ class Controller:
     @property
     def queue_fill(self) -> int:
         """Points (or lines) queued and not yet reached (the running one included)."""
-        return self.queue.fill + self.lines.fill
+        return self.queue.fill + self.lines.fill + self.moves.fill
 
     @property
     def queue_capacity(self) -> int:
@@ -248,7 +255,7 @@ class Controller:
     @property
     def moving(self) -> bool:
         """Commanded motion is queued or under way (a stop included)."""
-        return self.queue.moving or self.lines.active
+        return self.queue.moving or self.lines.active or self.moves.active
 
     @property
     def in_motion(self) -> bool:
@@ -275,7 +282,7 @@ class Controller:
     @property
     def remaining(self) -> float:
         """Seconds of queued motion still to run (0 when nothing is queued)."""
-        return self.queue.remaining + self.lines.remaining(self.time)
+        return self.queue.remaining + self.lines.remaining(self.time) + self.moves.remaining()
 
     @property
     def speed_limit(self) -> float | None:
@@ -316,6 +323,8 @@ class Controller:
         self._check_ready()
         if self.lines.active:
             raise PointRejected(Reason.BUSY, "a straight line is under way: joint points wait until it ends")
+        if self.moves.active:
+            raise PointRejected(Reason.BUSY, "joint moves are under way: trajectory points wait until they end")
         plan = self.queue.plan(point, first=first, min_scale=min_scale)
         if self.speed_limit is None and not self.supervision.has_zones:
             return plan
@@ -341,7 +350,7 @@ class Controller:
         """A straight line of the tool to ``target`` (:mod:`.cartesian`), after the lines queued,
         or from where the robot rests. Raises :class:`PointRejected` (nothing moves then)."""
         self._check_ready()
-        if self.queue.moving or self._download is not None:
+        if self.queue.moving or self._download is not None or self.moves.active:
             raise PointRejected(Reason.BUSY, "a joint trajectory is under way: lines wait until it ends")
         values = (*target.position, *target.orientation, target.speed, target.blend_radius)
         if not all(math.isfinite(v) for v in values):
@@ -366,6 +375,31 @@ class Controller:
         self.points_accepted += 1
         self._stopping = False
         self._settled = False
+
+    def add_move(
+        self,
+        target: Sequence[float] | NDArray[np.float64],
+        *,
+        speed: float,
+        blend: float = 0.0,
+        acceleration: float = 1.0,
+    ) -> float:
+        """A joint move to ``target`` at ``speed`` (a share of the joints' maximum speed), blended
+        into the last queued move by ``blend`` (:mod:`.moves`), or from where the robot rests.
+        Returns the controller time at which it begins. Raises :class:`PointRejected` (nothing
+        moves then)."""
+        self._check_ready()
+        if self.queue.moving or self._download is not None or self.lines.active:
+            raise PointRejected(Reason.BUSY, "a trajectory or a line is under way: moves wait until it ends")
+        rest = np.array(self._next[0], dtype=float)
+        move = self.moves.plan(
+            np.asarray(target, dtype=float), speed=speed, blend=blend, acceleration=acceleration, rest=rest
+        )
+        self.moves.commit(move)
+        self.points_accepted += 1
+        self._stopping = False
+        self._settled = False
+        return move.begin
 
     @staticmethod
     def plan_scale(plan: Plan) -> float:
@@ -433,6 +467,9 @@ class Controller:
         self._stopping = True
         if self.lines.active:
             duration = self.lines.stop(self.time)
+        elif self.moves.active:
+            had = self.moves.fill
+            duration = self.moves.stop()
         else:
             duration = self.queue.stop()
             if duration and self.supervision.has_zones:
@@ -512,6 +549,11 @@ class Controller:
                     state = self.lines.sample(at)
                     self.queue.sample(at)  # the joint queue's clock runs on
                     if self.lines.fill == 0:  # the last line ended: joints start from there
+                        self.queue.abandon(state.position)
+                elif self.moves.active:
+                    state = self.moves.sample(at)
+                    self.queue.sample(at)
+                    if not self.moves.active:  # the last move ended: trajectories start from there
                         self.queue.abandon(state.position)
                 else:
                     state = self.queue.sample(at)
@@ -665,6 +707,7 @@ class Controller:
         self._download = None
         self.lines.abandon()
         actual = list(self.servo.position)
+        self.moves.abandon(np.array(actual))
         zeros = [0.0] * self.dof
         self._previous = self._next = (actual, zeros, zeros)
         self._settled = False  # the drives still brake the joints to a halt

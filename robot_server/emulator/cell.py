@@ -76,6 +76,12 @@ class RobotCell:
         #: called with (group, point) for every joint point a controller accepted, in order (e.g. a
         #: display marking the waypoints); must not raise or block
         self.point_listeners: list[Callable[[int, Point], None]] = []
+        #: called after every control-loop wake-up, before the waiting tasks are woken: a
+        #: controller's own periodic tasks in lockstep with controller time (a program taking the
+        #: next move, a motion task's tick); must not block
+        self.tick_listeners: list[Callable[[], None]] = []
+        #: called after the operator's :meth:`reset` (e.g. a controller program restarted)
+        self.reset_listeners: list[Callable[[], None]] = []
 
     # -- state -------------------------------------------------------------------------------------
 
@@ -98,6 +104,11 @@ class RobotCell:
     @property
     def in_motion(self) -> bool:
         return any(g.in_motion for g in self.groups)
+
+    @property
+    def time(self) -> float:
+        """Controller time (s): the first motion group's clock, which every group shares."""
+        return self.groups[0].time
 
     @property
     def motion_possible(self) -> bool:
@@ -160,6 +171,44 @@ class RobotCell:
             self._count(g, n)
             for listener in self.point_listeners:
                 listener(g, p)
+
+    def submit_download(self, group: int, points: Sequence[Point]) -> None:
+        """A whole trajectory for a group's controller at once (its first point the start, within
+        the start tolerance of where the queued motion ends): queued whole, or refused whole
+        (:class:`PointRejected`, nothing moves then). A controller that downloads this way: ABB."""
+        if not points:
+            raise PointRejected(Reason.SEQUENCE, "a trajectory needs at least one point")
+        controller = self.group(group)
+        self.check_ready()
+        before = controller.trajectories
+        controller.start_download(points[0])
+        if len(points) == 1:  # a trajectory of its start alone: nothing to move
+            controller.abandon_download("a trajectory of one point: the robot is there")
+            return
+        for point in points[1:-1]:
+            controller.add(point)
+        controller.finish_download(points[-1])
+        self._count(group, before)
+        self._points[group] += len(points) - 1
+        for point in points:
+            for listener in self.point_listeners:
+                listener(group, point)
+
+    def submit_move(
+        self, group: int, target: Point, *, speed: float, blend: float = 0.0, acceleration: float = 1.0
+    ) -> float:
+        """A joint move for a group's controller to ``target.positions`` at ``speed`` (a share of
+        the joints' speed; :meth:`~..control.Controller.add_move`): a controller's own move
+        instruction (Fanuc's J, Stäubli's movej). Returns the controller time it begins; raises
+        :class:`PointRejected`."""
+        controller = self.group(group)
+        self.check_ready()
+        if target.positions is None:
+            raise PointRejected(Reason.MISSING_FIELDS, "a move needs a target position")
+        begin = controller.add_move(target.positions, speed=speed, blend=blend, acceleration=acceleration)
+        for listener in self.point_listeners:
+            listener(group, target)
+        return begin
 
     def submit_line(self, group: int, sequence: int, target: LineTarget) -> None:
         """A straight line for a group's controller (:meth:`~..control.Controller.add_line`):
@@ -237,6 +286,8 @@ class RobotCell:
         self.e_stopped = False
         self.reset_alarm()
         self.drives_on()
+        for listener in self.reset_listeners:
+            listener()
 
     def set_mode(self, mode: RobotMode) -> None:
         if mode not in (RobotMode.AUTO, RobotMode.MANUAL):
@@ -272,6 +323,15 @@ class RobotCell:
                 )
         self._was_moving = moving
         self._wakeup.wake()
+
+    def tick(self) -> None:
+        """After a control-loop wake-up: the :attr:`tick_listeners`, then :meth:`notify`."""
+        for listener in self.tick_listeners:
+            try:
+                listener()
+            except Exception:  # a defect in a profile's task must not end the control loop
+                log.exception("a controller task failed")
+        self.notify()
 
     async def changed(self) -> None:
         """Wait for the next control-loop wake-up, stop or fault."""

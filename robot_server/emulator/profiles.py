@@ -16,17 +16,20 @@ dialect").
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Literal, Protocol
 
 from simple_message.dialects import Dialect
 from simple_message.endpoints import Server, Session
+from simple_message.fixed_reads import FixedReads
+from simple_message.framing import DEFAULT_MAX_LENGTH
 from simple_message.registry import Registry
+from simple_message.wire import WireFormat
 
 from .cell import RobotCell
 from .io_table import IoTable
-from .owner import MotionOwner
+from .owner import MotionOwner, OnDisconnect
 
 __all__ = [
     "PROFILES",
@@ -60,6 +63,17 @@ class PortRules:
     answer_topics: bool = False
     #: its clients only listen (a state port): a full port never closes one for being silent
     listen_only: bool = False
+    #: a connection beyond ``max_connections``: closed at once, or left waiting unserved until one
+    #: ends (a controller whose server accepts its next client only when the last has gone: the
+    #: newcomer's connect succeeds in the listen backlog and nothing answers it)
+    excess: Literal["close", "wait"] = "close"
+    #: how the controller cuts its input, given the wire format and whether the emulator is lenient
+    #: (``--lenient``): ``None`` by the length prefix; else a :class:`~simple_message.fixed_reads.FixedReads`
+    reader: Callable[[WireFormat, bool], FixedReads] | None = None
+    #: each frame written in these pieces, one write each (``None``: one write per frame)
+    write_split: Callable[[bytes], Sequence[bytes]] | None = None
+    #: the largest length prefix it takes (a larger one ends the connection)
+    max_length: int = DEFAULT_MAX_LENGTH
 
 
 @dataclass(frozen=True)
@@ -72,6 +86,11 @@ class ProfileContext:
     feedback: bool = False
     #: the motion port's one client (listen with ``owner.when_gone``); ``None`` outside an emulator
     owner: MotionOwner | None = None
+    #: ``--lenient``: the controller's harsh quirks (a stalled or misframed input, a server task that
+    #: dies) are not reproduced; what would trigger them is dropped with a warning instead
+    lenient: bool = False
+    #: profile settings given on the command line (``--profile-option KEY=VALUE``), checked by the builder
+    options: Mapping[str, str] = field(default_factory=dict)
 
 
 class Behaviour(Protocol):
@@ -81,7 +100,9 @@ class Behaviour(Protocol):
         """Register handlers and hooks on the servers by role (only the profile's roles)."""
 
     def publish(self, server: Server, sessions: Iterable[Session]) -> None:
-        """Send one round of state topics to ``sessions`` (through the state ``server``)."""
+        """Send one round of state topics to ``sessions`` (through the state ``server``); called
+        ``state_rate`` times a second (the profile's rate unless ``--state-rate`` says otherwise).
+        A controller that sends some topics every Nth round counts the rounds itself."""
 
     # A behaviour may also have ``status() -> Status``: STATUS as its state topic reports it (the
     # web view shows that one; without it, the cell's own, :meth:`~.cell.RobotCell.status`).
@@ -101,6 +122,20 @@ class EmulatorProfile:
     #: controller's default)
     start_tolerance: float | None = None
     description: str = ""
+    #: state rounds per second of the controller played (``robot-server --state-rate`` overrides it)
+    state_rate: float = 40.0
+    #: what the robot does when the motion client goes away while it moves (``--on-disconnect``
+    #: overrides it)
+    on_disconnect: OnDisconnect = OnDisconnect.STOP
+    #: the state topics of a round go out in one write per client; False: each message in its own
+    #: write, at once, as every real controller sends them (MotoROS, RAPID, KAREL, VAL3 send each
+    #: message with a call of its own)
+    batch_topics: bool = False
+    #: byte order, float size and reply style are the controller's own (the options that change
+    #: them are refused unless they name the dialect's)
+    fixed_wire: bool = False
+    #: the profile settings ``--profile-option KEY=VALUE`` takes, with their help
+    options: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         unknown = set(self.ports) - set(ROLES)

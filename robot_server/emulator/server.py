@@ -23,6 +23,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import functools
 import logging
 import threading
 import time
@@ -51,7 +52,7 @@ from ..control import (
 )
 from ..loader import load_model, load_supervision
 from ..model import ModelError, RobotModel
-from . import motoros  # noqa: F401 - registers the MotoROS profile
+from . import abb, motoros  # noqa: F401 - register the ABB and MotoROS profiles
 from .cell import RobotCell, apply_fault_command
 from .generic import GENERIC_PROFILE
 from .io_table import IoTable
@@ -75,6 +76,9 @@ PEER_LOGGERS = (
     "robot_server.emulator.owner",
     "robot_server.emulator.generic",
     "robot_server.emulator.motoros",
+    "robot_server.emulator.abb",
+    "robot_server.emulator.fanuc",
+    "robot_server.emulator.staubli",
 )
 #: what those loggers may write together while an emulator runs: a burst, then lines per second
 PEER_LOG_BURST = 100
@@ -104,7 +108,8 @@ class EmulatorConfig:
     byte_order: ByteOrderChoice | None = None
     float64: bool | None = None
     reply_style: ReplyStyle | str | None = None
-    state_rate: float = 40.0
+    #: state rounds per second (None: the profile's: 40 generic and motoros, 10 abb, ~41.7 fanuc, 50 staubli)
+    state_rate: float | None = None
     #: generic profile: JOINT_FEEDBACK to every state client (else only to those that ask)
     feedback: bool = False
     #: interpolation policy (a name of ``robot_server.control.POLICIES``)
@@ -124,8 +129,9 @@ class EmulatorConfig:
     #: connections per port where the profile sets no limit of its own (the state port: a hundred
     #: monitoring clients is normal in a lab)
     max_connections: int = 128
-    #: what the robot does when its motion client goes away while it is busy (:mod:`.owner`)
-    on_disconnect: OnDisconnect | str = OnDisconnect.STOP
+    #: what the robot does when its motion client goes away while it is busy (:mod:`.owner`; None:
+    #: the profile's: stop, but abb and fanuc let the motion run on)
+    on_disconnect: OnDisconnect | str | None = None
     #: close a connection that began a frame and sent nothing more for this long (s)
     frame_timeout: float = 5.0
     #: a cell file (shipped name or path) whose [supervision] replaces the models' own: TCP speed
@@ -139,9 +145,25 @@ class EmulatorConfig:
     capture: str | Path | None = None
     #: the bound of the capture's files together (bytes; the file rotates, see capture_writer)
     capture_max_bytes: int = DEFAULT_MAX_BYTES
+    #: do not reproduce the controller's harsh quirks (see :class:`~.profiles.ProfileContext`)
+    lenient: bool = False
+    #: the profile's own settings (``--profile-option KEY=VALUE``; :attr:`EmulatorProfile.options`)
+    profile_options: tuple[tuple[str, str], ...] = ()
 
     def __post_init__(self) -> None:
-        dialect = profile_named(self.profile).dialect
+        emulated = profile_named(self.profile)
+        dialect = emulated.dialect
+        if emulated.fixed_wire:
+            _check_fixed_wire(self, emulated)
+        known = emulated.options
+        for key, _ in self.profile_options:
+            if key not in known:
+                choices = ", ".join(sorted(known)) or "none"
+                raise ValueError(f"the {self.profile} profile has no option {key!r} (its options: {choices})")
+        if self.state_rate is None:
+            object.__setattr__(self, "state_rate", emulated.state_rate)
+        if self.on_disconnect is None:
+            object.__setattr__(self, "on_disconnect", emulated.on_disconnect)
         if self.byte_order is None:
             object.__setattr__(self, "byte_order", dialect.wire.byte_order.value)
         if self.byte_order not in ("little", "big", "auto"):
@@ -152,7 +174,7 @@ class EmulatorConfig:
         if style not in (ReplyStyle.ECHO, ReplyStyle.HEADER_ONLY) and style is not dialect.reply_style:
             raise ValueError(f"the {self.profile} profile cannot reply {style.value} (echo or header-only)")
         object.__setattr__(self, "reply_style", style)
-        if not 0.0 < self.state_rate <= MAX_STATE_RATE:
+        if not 0.0 < self.rate <= MAX_STATE_RATE:
             raise ValueError(f"the state rate must be in (0, {MAX_STATE_RATE:g}] Hz, not {self.state_rate}")
         if not self.speedup > 0.0:
             raise ValueError(f"the speed-up factor must be > 0, not {self.speedup}")
@@ -170,6 +192,11 @@ class EmulatorConfig:
             raise ValueError(f"the frame timeout must be > 0 s, not {self.frame_timeout}")
         if self.capture_max_bytes < 1:
             raise ValueError(f"the capture's size bound must be at least 1 byte, not {self.capture_max_bytes}")
+
+    @property
+    def rate(self) -> float:
+        """State rounds per second (resolved: the option's, else the profile's)."""
+        return self.state_rate if self.state_rate is not None else self.emulated.state_rate
 
     @property
     def wire(self) -> WireFormat:
@@ -193,6 +220,18 @@ class EmulatorConfig:
             return None
         chosen = {"motion": self.motion_port, "state": self.state_port, "io": self.io_port}[name]
         return default if chosen is None else chosen
+
+
+def _check_fixed_wire(config: EmulatorConfig, profile: EmulatorProfile) -> None:
+    """A controller whose byte order, float size and reply style are its own: refuse others."""
+    dialect = profile.dialect
+    order = dialect.wire.byte_order.value
+    if config.byte_order not in (None, order):
+        raise ValueError(f"the {profile.name} controller speaks {order}-endian only, not {config.byte_order}")
+    if config.float64 not in (None, dialect.wire.real_size == 8):
+        raise ValueError(f"the {profile.name} controller speaks float{dialect.wire.real_size * 8} only")
+    if config.reply_style is not None and reply_style_of(config.reply_style) is not dialect.reply_style:
+        raise ValueError(f"the {profile.name} controller replies its own way ({dialect.reply_style.value}) only")
 
 
 @dataclass
@@ -299,6 +338,7 @@ class Emulator:
             rules = profile.ports.get(role)
             if rules is None:
                 continue
+            reader = rules.reader
             self.servers[role] = Server(
                 config.wire,
                 name=role,
@@ -308,17 +348,31 @@ class Emulator:
                 answer_topics=rules.answer_topics,
                 frame_timeout=config.frame_timeout,
                 idle_after=None if rules.listen_only else DEFAULT_IDLE_AFTER,
+                batch_topics=profile.batch_topics,
+                reader=None if reader is None else functools.partial(reader, lenient=config.lenient),
+                write_split=rules.write_split,
+                validate_headers=reader is None,
+                excess=rules.excess,
+                max_length=rules.max_length,
             )
         self.motion_server = self.servers["motion"]
         # a profile without a state port still has one server for the serial link's state topics
         self.state_server = self.servers.get("state") or Server(config.wire, name="state", max_connections=0)
         self.io_server: Server | None = self.servers.get("io")
         #: one motion client at a time, and what a lost one leaves behind (:mod:`.owner`)
+        assert config.on_disconnect is not None  # resolved by the config
         self.owner = MotionOwner(self.cell, config.on_disconnect)
         self.owner.install(self.motion_server)
         #: the profile's handlers and state topics
         self.behaviour: Behaviour = profile.build(
-            ProfileContext(self.cell, self.io_table, config.feedback, owner=self.owner)
+            ProfileContext(
+                self.cell,
+                self.io_table,
+                config.feedback,
+                owner=self.owner,
+                lenient=config.lenient,
+                options=dict(config.profile_options),
+            )
         )
         self.behaviour.install(self.servers)
         if clock is None:
@@ -326,9 +380,9 @@ class Emulator:
         #: the controller's clock (a test may pass a ``SteppedClock`` and advance it itself)
         self.clock: Clock = clock
         self.control = ControlLoop(
-            self.cell.groups[0], self.clock, others=self.cell.groups[1:], on_wake=self.cell.notify
+            self.cell.groups[0], self.clock, others=self.cell.groups[1:], on_wake=self.cell.tick
         )
-        self.state_stats = PeriodStats(1.0 / config.state_rate)
+        self.state_stats = PeriodStats(1.0 / config.rate)
         self.ports: dict[str, int] = {}
         self._tasks: list[asyncio.Task[None]] = []
         self._started = False
