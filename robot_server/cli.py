@@ -131,7 +131,7 @@ def parser() -> argparse.ArgumentParser:
         "--profile",
         default="generic",
         help="the controller family played (default: %(default)s; known: "
-        + "; ".join(f"{name}: {entry.description}" for name, entry in PROFILES.items())
+        + "; ".join(f"{name}: {entry.description}".replace("%", "%%") for name, entry in PROFILES.items())
         + ")",
     )
     add_profile_wire_arguments(p, ("little", "big", "auto"), "little for both built-in profiles")
@@ -214,7 +214,7 @@ def parser() -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="a setting of the played controller (repeatable): "
         + "; ".join(
-            f"{name}: " + ", ".join(f"{key} ({text})" for key, text in entry.options.items())
+            f"{name}: " + ", ".join(f"{key} ({text.replace('%', '%%')})" for key, text in entry.options.items())
             for name, entry in PROFILES.items()
             if entry.options
         ),

@@ -12,7 +12,8 @@ arrival order and answers every SERVICE_REQUEST exactly once, in order (simple-m
   return those and get header-only otherwise), or ``None`` for SUCCESS;
 * ``on_arrival`` hooks run synchronously the moment a request is read, before queued requests are
   handled: a STOP must act at once even while an earlier point waits for queue space (§10 pitfall 5);
-* PING is answered SUCCESS with an empty body unless a handler (or an arrival hook) is registered;
+* PING is answered SUCCESS with an empty body unless a handler (or an arrival hook) is registered
+  (or the server has a ``reader``: every read goes to the handlers);
   with nothing queued ahead of it, that reply is a cached frame written in the same callback that
   read the request (a PING behind a slow request still waits its turn);
 * an unknown SERVICE_REQUEST gets a header-only FAILURE (or what ``unknown_request`` returns, e.g.
@@ -688,7 +689,7 @@ class Server:
             return HeaderOnly(msg_type, reply_code=ReplyCode.FAILURE) if is_request else None
         handler = self._handlers.get(msg_type)
         if handler is None:
-            if msg_type == _PING:
+            if msg_type == _PING and self.reader is None:  # a fixed-size reader's reads are the handlers' alone
                 return _PING_REPLY if is_request else None
             if not is_request and not (self.answer_topics and self.unknown_request is not None):
                 session.log(log, logging.DEBUG, "ignored %s comm_type %s", msg.name, msg.comm_type)

@@ -14,9 +14,10 @@ where each read ends (:meth:`FixedReads.cut`: the controller's read sizes, given
 and every read becomes a :class:`~.messages.RawMessage` carrying the header as read and the bytes
 read after it: what the controller understood is the server's handlers' business, not the codec's
 (a Fanuc relay takes any read for a trajectory point). Like :class:`~.framing.FrameDecoder` it is
-sans-I/O and holds at most one read's bytes; it never fails (there is no length to be wrong), never
-detects a byte order, and its link hands every read to the server as received (``raw``): no read is
-a reply.
+sans-I/O and holds at most one read's bytes; it never detects a byte order, and its link hands
+every read to the server as received (``raw``): no read is a reply. A :meth:`~FixedReads.cut` that
+raises :class:`~.errors.FrameError` ends the stream as a bad length prefix does (a lenient cutter
+that frames by the prefix).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from .errors import FrameError, MalformedMessage
 from .messages import Message, RawMessage
 from .wire import ByteOrder, WireFormat
 
-__all__ = ["FixedReads"]
+__all__ = ["FixedReads", "FRAME_HEAD", "prefix_cut"]
 
 #: the bytes of the length prefix and the header: what every read of these servers begins with
 FRAME_HEAD = LENGTH_SIZE + HEADER_SIZE
@@ -43,8 +44,6 @@ class FixedReads(ABC):
     raw = True
     #: never detected: a controller that reads fixed sizes speaks one byte order
     detected = False
-    failed = False
-    error: FrameError | None = None
 
     def __init__(self, wire: WireFormat) -> None:
         self.wire = wire
@@ -52,6 +51,12 @@ class FixedReads(ABC):
         self._frames: deque[bytes] = deque()
         #: reads cut so far
         self.frames_decoded = 0
+        #: what ended the stream (a cutter that frames by the length prefix), or None
+        self.error: FrameError | None = None
+
+    @property
+    def failed(self) -> bool:
+        return self.error is not None
 
     @abstractmethod
     def cut(self, buf: bytes, start: int) -> int | None:
@@ -78,12 +83,17 @@ class FixedReads(ABC):
 
     def feed(self, data: bytes | bytearray | memoryview) -> None:
         """Take the next chunk of the stream; the reads it completes are queued."""
-        if not data:
+        if not data or self.error is not None:
             return
         buf = self._buf + bytes(data) if self._buf else bytes(data)
         pos = 0
         while pos < len(buf):
-            end = self.cut(buf, pos)
+            try:
+                end = self.cut(buf, pos)
+            except FrameError as exc:
+                self.error = exc.with_traceback(None)
+                self._buf = b""
+                return
             if end is None:
                 break
             if end <= pos or end > len(buf):
@@ -101,13 +111,30 @@ class FixedReads(ABC):
         return out
 
     def next_frame(self) -> bytes | None:
-        """The next read's bytes, or ``None`` while none is complete."""
+        """The next read's bytes, or ``None`` while none is complete (the stream's
+        :class:`~.errors.FrameError` once it ended)."""
         if self._frames:
             self.frames_decoded += 1
             return self._frames.popleft()
+        if self.error is not None:
+            raise self.error
         return None
 
     def __iter__(self) -> Iterator[bytes]:
         while self._frames:
             self.frames_decoded += 1
             yield self._frames.popleft()
+        if self.error is not None:
+            raise self.error
+
+
+def prefix_cut(buf: bytes, start: int, wire: WireFormat, max_length: int) -> int | None:
+    """Where the frame at ``buf[start]`` ends by its length prefix (``None``: not all here yet);
+    :class:`~.errors.FrameError` for a length the protocol cannot have (a lenient cutter's rule)."""
+    if len(buf) - start < LENGTH_SIZE:
+        return None
+    (length,) = wire.struct("i").unpack_from(buf, start)
+    if not HEADER_SIZE <= length <= max_length:
+        raise FrameError(f"length prefix {length} is not a frame of {HEADER_SIZE} to {max_length} bytes", length=length)
+    end = start + LENGTH_SIZE + length
+    return end if end <= len(buf) else None

@@ -183,7 +183,11 @@ def test_every_default_is_shown(path: str, parser: argparse.ArgumentParser) -> N
     [
         ("simple-message", ["--help"], ["(default: WARNING)", "--version", "DEBUG, INFO"]),
         ("simple-message", ["decode", "--help"], ["(default: little", "(default: stdin)", "TIME SRC DST HEX"]),
-        ("robot-server", ["--help"], ["(default: the controller's: 40 generic", "(default: 0.004)", "(default: INFO)", "(default: 128)"]),
+        (
+            "robot-server",
+            ["--help"],
+            ["(default: the controller's: 40 generic", "(default: 0.004)", "(default: INFO)", "(default: 128)"],
+        ),
         ("robot-server", ["--help"], ["0: any free port", "(default: generic", "(default: blend)"]),
         ("robot-client", ["ping", "--help"], ["--count N", "at least 1 (default: 5)", "1..65535"]),
         ("robot-client", ["demo", "--help"], ["(default: demo-output)", "(default: linear cubic quintic ruckig"]),

@@ -392,8 +392,15 @@ class Controller:
         if self.queue.moving or self._download is not None or self.lines.active:
             raise PointRejected(Reason.BUSY, "a trajectory or a line is under way: moves wait until it ends")
         rest = np.array(self._next[0], dtype=float)
+        # moves act from the next interpolation instant on (the last one sampled)
+        instant = (self._tick + (-self._tick) % self._sub) * self.config.servo_period
         move = self.moves.plan(
-            np.asarray(target, dtype=float), speed=speed, blend=blend, acceleration=acceleration, rest=rest
+            np.asarray(target, dtype=float),
+            speed=speed,
+            blend=blend,
+            acceleration=acceleration,
+            rest=rest,
+            now=instant,
         )
         self.moves.commit(move)
         self.points_accepted += 1
@@ -551,9 +558,10 @@ class Controller:
                     if self.lines.fill == 0:  # the last line ended: joints start from there
                         self.queue.abandon(state.position)
                 elif self.moves.active:
-                    state = self.moves.sample(at)
+                    moves = self.moves
+                    state = moves.sample(at)
                     self.queue.sample(at)
-                    if not self.moves.active:  # the last move ended: trajectories start from there
+                    if not moves.active:  # the last move ended: trajectories start from there
                         self.queue.abandon(state.position)
                 else:
                     state = self.queue.sample(at)

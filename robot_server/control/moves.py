@@ -127,22 +127,32 @@ class JointMoves:
     # -- planning --------------------------------------------------------------------------------
 
     def plan(
-        self, target: Array, *, speed: float, blend: float = 0.0, acceleration: float = 1.0, rest: Array | None = None
+        self,
+        target: Array,
+        *,
+        speed: float,
+        blend: float = 0.0,
+        acceleration: float = 1.0,
+        rest: Array | None = None,
+        now: float | None = None,
     ) -> Move:
         """A move to ``target`` at ``speed`` (a share of each joint's maximum speed, 0 < speed <= 1)
         and ``acceleration`` (a share of the maximum acceleration), blended into the last queued
-        move by ``blend`` (0..1), or from ``rest`` (where the robot is) when none is queued.
-        Nothing changes until :meth:`commit`. Raises :class:`PointRejected` for a target outside
-        the position limits or a share outside (0, 1]."""
+        move by ``blend`` (0..1), or from ``rest`` (where the robot is) when none is queued, from
+        controller time ``now`` at the earliest (default: the last sampled instant). Nothing
+        changes until :meth:`commit`. Raises :class:`PointRejected` for a target outside the
+        position limits or a share outside (0, 1]."""
+        if now is not None and not self.active:
+            self._t = now
         lim = self.limits
         target = np.array(target, dtype=float)
         if target.shape != lim.lower.shape:
             raise PointRejected(Reason.JOINT_COUNT, f"the target has {target.size} values; this robot has {lim.dof}")
         if not np.all(np.isfinite(target)):
             raise PointRejected(Reason.NOT_FINITE, "the target contains NaN or infinity")
-        for what, share in (("speed", speed), ("acceleration", acceleration)):
-            if not (math.isfinite(share) and 0.0 < share <= 1.0):
-                raise PointRejected(Reason.VELOCITY_LIMIT, f"a move's {what} share must be in (0, 1], not {share:g}")
+        for what, fraction in (("speed", speed), ("acceleration", acceleration)):
+            if not (math.isfinite(fraction) and 0.0 < fraction <= 1.0):
+                raise PointRejected(Reason.VELOCITY_LIMIT, f"a move's {what} share must be in (0, 1], not {fraction:g}")
         if not 0.0 <= blend <= 1.0:
             raise ValueError(f"blend must be within 0..1, not {blend}")
         within(target, lim.lower, lim.upper, Reason.POSITION_LIMIT, "position")

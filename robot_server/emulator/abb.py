@@ -175,17 +175,21 @@ class AbbMotion:
         return None if msg.comm_type == CommType.SERVICE_REQUEST else NO_REPLY
 
     def on_bad_length(self, error: MalformedMessage, session: Session) -> Message | None:
-        if self.dead is None and not self.lenient:
-            self._die(session, str(error))
-        elif self.lenient:
+        if self.lenient:
             self._say(session, logging.WARNING, f"{error}: the connection is closed (--lenient)")
             session.connection.abort()
+        elif self.dead is None:
+            self._stop_task(session, str(error))
         return None
 
     def _die(self, session: Session, why: str) -> HandlerResult | Awaitable[HandlerResult]:
         if self.lenient:
             self._say(session, logging.WARNING, f"{why}; the message is dropped (--lenient)")
             return NO_REPLY
+        self._stop_task(session, why)
+        return self._while_dead(session)
+
+    def _stop_task(self, session: Session, why: str) -> None:
         self.dead = why
         self._killer = session
         self._restarted.clear()
@@ -197,7 +201,6 @@ class AbbMotion:
             "command); the motion task runs on (--lenient drops such messages instead)",
             why,
         )
-        return self._while_dead(session)
 
     async def _while_dead(self, session: Session) -> HandlerResult:
         """A read while the server task is stopped: not answered, and nothing more is read from the

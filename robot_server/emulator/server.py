@@ -37,6 +37,7 @@ from simple_message.connection import Tap, TapTee
 from simple_message.constants import MAX_JOINTS
 from simple_message.dialects import ReplyStyle, reply_style_of
 from simple_message.endpoints import DEFAULT_IDLE_AFTER, Server, Session
+from simple_message.fixed_reads import FixedReads
 from simple_message.lograte import BudgetFilter, LogBudget
 from simple_message.wire import ByteOrder, WireFormat
 
@@ -52,7 +53,7 @@ from ..control import (
 )
 from ..loader import load_model, load_supervision
 from ..model import ModelError, RobotModel
-from . import abb, motoros  # noqa: F401 - register the ABB and MotoROS profiles
+from . import abb, fanuc, motoros, staubli  # noqa: F401 - register the vendors' profiles
 from .cell import RobotCell, apply_fault_command
 from .generic import GENERIC_PROFILE
 from .io_table import IoTable
@@ -182,7 +183,7 @@ class EmulatorConfig:
             raise ValueError("at least one model is needed")
         object.__setattr__(self, "interpolation", policy(self.interpolation).name)
         try:
-            object.__setattr__(self, "on_disconnect", OnDisconnect(self.on_disconnect))
+            object.__setattr__(self, "on_disconnect", OnDisconnect(str(self.on_disconnect)))
         except ValueError:
             choices = ", ".join(o.value for o in OnDisconnect)
             raise ValueError(f"on_disconnect must be one of {choices}, not {self.on_disconnect!r}") from None
@@ -220,6 +221,11 @@ class EmulatorConfig:
             return None
         chosen = {"motion": self.motion_port, "state": self.state_port, "io": self.io_port}[name]
         return default if chosen is None else chosen
+
+
+def _reader(make: Callable[[WireFormat, bool], FixedReads], lenient: bool, wire: WireFormat) -> FixedReads:
+    """A connection's frame cutter, as the profile makes it."""
+    return make(wire, lenient)
 
 
 def _check_fixed_wire(config: EmulatorConfig, profile: EmulatorProfile) -> None:
@@ -349,7 +355,7 @@ class Emulator:
                 frame_timeout=config.frame_timeout,
                 idle_after=None if rules.listen_only else DEFAULT_IDLE_AFTER,
                 batch_topics=profile.batch_topics,
-                reader=None if reader is None else functools.partial(reader, lenient=config.lenient),
+                reader=None if reader is None else functools.partial(_reader, reader, config.lenient),
                 write_split=rules.write_split,
                 validate_headers=reader is None,
                 excess=rules.excess,
@@ -379,9 +385,7 @@ class Emulator:
             clock = SimulatedClock() if config.simulated else RealTimeClock(config.speedup)
         #: the controller's clock (a test may pass a ``SteppedClock`` and advance it itself)
         self.clock: Clock = clock
-        self.control = ControlLoop(
-            self.cell.groups[0], self.clock, others=self.cell.groups[1:], on_wake=self.cell.tick
-        )
+        self.control = ControlLoop(self.cell.groups[0], self.clock, others=self.cell.groups[1:], on_wake=self.cell.tick)
         self.state_stats = PeriodStats(1.0 / config.rate)
         self.ports: dict[str, int] = {}
         self._tasks: list[asyncio.Task[None]] = []
