@@ -140,7 +140,7 @@ async def test_stop_decelerates_empties_the_buffer_and_does_not_latch() -> None:
 
 
 async def test_a_new_end_pre_empts_the_running_trajectory_from_where_it_stopped() -> None:
-    async with vendor_emulator("abb") as (emu, clock, wire):
+    async with vendor_emulator("abb") as (emu, clock, _wire):
         motion = await connect(emu, "motion")
         for frame in download(ramp(HOME, GOAL, 5), 1.0):
             await motion.send(frame)
@@ -154,7 +154,7 @@ async def test_a_new_end_pre_empts_the_running_trajectory_from_where_it_stopped(
 
 
 async def test_a_first_point_within_a_tenth_of_a_degree_is_skipped_else_reached_in_its_duration() -> None:
-    async with vendor_emulator("abb") as (emu, clock, wire):
+    async with vendor_emulator("abb") as (emu, clock, _wire):
         motion = await connect(emu, "motion")
         near = [math.radians(0.09)] * 6  # within 0.1 degree: the start itself
         await motion.send(point(START, near, 5.0))
@@ -175,7 +175,7 @@ async def test_a_first_point_within_a_tenth_of_a_degree_is_skipped_else_reached_
 
 
 async def test_a_lost_motion_client_does_not_stop_the_motion_and_the_buffer_is_kept() -> None:
-    async with vendor_emulator("abb") as (emu, clock, wire):
+    async with vendor_emulator("abb") as (emu, clock, _wire):
         motion = await connect(emu, "motion")
         for frame in download(ramp(HOME, GOAL, 4), 0.5):
             await motion.send(frame)
@@ -225,7 +225,7 @@ async def test_lenient_drops_the_unexpected_message_and_goes_on(caplog: pytest.L
 
 
 async def test_a_length_rapid_cannot_read_stops_the_server_too(caplog: pytest.LogCaptureFixture) -> None:
-    async with vendor_emulator("abb") as (emu, clock, wire):
+    async with vendor_emulator("abb") as (emu, clock, _wire):
         motion = await connect(emu, "motion")
         with caplog.at_level(logging.ERROR):
             await motion.send(struct.pack("<i", 2000) + bytes(100))
@@ -234,7 +234,7 @@ async def test_a_length_rapid_cannot_read_stops_the_server_too(caplog: pytest.Lo
 
 
 async def test_state_joint_position_then_status_every_tenth_of_a_second_one_write_each() -> None:
-    async with vendor_emulator("abb") as (emu, clock, wire):
+    async with vendor_emulator("abb") as (emu, _clock, wire):
         assert emu.config.rate == 10.0
         state = await connect(emu, "state")
         kinds = []

@@ -3,6 +3,7 @@ program do (robot_server/emulator/fanuc.py has the rules, docs/vendors.md their 
 
 from __future__ import annotations
 
+import itertools
 import logging
 import struct
 
@@ -62,7 +63,7 @@ async def test_every_point_is_acknowledged_at_once_with_a_joint_position_whateve
 
 
 async def test_each_point_is_a_joint_move_at_20_percent_whatever_its_duration() -> None:
-    async with vendor_emulator("fanuc") as (emu, clock, wire):
+    async with vendor_emulator("fanuc") as (emu, clock, _wire):
         motion = await connect(emu, "motion", ">")
         await motion.send(point(0, A, duration=0.01))  # asks for 10 ms: the TP program takes its own time
         await until(clock, lambda: emu.cell.in_motion, what="the move")
@@ -82,7 +83,7 @@ async def test_the_relay_reads_the_next_point_only_when_the_tp_program_has_taken
         for seq, q in enumerate([A, B, A]):  # three points at once: the third waits in the socket
             await motion.send(point(seq, q))
         await until(clock, lambda: len(replies(wire)) == 2, what="two acks")
-        first_move = emu.cell.groups[0].moves._moves[0]  # noqa: SLF001 - when the TP takes point 1
+        first_move = emu.cell.groups[0].moves._moves[0]
         window = first_move.end - 0.5 * first_move.decelerating
         await until(clock, lambda: len(replies(wire)) == 3, limit=10.0, what="the third ack")
         acked = written(wire, "motion", ">")[2][0]
@@ -124,7 +125,7 @@ async def test_start_download_and_end_points_get_no_reply_and_stop_stops_nothing
 
 
 async def test_lenient_stop_stops() -> None:
-    async with vendor_emulator("fanuc", lenient=True) as (emu, clock, wire):
+    async with vendor_emulator("fanuc", lenient=True) as (emu, clock, _wire):
         motion = await connect(emu, "motion", ">")
         await motion.send(point(0, A))
         await until(clock, lambda: np.max(np.abs(position(emu))) > 0.05, what="the move")
@@ -170,7 +171,7 @@ async def test_lenient_frames_by_the_length_prefix_and_drops_what_is_not_a_point
 
 
 async def test_the_j2_j3_coupling_the_state_port_speaks_the_controllers_joints() -> None:
-    async with vendor_emulator("fanuc") as (emu, clock, wire):
+    async with vendor_emulator("fanuc") as (emu, clock, _wire):
         motion = await connect(emu, "motion", ">")
         state = await connect(emu, "state", ">")
         await motion.send(point(0, A))
@@ -186,7 +187,7 @@ async def test_the_j2_j3_coupling_the_state_port_speaks_the_controllers_joints()
 
 
 async def test_j23_factor_0_is_no_coupling() -> None:
-    async with vendor_emulator("fanuc", profile_options=(("j23_factor", "0"),)) as (emu, clock, wire):
+    async with vendor_emulator("fanuc", profile_options=(("j23_factor", "0"),)) as (emu, clock, _wire):
         motion = await connect(emu, "motion", ">")
         await motion.send(point(0, A))
         await until(clock, lambda: emu.cell.in_motion, what="the move")
@@ -195,18 +196,18 @@ async def test_j23_factor_0_is_no_coupling() -> None:
 
 
 async def test_state_status_after_every_eleventh_joint_position_count_kept_across_clients() -> None:
-    async with vendor_emulator("fanuc") as (emu, clock, wire):
+    async with vendor_emulator("fanuc") as (emu, _clock, _wire):
         assert abs(emu.config.rate - 1 / KAREL_PERIOD) < 1e-6
         state = await connect(emu, "state", ">")
         kinds = [(await state.frame()).msg_type for _ in range(40)]
         statuses = [i for i, k in enumerate(kinds) if k == 13]
-        gaps = {b - a for a, b in zip(statuses, statuses[1:], strict=False)}
+        gaps = {b - a for a, b in itertools.pairwise(statuses)}
         assert gaps == {12}  # eleven JOINT_POSITIONs, then a STATUS, ...
         assert all(kinds[i - 1] == 10 for i in statuses)
 
 
 async def test_a_lost_motion_client_does_not_stop_the_motion() -> None:
-    async with vendor_emulator("fanuc") as (emu, clock, wire):
+    async with vendor_emulator("fanuc") as (emu, clock, _wire):
         motion = await connect(emu, "motion", ">")
         await motion.send(point(0, A))
         await until(clock, lambda: emu.cell.in_motion, what="the move")
@@ -216,7 +217,7 @@ async def test_a_lost_motion_client_does_not_stop_the_motion() -> None:
 
 
 async def test_the_speed_and_cnt_registers_are_profile_options() -> None:
-    async with vendor_emulator("fanuc", profile_options=(("speed", "100"), ("cnt", "0"))) as (emu, clock, wire):
+    async with vendor_emulator("fanuc", profile_options=(("speed", "100"), ("cnt", "0"))) as (emu, clock, _wire):
         motion = await connect(emu, "motion", ">")
         await motion.send(point(0, A))
         await until(clock, lambda: emu.cell.in_motion, what="the move")

@@ -4,6 +4,7 @@ does (robot_server/emulator/staubli.py has the rules, docs/vendors.md their file
 from __future__ import annotations
 
 import asyncio
+import itertools
 import logging
 import struct
 
@@ -51,7 +52,7 @@ async def both(emu: object, clock: object) -> tuple[object, object]:
     """The motion and state clients, and the state client's second of grace gone."""
     motion = await connect(emu, "motion")  # type: ignore[arg-type]
     state = await connect(emu, "state")  # type: ignore[arg-type]
-    await until(clock, lambda: emu.behaviour.motion.connected(), limit=2.0, what="both sockets")  # type: ignore[attr-defined]
+    await until(clock, emu.behaviour.motion.connected, limit=2.0, what="both sockets")  # type: ignore[attr-defined]
     return motion, state
 
 
@@ -90,7 +91,7 @@ async def test_each_message_is_written_as_prefix_header_body() -> None:
 
 
 async def test_a_point_is_a_movej_at_its_velocity_share_its_duration_ignored_stopping_at_each_point() -> None:
-    async with vendor_emulator("staubli") as (emu, clock, wire):
+    async with vendor_emulator("staubli") as (emu, clock, _wire):
         recorders = emu.record(30.0)
         motion, _ = await both(emu, clock)
         await motion.send(point(0, A, velocity=0.3, duration=0.01))
@@ -126,7 +127,7 @@ async def test_no_motion_unless_both_sockets_are_connected_the_state_one_for_a_s
         connected_at = emu.cell.time
         await motion.send(point(1, A))  # in the state client's first second: SUCCESS, then dropped
         await until(clock, lambda: len(replies(wire)) == 2, what="the reply")
-        await until(clock, lambda: emu.behaviour.motion.connected(), limit=2.0, what="both sockets")
+        await until(clock, emu.behaviour.motion.connected, limit=2.0, what="both sockets")
         assert emu.cell.time - connected_at >= 1.0 - VAL3_TICK
         assert not emu.cell.in_motion
         await motion.send(point(2, A))
@@ -139,7 +140,7 @@ async def test_no_motion_unless_both_sockets_are_connected_the_state_one_for_a_s
 
 
 async def test_losing_the_motion_client_stops_the_robot() -> None:
-    async with vendor_emulator("staubli") as (emu, clock, wire):
+    async with vendor_emulator("staubli") as (emu, clock, _wire):
         motion, _ = await both(emu, clock)
         await motion.send(point(0, A, velocity=0.2))
         await until(clock, lambda: np.max(np.abs(position(emu))) > 0.05, what="some motion")
@@ -158,7 +159,7 @@ async def test_failure_for_a_point_out_of_range_a_velocity_not_above_0_and_a_ful
         assert replies(wire) == [reply(0, 2), reply(1, 2), reply(2)]
         # a stream far faster than moves that stop at each point: the queues and the motion stack
         # fill, then the queue is full: FAILURE (the stock streamer loses those points)
-        path = [[0.3 + 0.05 * (k % 2)] + A[1:] for k in range(40)]
+        path = [[0.3 + 0.05 * (k % 2), *A[1:]] for k in range(40)]
         for k, q in enumerate(path):
             await motion.send(point(10 + k, q, velocity=0.05))
         await until(clock, lambda: len(replies(wire)) == 43, limit=5.0, what="every reply")
@@ -248,6 +249,6 @@ async def test_state_first_joint_position_a_second_after_connecting_status_with_
         kinds = [(await state.frame()).msg_type for _ in range(17)]
         assert kinds[:6] == [10] * 5 + [10] and kinds[6] == 13  # STATUS with the sixth JOINT_POSITION
         statuses = [i for i, k in enumerate(kinds) if k == 13]
-        assert [b - a for a, b in zip(statuses, statuses[1:], strict=False)] == [6]  # then every fifth
+        assert [b - a for a, b in itertools.pairwise(statuses)] == [6]  # then every fifth
         first = wire.out("state")[0][0]
         assert first - connected_at >= 1.0 - 1e-9
