@@ -15,7 +15,7 @@ name): its ports, byte order and reply rule, and whether motion takes MOTO_MOTIO
 * generic profile, ``mode="stream"``: JOINT_TRAJ_PT SERVICE_REQUESTs, sequence 0..n-1, one in
   flight; each reply must be SUCCESS; durations are the waypoint time differences (0 for the first
   point, which must be where the robot is) and the velocity ratio the critical joint's peak speed
-  as a share of its limit (when the model is known; see :meth:`RobotDriver._ratio`);
+  as a share of its limit (when the model is known; see :meth:`.sending.TrajectorySender.ratio`);
 * generic profile, ``mode="download"``: TOPICs with sequence -1, 1..n-2, -3 (a single point is sent
   twice, as the reference downloader does);
 * MotoROS profile (a dialect with ``motion_control``): CHECK_MOTION_READY (and START_TRAJ_MODE if
@@ -62,7 +62,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from robot_server import RobotModel
-from robot_server.control import QUINTIC_PEAK_VELOCITY
 from robot_server.kinematics import fk, quaternion_angle, rotation_to_quaternion
 from simple_message.connection import Connection, ConnectionState, Subscription, Tap
 from simple_message.constants import (
@@ -75,7 +74,6 @@ from simple_message.constants import (
     SpecialSeq,
     TriState,
     ValidFields,
-    moto_subcode_name,
 )
 from simple_message.dialects import GENERIC, Dialect, dialect
 from simple_message.endpoints import Client, ReconnectPolicy
@@ -93,7 +91,6 @@ from simple_message.messages import (
     JointFeedback,
     JointPosition,
     JointTrajPt,
-    JointTrajPtFull,
     Message,
     MotoMotionCtrl,
     MotoMotionReply,
@@ -103,6 +100,8 @@ from simple_message.messages import (
 )
 from simple_message.wire import WireFormat
 
+from .errors import DriverError, ExecutionAborted, _InFlight, _NotSent
+from .sending import TrajectorySender
 from .trajectory import Trajectory
 
 __all__ = ["RobotDriver", "DriverError", "ExecutionAborted", "LineRefused", "LineGoal", "JointState", "Mode"]
@@ -115,19 +114,6 @@ Array = NDArray[np.float64]
 class Mode(StrEnum):
     STREAM = "stream"
     DOWNLOAD = "download"
-
-
-class DriverError(Exception):
-    """The driver cannot do what was asked (not connected, bad trajectory, robot not ready...)."""
-
-
-class ExecutionAborted(DriverError):
-    """A trajectory execution (or a series of straight lines) stopped before the goal;
-    ``confirmed`` is the index of the last point (line) the controller acknowledged (-1: none)."""
-
-    def __init__(self, message: str, confirmed: int, *, what: str = "point") -> None:
-        super().__init__(f"{message} (last {what} confirmed by the controller: {confirmed})")
-        self.confirmed = confirmed
 
 
 #: what each refusal of a straight line means (docs/protocol.md, CARTESIAN_LINE's reply)
@@ -181,14 +167,6 @@ class LineGoal(NamedTuple):
         """The goal of a 4x4 homogeneous pose (a planner's, :func:`robot_server.kinematics.fk`'s)."""
         t = np.asarray(pose, dtype=float)
         return cls(t[:3, 3].copy(), rotation_to_quaternion(t))
-
-
-class _NotSent(DriverError):
-    """The motion connection was down before the request was written: the controller never saw it."""
-
-
-class _InFlight(DriverError):
-    """The motion connection dropped while a request awaited its reply: the controller may have it."""
 
 
 class _LineInFlight(ExecutionAborted):
@@ -810,12 +788,13 @@ class RobotDriver:
             )
         confirmed = -1
         try:
+            sender = TrajectorySender(self)
             if self.dialect.motion_control:
-                confirmed = await self._send_motoros(trajectory)
+                confirmed = await sender.motoros(trajectory)
             elif mode is Mode.DOWNLOAD:
-                confirmed = await self._send_download(trajectory)
+                confirmed = await sender.download(trajectory)
             else:
-                confirmed = await self._send_stream(trajectory)
+                confirmed = await sender.stream(trajectory)
             return await self._wait_goal(trajectory, confirmed)
         except asyncio.CancelledError:
             await self._stop_quietly()
@@ -880,144 +859,6 @@ class RobotDriver:
 
         with contextlib.suppress(DriverError, SimpleMessageError, TimeoutError):
             await asyncio.shield(stop())
-
-    def _ratio(self, trajectory: Trajectory, k: int) -> float:
-        """The velocity ratio of segment ``k``: the critical joint's peak speed as a share of its
-        limit, the peak taken as a rest-to-rest quintic's (1.875 x the segment's mean speed; a
-        controller joins JOINT_TRAJ_PT points at rest). 0 without a model, for the first point
-        and for a pause."""
-        if self.model is None or k == 0:
-            return 0.0
-        dt = trajectory.times[k] - trajectory.times[k - 1]
-        mean = np.abs(trajectory.positions[k] - trajectory.positions[k - 1]) / dt
-        return float(np.clip(np.max(QUINTIC_PEAK_VELOCITY * mean / self.model.max_velocity), 0.0, 1.0))
-
-    def _point(self, trajectory: Trajectory, k: int, sequence: int, comm_type: int) -> JointTrajPt:
-        duration = 0.0 if k == 0 else float(trajectory.times[k] - trajectory.times[k - 1])
-        return JointTrajPt(
-            sequence,
-            tuple(trajectory.positions[k]),
-            self._ratio(trajectory, k),
-            duration,
-            comm_type=comm_type,
-        )
-
-    async def _send_stream(self, trajectory: Trajectory) -> int:
-        confirmed = -1
-        k = 0
-        while k < len(trajectory):
-            try:
-                await self._request(self._point(trajectory, k, k, CommType.SERVICE_REQUEST))
-            except RequestFailed:
-                raise ExecutionAborted(
-                    f"the controller refused point {k}: {await self._why_now()}", confirmed
-                ) from None
-            except _NotSent as exc:
-                await self._reconnected(k, confirmed, exc)
-                continue  # point k was never written: send it on the new connection
-            except _InFlight as exc:
-                raise ExecutionAborted(_in_flight(k, exc), confirmed) from None
-            except DriverError as exc:
-                raise ExecutionAborted(f"point {k}: {exc}", confirmed) from None
-            confirmed = k
-            k += 1
-        return confirmed
-
-    async def _reconnected(self, k: int, confirmed: int, cause: DriverError) -> None:
-        """Point ``k`` was not sent because the motion link is down: with ``resume``, wait for
-        the reconnection and carry on from ``k`` (saying so); otherwise abort."""
-        if not self.resume:
-            raise ExecutionAborted(f"{cause} before point {k} was sent; not resuming (resume=False)", confirmed)
-        try:
-            await self.motion.wait_for(ConnectionState.CONNECTED, self.reply_timeout)
-        except (TimeoutError, ConnectionClosed):
-            raise ExecutionAborted(
-                f"{cause}; no reconnection within {self.reply_timeout} s, point {k} was never sent", confirmed
-            ) from None
-        log.warning("motion connection re-established: resuming at point %d (points 0..%d confirmed)", k, confirmed)
-
-    async def _send_download(self, trajectory: Trajectory) -> int:
-        n = len(trajectory)
-        indices = list(range(n)) if n > 1 else [0, 0]
-        for i, k in enumerate(indices):
-            sequence = (
-                SpecialSeq.START_TRAJECTORY_DOWNLOAD
-                if i == 0
-                else SpecialSeq.END_TRAJECTORY
-                if i == len(indices) - 1
-                else k
-            )
-            try:
-                await self.motion.send(self._point(trajectory, k if i else 0, sequence, CommType.TOPIC))
-            except ConnectionClosed as exc:
-                raise ExecutionAborted(f"motion connection lost during the download: {exc}", -1) from None
-        # a download has no acknowledgements; a PING after it proves the controller read it all
-        await self._request(Ping())
-        return n - 1
-
-    async def _motion_ready(self) -> None:
-        ready = await self._moto(MotoCommand.CHECK_MOTION_READY)
-        if ready.result != MotoResult.TRUE:
-            enable = await self._moto(MotoCommand.START_TRAJ_MODE)
-            if enable.result != MotoResult.SUCCESS:
-                raise ExecutionAborted(
-                    f"START_TRAJ_MODE refused: {moto_reason(enable.result, enable.subcode)}; {await self._why_now()}",
-                    -1,
-                )
-            ready = await self._moto(MotoCommand.CHECK_MOTION_READY)
-            if ready.result != MotoResult.TRUE:
-                raise ExecutionAborted(
-                    f"the controller is not ready for motion: {moto_reason(ready.result, ready.subcode)}", -1
-                )
-
-    async def _send_motoros(self, trajectory: Trajectory) -> int:
-        await self._motion_ready()
-        velocities = trajectory.velocities if trajectory.velocities is not None else _differences(trajectory)
-        fields = ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY
-        confirmed = -1
-        for k in range(len(trajectory)):
-            point = JointTrajPtFull(
-                0, k, fields, float(trajectory.times[k]), tuple(trajectory.positions[k]), tuple(velocities[k])
-            )
-            delay, waited = 0.005, 0.0
-            while True:
-                try:
-                    reply = await self._request(point)
-                except _NotSent as exc:
-                    await self._reconnected(k, confirmed, exc)
-                    await self._ready_after_reconnect(k, confirmed)
-                    continue
-                except _InFlight as exc:
-                    raise ExecutionAborted(_in_flight(k, exc), confirmed) from None
-                if not isinstance(reply, MotoMotionReply):
-                    raise ExecutionAborted(f"point {k} answered with {reply.name}", confirmed)
-                if reply.result == MotoResult.SUCCESS:
-                    break
-                if reply.result != MotoResult.BUSY:
-                    why = await self._why_now() if reply.result == MotoResult.NOT_READY else ""
-                    raise ExecutionAborted(
-                        f"the controller refused point {k}: {moto_reason(reply.result, reply.subcode)}"
-                        f"{f'; {why}' if why else ''}",
-                        confirmed,
-                    )
-                if waited > self.goal_timeout:
-                    raise ExecutionAborted(f"point {k} still BUSY after {waited:.1f} s", confirmed)
-                await asyncio.sleep(delay)  # back-off before resending: the controller said BUSY
-                waited += delay
-                delay = min(delay * 1.5, 0.05)
-            confirmed = k
-        return confirmed
-
-    async def _ready_after_reconnect(self, k: int, confirmed: int) -> None:
-        """MotoROS after a reconnection: carry on only if trajectory mode survived (it still says
-        ready); a controller that dropped the trajectory would need a new one from where it stopped."""
-        ready = await self._moto(MotoCommand.CHECK_MOTION_READY)
-        if ready.result != MotoResult.TRUE:
-            raise ExecutionAborted(
-                f"after the reconnection the controller is not ready (subcode {ready.subcode}): it dropped the "
-                f"trajectory, so point {k} is not sent",
-                confirmed,
-            )
 
     async def _wait_goal(self, trajectory: Trajectory, confirmed: int) -> JointState:
         # "at the goal and not moving" means done only once the robot has run the trajectory: a path
@@ -1087,13 +928,6 @@ class _Stall:
         return now - self.since > self.limit
 
 
-def _in_flight(k: int, exc: DriverError) -> str:
-    return (
-        f"{exc} with point {k} awaiting its reply: the controller may or may not have it, so it is not "
-        "resent (that could repeat it)"
-    )
-
-
 def _line_goals(targets: Sequence[LineGoal]) -> list[tuple[Array, Array]]:
     """The targets as (position, unit quaternion w x y z) arrays; a quaternion within 1e-3 of
     unit length is normalised, anything else refused (DriverError) before anything is sent."""
@@ -1118,15 +952,6 @@ def _line_goals(targets: Sequence[LineGoal]) -> list[tuple[Array, Array]]:
     return goals
 
 
-def _differences(trajectory: Trajectory) -> Array:
-    """Waypoint velocities by central differences, zero at both ends."""
-    q, t = trajectory.positions, trajectory.times
-    v = np.zeros_like(q)
-    if len(trajectory) > 2:
-        v[1:-1] = (q[2:] - q[:-2]) / (t[2:] - t[:-2])[:, None]
-    return v
-
-
 def _path_deviation(trajectory: Trajectory, position: Array) -> float:
     """Distance (max over joints) from ``position`` to the piecewise-linear joint path."""
     q = trajectory.positions
@@ -1138,18 +963,6 @@ def _path_deviation(trajectory: Trajectory, position: Array) -> float:
     s = np.clip(np.einsum("ij,ij->i", position - a, d) / np.where(length > 0, length, 1.0), 0.0, 1.0)
     nearest = a + s[:, None] * d
     return float(np.min(np.max(np.abs(nearest - position), axis=1)))
-
-
-def moto_reason(result: int, subcode: int) -> str:
-    """A MOTO_MOTION_REPLY's result and subcode, named."""
-    try:
-        name = MotoResult(result).name
-    except ValueError:
-        name = f"result {result}"
-    sub = moto_subcode_name(result, subcode)
-    if sub is not None:
-        return f"{name} ({sub}, subcode {subcode})"
-    return f"{name} (subcode {subcode})" if subcode else name
 
 
 def check_limits(trajectory: Trajectory, model: RobotModel) -> None:

@@ -1,0 +1,204 @@
+"""How a trajectory goes to a controller: the driver's send strategies, one per way a controller
+family takes points (:class:`~.driver.RobotDriver` chooses by its dialect and mode).
+
+* ``stream``: JOINT_TRAJ_PT SERVICE_REQUESTs, sequence 0..n-1, one in flight; each reply must be
+  SUCCESS. Durations are the waypoint time differences (0 for the first point, which is where the
+  robot is); the velocity ratio is the critical joint's peak speed as a share of its limit when the
+  model is known (:meth:`TrajectorySender.ratio`).
+* ``download``: TOPICs with sequence -1, 1..n-2, -3 (a single point is sent twice, as the reference
+  downloader does), then a PING that proves the controller read them all.
+* ``motoros``: CHECK_MOTION_READY (and START_TRAJ_MODE if needed), then JOINT_TRAJ_PT_FULL with time,
+  positions and velocities (central differences when the trajectory has none); BUSY is retried
+  with a growing back-off; anything else aborts.
+
+Each returns the index of the last point the controller confirmed, or raises
+:class:`~.driver.ExecutionAborted` (with that index).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from robot_server.control import QUINTIC_PEAK_VELOCITY
+from simple_message.connection import ConnectionState
+from simple_message.constants import CommType, MotoCommand, MotoResult, SpecialSeq, ValidFields
+from simple_message.errors import ConnectionClosed, RequestFailed
+from simple_message.messages import JointTrajPt, JointTrajPtFull, MotoMotionReply, Ping
+
+from .errors import DriverError, ExecutionAborted, _InFlight, _NotSent, moto_reason
+from .trajectory import Trajectory
+
+if TYPE_CHECKING:
+    from .driver import RobotDriver
+
+__all__ = ["TrajectorySender"]
+
+log = logging.getLogger("client.driver")
+
+Array = NDArray[np.float64]
+
+
+class TrajectorySender:
+    """Sends one trajectory to ``driver``'s controller (see the module doc)."""
+
+    def __init__(self, driver: RobotDriver) -> None:
+        self.driver = driver
+
+    def ratio(self, trajectory: Trajectory, k: int) -> float:
+        """The velocity ratio of segment ``k``: the critical joint's peak speed as a share of its
+        limit, the peak taken as a rest-to-rest quintic's (1.875 x the segment's mean speed; a
+        controller joins JOINT_TRAJ_PT points at rest). 0 without a model, for the first point
+        and for a pause."""
+        if self.driver.model is None or k == 0:
+            return 0.0
+        dt = trajectory.times[k] - trajectory.times[k - 1]
+        mean = np.abs(trajectory.positions[k] - trajectory.positions[k - 1]) / dt
+        return float(np.clip(np.max(QUINTIC_PEAK_VELOCITY * mean / self.driver.model.max_velocity), 0.0, 1.0))
+
+    def _point(self, trajectory: Trajectory, k: int, sequence: int, comm_type: int) -> JointTrajPt:
+        duration = 0.0 if k == 0 else float(trajectory.times[k] - trajectory.times[k - 1])
+        return JointTrajPt(
+            sequence,
+            tuple(trajectory.positions[k]),
+            self.ratio(trajectory, k),
+            duration,
+            comm_type=comm_type,
+        )
+
+    async def stream(self, trajectory: Trajectory) -> int:
+        confirmed = -1
+        k = 0
+        while k < len(trajectory):
+            try:
+                await self.driver._request(self._point(trajectory, k, k, CommType.SERVICE_REQUEST))
+            except RequestFailed:
+                raise ExecutionAborted(
+                    f"the controller refused point {k}: {await self.driver._why_now()}", confirmed
+                ) from None
+            except _NotSent as exc:
+                await self._reconnected(k, confirmed, exc)
+                continue  # point k was never written: send it on the new connection
+            except _InFlight as exc:
+                raise ExecutionAborted(_in_flight(k, exc), confirmed) from None
+            except DriverError as exc:
+                raise ExecutionAborted(f"point {k}: {exc}", confirmed) from None
+            confirmed = k
+            k += 1
+        return confirmed
+
+    async def _reconnected(self, k: int, confirmed: int, cause: DriverError) -> None:
+        """Point ``k`` was not sent because the motion link is down: with ``resume``, wait for
+        the reconnection and carry on from ``k`` (saying so); otherwise abort."""
+        if not self.driver.resume:
+            raise ExecutionAborted(f"{cause} before point {k} was sent; not resuming (resume=False)", confirmed)
+        try:
+            await self.driver.motion.wait_for(ConnectionState.CONNECTED, self.driver.reply_timeout)
+        except (TimeoutError, ConnectionClosed):
+            raise ExecutionAborted(
+                f"{cause}; no reconnection within {self.driver.reply_timeout} s, point {k} was never sent", confirmed
+            ) from None
+        log.warning("motion connection re-established: resuming at point %d (points 0..%d confirmed)", k, confirmed)
+
+    async def download(self, trajectory: Trajectory) -> int:
+        n = len(trajectory)
+        indices = list(range(n)) if n > 1 else [0, 0]
+        for i, k in enumerate(indices):
+            sequence = (
+                SpecialSeq.START_TRAJECTORY_DOWNLOAD
+                if i == 0
+                else SpecialSeq.END_TRAJECTORY
+                if i == len(indices) - 1
+                else k
+            )
+            try:
+                await self.driver.motion.send(self._point(trajectory, k if i else 0, sequence, CommType.TOPIC))
+            except ConnectionClosed as exc:
+                raise ExecutionAborted(f"motion connection lost during the download: {exc}", -1) from None
+        # a download has no acknowledgements; a PING after it proves the controller read it all
+        await self.driver._request(Ping())
+        return n - 1
+
+    async def _motion_ready(self) -> None:
+        ready = await self.driver._moto(MotoCommand.CHECK_MOTION_READY)
+        if ready.result != MotoResult.TRUE:
+            enable = await self.driver._moto(MotoCommand.START_TRAJ_MODE)
+            if enable.result != MotoResult.SUCCESS:
+                why = await self.driver._why_now()
+                raise ExecutionAborted(
+                    f"START_TRAJ_MODE refused: {moto_reason(enable.result, enable.subcode)}; {why}", -1
+                )
+            ready = await self.driver._moto(MotoCommand.CHECK_MOTION_READY)
+            if ready.result != MotoResult.TRUE:
+                raise ExecutionAborted(
+                    f"the controller is not ready for motion: {moto_reason(ready.result, ready.subcode)}", -1
+                )
+
+    async def motoros(self, trajectory: Trajectory) -> int:
+        await self._motion_ready()
+        velocities = trajectory.velocities if trajectory.velocities is not None else _differences(trajectory)
+        fields = ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY
+        confirmed = -1
+        for k in range(len(trajectory)):
+            point = JointTrajPtFull(
+                0, k, fields, float(trajectory.times[k]), tuple(trajectory.positions[k]), tuple(velocities[k])
+            )
+            delay, waited = 0.005, 0.0
+            while True:
+                try:
+                    reply = await self.driver._request(point)
+                except _NotSent as exc:
+                    await self._reconnected(k, confirmed, exc)
+                    await self._ready_after_reconnect(k, confirmed)
+                    continue
+                except _InFlight as exc:
+                    raise ExecutionAborted(_in_flight(k, exc), confirmed) from None
+                if not isinstance(reply, MotoMotionReply):
+                    raise ExecutionAborted(f"point {k} answered with {reply.name}", confirmed)
+                if reply.result == MotoResult.SUCCESS:
+                    break
+                if reply.result != MotoResult.BUSY:
+                    why = await self.driver._why_now() if reply.result == MotoResult.NOT_READY else ""
+                    raise ExecutionAborted(
+                        f"the controller refused point {k}: {moto_reason(reply.result, reply.subcode)}"
+                        f"{f'; {why}' if why else ''}",
+                        confirmed,
+                    )
+                if waited > self.driver.goal_timeout:
+                    raise ExecutionAborted(f"point {k} still BUSY after {waited:.1f} s", confirmed)
+                await asyncio.sleep(delay)  # back-off before resending: the controller said BUSY
+                waited += delay
+                delay = min(delay * 1.5, 0.05)
+            confirmed = k
+        return confirmed
+
+    async def _ready_after_reconnect(self, k: int, confirmed: int) -> None:
+        """MotoROS after a reconnection: carry on only if trajectory mode survived (it still says
+        ready); a controller that dropped the trajectory would need a new one from where it stopped."""
+        ready = await self.driver._moto(MotoCommand.CHECK_MOTION_READY)
+        if ready.result != MotoResult.TRUE:
+            raise ExecutionAborted(
+                f"after the reconnection the controller is not ready (subcode {ready.subcode}): it dropped the "
+                f"trajectory, so point {k} is not sent",
+                confirmed,
+            )
+
+
+def _in_flight(k: int, exc: DriverError) -> str:
+    return (
+        f"{exc} with point {k} awaiting its reply: the controller may or may not have it, so it is not "
+        "resent (that could repeat it)"
+    )
+
+
+def _differences(trajectory: Trajectory) -> Array:
+    """Waypoint velocities by central differences, zero at both ends."""
+    q, t = trajectory.positions, trajectory.times
+    v = np.zeros_like(q)
+    if len(trajectory) > 2:
+        v[1:-1] = (q[2:] - q[:-2]) / (t[2:] - t[:-2])[:, None]
+    return v
