@@ -109,7 +109,8 @@ def _run_main(main: Awaitable[None]) -> None:
 
 _MODES = (
     "how the points go to the controller: stream (one request at a time, each acknowledged) or download (every "
-    "point first, then the robot runs them); MotoROS has one way, its trajectory mode, and ignores this"
+    "point first, then the robot runs them) (default: the profile's: download for abb, which runs nothing "
+    "else; stream for the others; fanuc and staubli take only streams; MotoROS has one way, its trajectory mode)"
 )
 
 _DESCRIPTIONS = {
@@ -211,7 +212,7 @@ def parser() -> argparse.ArgumentParser:
         metavar="SHARE",
         help="share of the joint velocity, acceleration and jerk limits, in (0, 1] (default: %(default)s)",
     )
-    move.add_argument("--mode", choices=[m.value for m in Mode], default=Mode.STREAM.value, help=_MODES)
+    move.add_argument("--mode", choices=[m.value for m in Mode], help=_MODES)
     move.add_argument(
         "--linear",
         action="store_true",
@@ -226,7 +227,7 @@ def parser() -> argparse.ArgumentParser:
     )
     run = command("run", "execute a trajectory file (.csv or .json)")
     run.add_argument("file", type=Path, metavar="FILE", help="the trajectory file (.csv or .json)")
-    run.add_argument("--mode", choices=[m.value for m in Mode], default=Mode.STREAM.value, help=_MODES)
+    run.add_argument("--mode", choices=[m.value for m in Mode], help=_MODES)
     command("stop", "stop the robot now (a motion client: refused while another client moves the robot)")
     record = command("record", "record the joint states to a CSV file")
     record.add_argument(
@@ -416,7 +417,7 @@ async def _progress_line(out: TextIO, progress: Callable[[], Coroutine[None, Non
             out.write("\n")
 
 
-async def _execute(driver: RobotDriver, trajectory: Trajectory, mode: str, out: TextIO) -> None:
+async def _execute(driver: RobotDriver, trajectory: Trajectory, mode: str | None, out: TextIO) -> None:
     """Run a trajectory with a progress line (on a terminal) and a final report."""
     total = trajectory.duration
     start = time.monotonic()

@@ -519,6 +519,9 @@ class RobotDriver:
         cached = self._lines
         if cached is not None and (cached[0] is None or cached[0] is self.motion.connection):
             return cached[1]
+        if not self.dialect.unknown_types:  # a probe would stop ABB's server, misframe Fanuc's, hang on Staubli's
+            self._lines = (None, False)
+            return False
         await self._motion_up()
         connection = self.motion.connection
         timeout = min(self.reply_timeout, 1.0)
@@ -764,9 +767,18 @@ class RobotDriver:
 
     # -- execution ---------------------------------------------------------------------------------
 
-    async def execute(self, trajectory: Trajectory, mode: Mode | str = Mode.STREAM) -> JointState:
-        """Run ``trajectory`` and wait for the goal (see the module doc). Returns the final state."""
-        mode = Mode(mode)
+    async def execute(self, trajectory: Trajectory, mode: Mode | str | None = None) -> JointState:
+        """Run ``trajectory`` and wait for the goal (see the module doc). Returns the final state.
+        ``mode``: stream or download (default: the controller family's usual way; a family that
+        takes only one refuses the other)."""
+        mode = self._mode(mode)
+        limit = self.dialect.max_points
+        if limit is not None and len(trajectory) > limit:
+            raise DriverError(
+                f"the {self.dialect.name} controller keeps {limit} points of a trajectory and drops the rest (the "
+                f"robot would stop short of the goal); this one has {len(trajectory)}: resample it to at most "
+                f"{limit} points"
+            )
         state = await self.wait_state()
         if self.motion.state is not ConnectionState.CONNECTED:  # e.g. being reset after a lost reply
             try:
@@ -780,7 +792,7 @@ class RobotDriver:
                 f"the trajectory has {trajectory.dof} joints, the controller reports {state.positions.size}"
             )
         if self.model is not None and self.check_limits:
-            check_limits(trajectory, self.model)
+            check_limits(trajectory, self.model, speeds=self.dialect.timed)
         gap = float(np.max(np.abs(trajectory.positions[0] - state.positions[: trajectory.dof])))
         if gap > self.goal_tolerance:
             raise DriverError(
@@ -805,6 +817,19 @@ class RobotDriver:
         except DriverError as exc:
             await self._stop_quietly()
             raise ExecutionAborted(str(exc), confirmed) from None
+
+    def _mode(self, mode: Mode | str | None) -> Mode:
+        """The way to send a trajectory: ``mode``, if the controller family takes it, else its usual one."""
+        modes = self.dialect.modes
+        if mode is None:
+            return Mode(modes[0])
+        chosen = Mode(mode)
+        if chosen.value not in modes:
+            raise DriverError(
+                f"the {self.dialect.name} controller takes trajectories {' or '.join(f'{m}ed' for m in modes)}, "
+                f"not {chosen.value}ed"
+            )
+        return chosen
 
     async def _why_now(self) -> str:
         """:meth:`_why` from a STATUS that came after the refusal (the controller may have replied
@@ -882,7 +907,10 @@ class RobotDriver:
             moved = bool(np.max(np.abs(here - start)) > self.goal_tolerance)
             return _Look(error <= self.goal_tolerance, moved, f"{error:.4g} from the goal")
 
-        wait = _Wait("point", "the goal", "the trajectory", trajectory.duration, moves, stops=False)
+        # a controller that moves at its own speed (Fanuc, Staubli) takes as long as it takes: no
+        # deadline from the trajectory's times, the robot standing still short of the goal ends it
+        duration = trajectory.duration if self.dialect.timed else math.inf
+        wait = _Wait("point", "the goal", "the trajectory", duration, moves, stops=False)
         return await self._wait_done(wait, look, confirmed)
 
 
@@ -965,10 +993,11 @@ def _path_deviation(trajectory: Trajectory, position: Array) -> float:
     return float(np.min(np.max(np.abs(nearest - position), axis=1)))
 
 
-def check_limits(trajectory: Trajectory, model: RobotModel) -> None:
+def check_limits(trajectory: Trajectory, model: RobotModel, *, speeds: bool = True) -> None:
     """Refuse, before anything is sent, a trajectory the robot cannot follow: a position beyond a
-    joint's limits, or a segment whose mean speed is beyond a joint's maximum speed (no controller
-    can run it in its time). The message names the point, the joint, the value and the limit."""
+    joint's limits, or (``speeds``) a segment whose mean speed is beyond a joint's maximum speed
+    (no controller can run it in its time; one that moves at its own speed takes longer). The
+    message names the point, the joint, the value and the limit."""
     names = model.joint_names
     units = ["m" if joint.type.value == "prismatic" else "rad" for joint in model.joints]
     lower, upper, vmax = model.lower, model.upper, model.max_velocity
@@ -981,7 +1010,7 @@ def check_limits(trajectory: Trajectory, model: RobotModel) -> None:
                 f"{bound[j]:.4g} {units[j]}"
             )
     dt = np.diff(trajectory.times)
-    if dt.size:
+    if dt.size and speeds:
         speed = np.abs(np.diff(q, axis=0)) / np.maximum(dt, 1e-12)[:, None]
         over = speed > vmax * (1 + 1e-6)
         if over.any():

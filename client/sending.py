@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -26,7 +27,7 @@ from numpy.typing import NDArray
 
 from robot_server.control import QUINTIC_PEAK_VELOCITY
 from simple_message.connection import ConnectionState
-from simple_message.constants import CommType, MotoCommand, MotoResult, SpecialSeq, ValidFields
+from simple_message.constants import CommType, MotoCommand, MotoResult, SpecialSeq, TriState, ValidFields
 from simple_message.errors import ConnectionClosed, RequestFailed
 from simple_message.messages import JointTrajPt, JointTrajPtFull, MotoMotionReply, Ping
 
@@ -55,10 +56,13 @@ class TrajectorySender:
         controller joins JOINT_TRAJ_PT points at rest). 0 without a model, for the first point
         and for a pause."""
         if self.driver.model is None or k == 0:
-            return 0.0
+            # a controller that moves at the velocity given (Staubli: VAL3 refuses 0) gets the
+            # stock client's default share, 0.1 (joint_trajectory_interface.h)
+            return 0.0 if self.driver.dialect.timed else 0.1
         dt = trajectory.times[k] - trajectory.times[k - 1]
         mean = np.abs(trajectory.positions[k] - trajectory.positions[k - 1]) / dt
-        return float(np.clip(np.max(QUINTIC_PEAK_VELOCITY * mean / self.driver.model.max_velocity), 0.0, 1.0))
+        ratio = float(np.clip(np.max(QUINTIC_PEAK_VELOCITY * mean / self.driver.model.max_velocity), 0.0, 1.0))
+        return ratio if ratio > 0.0 or self.driver.dialect.timed else 0.1
 
     def _point(self, trajectory: Trajectory, k: int, sequence: int, comm_type: int) -> JointTrajPt:
         duration = 0.0 if k == 0 else float(trajectory.times[k] - trajectory.times[k - 1])
@@ -77,6 +81,8 @@ class TrajectorySender:
             try:
                 await self.driver._request(self._point(trajectory, k, k, CommType.SERVICE_REQUEST))
             except RequestFailed:
+                if self.driver.dialect.fails_when_full and await self._room_made(k):
+                    continue  # a full queue: the same point again, now that the robot has taken one
                 raise ExecutionAborted(
                     f"the controller refused point {k}: {await self.driver._why_now()}", confirmed
                 ) from None
@@ -90,6 +96,22 @@ class TrajectorySender:
             confirmed = k
             k += 1
         return confirmed
+
+    async def _room_made(self, k: int) -> bool:
+        """A controller that answers FAILURE when its queue is full (Stäubli): True once the
+        robot has moved on (STATUS in_motion TRUE on a fresh joint state) and the point may be sent
+        again; False if it stands still for ``stall_timeout`` s (a refusal, not a full queue)."""
+        driver = self.driver
+        deadline = time.monotonic() + driver.stall_timeout
+        while time.monotonic() < deadline:
+            try:
+                state = await driver.wait_state(min(driver.watchdog, max(deadline - time.monotonic(), 0.001)))
+            except DriverError:
+                return False
+            if state.status is not None and state.status.in_motion == TriState.TRUE:
+                log.debug("point %d: FAILURE while the robot moves (a full queue): sent again", k)
+                return True
+        return False
 
     async def _reconnected(self, k: int, confirmed: int, cause: DriverError) -> None:
         """Point ``k`` was not sent because the motion link is down: with ``resume``, wait for
@@ -115,12 +137,24 @@ class TrajectorySender:
                 if i == len(indices) - 1
                 else k
             )
+            if not self.driver.dialect.ping:
+                # a controller that answers no PING (ABB) answers each point of a download sent as
+                # a request: one in flight, each confirmed
+                point = self._point(trajectory, k if i else 0, sequence, CommType.SERVICE_REQUEST)
+                try:
+                    await self.driver._request(point)
+                except RequestFailed:
+                    raise ExecutionAborted(f"the controller refused point {k}", k - 1 if i else -1) from None
+                except (_NotSent, _InFlight) as exc:
+                    raise ExecutionAborted(f"motion connection lost during the download: {exc}", -1) from None
+                continue
             try:
                 await self.driver.motion.send(self._point(trajectory, k if i else 0, sequence, CommType.TOPIC))
             except ConnectionClosed as exc:
                 raise ExecutionAborted(f"motion connection lost during the download: {exc}", -1) from None
-        # a download has no acknowledgements; a PING after it proves the controller read it all
-        await self.driver._request(Ping())
+        if self.driver.dialect.ping:
+            # a download has no acknowledgements; a PING after it proves the controller read it all
+            await self.driver._request(Ping())
         return n - 1
 
     async def _motion_ready(self) -> None:

@@ -97,6 +97,22 @@ class Dialect:
     #: motion is checked, started and stopped with MOTO_MOTION_CTRL commands (MotoROS's
     #: trajectory mode) rather than by the points themselves and a STOP point
     motion_control: bool = False
+    #: it runs the points on the times they carry; False: each at a speed of its own (Fanuc's
+    #: R[1] %, Stäubli's velocity share), their times ignored
+    timed: bool = True
+    #: how a trajectory may be sent to it, the first the usual: "stream" (sequence 0, 1, ...; one
+    #: request in flight) and "download" (-1, 1 ... n-2, -3); ABB runs downloads only
+    modes: tuple[str, ...] = ("stream", "download")
+    #: the most points of one trajectory it keeps (ABB's 100-point buffer: beyond it points are dropped)
+    max_points: int | None = None
+    #: its motion port answers a PING (ABB's, Fanuc's and Stäubli's servers do not: the first dies
+    #: on it, the second stalls, the third leaves it unanswered)
+    ping: bool = True
+    #: a point it cannot queue yet is answered FAILURE (Stäubli's full queue), not held or BUSY
+    fails_when_full: bool = False
+    #: it answers a request of a type it does not know (the C++ library: FAILURE; MotoROS: INVALID);
+    #: ABB's, Fanuc's and Stäubli's servers do not (nor a PING: ``ping``)
+    unknown_types: bool = True
 
     def __post_init__(self) -> None:
         # read-only: a built-in dialect's rules cannot be changed behind every link's back
@@ -139,6 +155,10 @@ ABB = Dialect(
     io_port=None,
     wire=LE32,
     reply_style=ReplyStyle.HEADER_ONLY,
+    modes=("download",),
+    max_points=100,
+    ping=False,
+    unknown_types=False,
 )
 FANUC = Dialect(
     name="fanuc",
@@ -149,6 +169,10 @@ FANUC = Dialect(
     wire=BE32,
     reply_style=ReplyStyle.JOINT_POSITION_ACK,
     replies={MsgType.JOINT_TRAJ_PT: frozenset({MsgType.JOINT_POSITION})},
+    timed=False,
+    modes=("stream",),
+    ping=False,
+    unknown_types=False,
 )
 STAUBLI = Dialect(
     name="staubli",
@@ -158,6 +182,11 @@ STAUBLI = Dialect(
     io_port=None,
     wire=LE32,
     reply_style=ReplyStyle.ZEROED,
+    timed=False,
+    modes=("stream",),
+    ping=False,
+    fails_when_full=True,
+    unknown_types=False,
 )
 MOTOROS = Dialect(
     name="motoros",
@@ -172,6 +201,7 @@ MOTOROS = Dialect(
     state_topics=(MsgType.JOINT_FEEDBACK, MsgType.STATUS),
     point_type=MsgType.JOINT_TRAJ_PT_FULL,
     motion_control=True,
+    modes=("stream",),
 )
 
 #: Every registered dialect by name.
