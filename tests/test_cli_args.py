@@ -191,7 +191,11 @@ def test_every_default_is_shown(path: str, parser: argparse.ArgumentParser) -> N
         ("robot-server", ["--help"], ["0: any free port", "(default: generic", "(default: blend)"]),
         ("robot-client", ["ping", "--help"], ["--count N", "at least 1 (default: 5)", "1..65535"]),
         ("robot-client", ["demo", "--help"], ["(default: demo-output)", "(default: linear cubic quintic ruckig"]),
-        ("robot-client", ["run", "--help"], ["FILE", "the trajectory file", "(default: stream)"]),
+        (
+            "robot-client",
+            ["run", "--help"],
+            ["FILE", "the trajectory file", "(default: the profile's:"],
+        ),
     ],
 )
 def test_help_shows_the_defaults_and_rules(

@@ -186,7 +186,7 @@ def test_the_commands_import_before_they_list_and_say_what_is_unknown(capsys: py
     assert robot_server_main(["--import", "no_such_module_here"]) == 2
     assert "cannot import no_such_module_here: ModuleNotFoundError" in capsys.readouterr().err
     assert robot_server_main(["--profile", "nosuch", "--no-stdin"]) == 2
-    assert "unknown profile 'nosuch' (known: generic, motoros)" in capsys.readouterr().err
+    assert "unknown profile 'nosuch' (known: abb, fanuc, generic, motoros, staubli)" in capsys.readouterr().err
     assert robot_client(["demo", "--embedded", "--policies", "nosuch"]) == 2
     assert "unknown interpolation policy 'nosuch'" in capsys.readouterr().err
     try:  # an imported family is listed by --help and accepted by --profile
