@@ -19,7 +19,10 @@ position the state port publishes first. Cases: ``dense-2s`` and ``dense-1s`` (1
 the plan's peak joint acceleration is 1.8x the model's limit: 0.42 s for jibot_zxs, a point every
 10.5 ms), all JOINT_TRAJ_PT under every policy;
 ``full-generic-2s``/``-1s`` and ``full-motoros-2s``/``-1s`` (101 JOINT_TRAJ_PT_FULL points), under the
-server's default policy only.
+server's default policy only. The vendor cases ``abb-``, ``fanuc-`` and ``staubli-dense-2s`` and ``-sparse``
+send the dense 2 s and the sparse trajectory as the vendors' ROS drivers do to ``robot-server --profile
+abb|fanuc|staubli``, which runs them as that controller does (robot_server/emulator/abb.py, fanuc.py,
+staubli.py): their rows say what a real controller makes of them, against no target.
 
 **The clients.** JOINT_TRAJ_PT as industrial_robot_client's streamer sends it
 (joint_trajectory_interface.cpp, joint_trajectory_streamer.cpp): SERVICE_REQUESTs, one in flight;
@@ -30,7 +33,10 @@ a function-static variable, so every trajectory's first point gets ``default_dur
 reply counts as refused and the next point follows, as ``sendAndReceiveMsg`` succeeds on any valid
 reply. JOINT_TRAJ_PT_FULL as motoman_driver fills it: robot_id 0, sequence i, valid_fields TIME |
 POSITION | VELOCITY | ACCELERATION, time from start, positions, velocities, accelerations. On the
-generic profile one request in flight, SUCCESS -> next point. On the MotoROS profile first
+generic profile one request in flight, SUCCESS -> next point. For the vendors: abb_driver's downloader
+(TOPICs -1, 1 ... n-2, -3 sent back to back, velocity 0, the same durations; abb_joint_downloader_node.cpp),
+fanuc_driver's streamer (the stock one, big-endian, the controller's J3 = J3 - J2 as ``J23_factor`` 1
+makes it), and for Stäubli the stock streamer itself (a FAILURE: the next point follows). On the MotoROS profile first
 CHECK_MOTION_READY (FALSE: not started), START_TRAJ_MODE (SUCCESS), CHECK_MOTION_READY (TRUE), then
 the points: BUSY -> the same point again 5 ms later, SUCCESS -> next, anything else -> refused and
 the next point follows (motoman_driver would abort the trajectory instead; moving on shows how much
@@ -101,6 +107,7 @@ from robot_server.kinematics import fk_batch
 from robot_server.loader import load_model
 from robot_server.model import RobotModel
 from simple_message import (
+    BE32,
     LE32,
     InvalidSubcode,
     JointFeedback,
@@ -120,8 +127,10 @@ from simple_message import (
     ValidFields,
 )
 from simple_message.connection import Connection
+from simple_message.constants import CommType
 from simple_message.errors import RequestFailed
 from simple_message.transport import open_tcp
+from simple_message.wire import WireFormat
 
 Array = NDArray[np.float64]
 
@@ -252,7 +261,15 @@ CASES = (
     Case("full-generic-1s", "FULL generic 1 s", 101, 1.0, full=True),
     Case("full-motoros-2s", "FULL MotoROS 2 s", 101, 2.0, full=True, profile="motoros"),
     Case("full-motoros-1s", "FULL MotoROS 1 s", 101, 1.0, full=True, profile="motoros"),
+    Case("abb-dense-2s", "ABB dense 2 s", 101, 2.0, profile="abb"),
+    Case("abb-sparse", "ABB sparse", 9, 4.0, profile="abb"),
+    Case("fanuc-dense-2s", "Fanuc dense 2 s", 101, 2.0, profile="fanuc"),
+    Case("fanuc-sparse", "Fanuc sparse", 9, 4.0, profile="fanuc"),
+    Case("staubli-dense-2s", "Staubli dense 2 s", 101, 2.0, profile="staubli"),
+    Case("staubli-sparse", "Staubli sparse", 9, 4.0, profile="staubli"),
 )
+#: the vendor profiles: each runs points its own way (no interpolation policy, no target)
+VENDORS = ("abb", "fanuc", "staubli")
 QUICK = ("dense-2s", "full-motoros-2s")
 
 
@@ -437,8 +454,32 @@ class StateWatch:
         await self.conn.close()
 
 
-async def connect(port: int, name: str) -> Connection:
-    return Connection(await open_tcp(HOST, port, timeout=10.0), LE32, name=name).start()
+async def connect(port: int, name: str, wire: WireFormat = LE32) -> Connection:
+    return Connection(await open_tcp(HOST, port, timeout=10.0), wire, name=name).start()
+
+
+def fanuc_joints(q: Array) -> Array:
+    """fanuc_driver with ``J23_factor`` 1: the controller's J3 is J3 - J2 (what it sends)."""
+    c = np.array(q, dtype=float)
+    c[..., 2] = q[..., 2] - q[..., 1]
+    return c
+
+
+def ros_joints(c: Array) -> Array:
+    """... and J3 + J2 of what the controller publishes."""
+    q = np.array(c, dtype=float)
+    q[..., 2] = c[..., 2] + c[..., 1]
+    return q
+
+
+async def abb_download(conn: Connection, traj: Trajectory, model: RobotModel, out: Streamed) -> None:
+    """abb_driver's downloader: every point a TOPIC, -1 first and -3 last, velocity 0, no replies."""
+    messages = list(traj_pt_messages(traj, model))
+    for i, msg in enumerate(messages):
+        sequence = -1 if i == 0 else -3 if i == len(messages) - 1 else i
+        await conn.send(JointTrajPt(sequence, msg.joint_data, 0.0, msg.duration, comm_type=CommType.TOPIC))
+        out.accepted += 1
+    out.notes.append("TOPICs: no replies")
 
 
 # -- the clients -------------------------------------------------------------------------------------
@@ -739,6 +780,8 @@ def server_args(case: Case, policy: str | None, record: Path, record_seconds: fl
         args += ["--interpolation", policy]
     if case.profile == "motoros":
         args += ["--profile", "motoros", "--io-port", "0"]
+    elif case.profile in VENDORS:
+        args += ["--profile", case.profile]
     return args
 
 
@@ -789,14 +832,27 @@ async def drive(server: ServerProcess, row: Row, duration: float, settings: Sett
     """Connect, plan from the published position, stream, and wait until the motion is over."""
     model, case, out = settings.model, row.case, row.streamed
     assert out is not None
-    state = StateWatch(await connect(server.ports["state"], "state"))
+    wire = BE32 if case.profile == "fanuc" else LE32
+    state = StateWatch(await connect(server.ports["state"], "state", wire))
     motion: Connection | None = None
     try:
         q0 = await state.first_position(model.dof)
+        if case.profile == "fanuc":
+            q0 = ros_joints(q0)
         traj = row.trajectory = Trajectory.plan(q0, duration, case.points)
-        motion = await connect(server.ports["motion"], "motion")
+        motion = await connect(server.ports["motion"], "motion", wire)
         async with asyncio.timeout(budget):
-            if case.profile == "motoros":
+            if case.profile == "abb":
+                await abb_download(motion, traj, model, out)
+            elif case.profile == "fanuc":
+                sent = (
+                    JointTrajPt(
+                        m.sequence, tuple(fanuc_joints(np.array(m.joint_data[: model.dof]))), m.velocity, m.duration
+                    )
+                    for m in traj_pt_messages(traj, model)
+                )
+                await stop_and_wait(motion, sent, settings.cadence, out)
+            elif case.profile == "motoros":
                 await stream_full_motoros(motion, traj, settings.cadence, out)
             elif case.full:
                 await stop_and_wait(motion, (full_point(traj, i) for i in range(len(traj))), settings.cadence, out)
@@ -885,6 +941,8 @@ def heading(case: Case, model: RobotModel) -> str:
         text += f" ({OVER_FAST:g}x the {float(np.min(model.max_acceleration)):g} rad/s² limit)"
     if case.profile == "motoros":
         text += ", MotoROS profile"
+    elif case.profile in VENDORS:
+        text += f", {case.profile} profile as its ROS driver sends it (no target: what that controller does)"
     speeds = np.max(np.abs(shape(np.zeros(DELTA.size), np.linspace(0, duration, 2001), duration)[1]), axis=0)
     if np.any(speeds > model.max_velocity):
         text += f" (peak speed {float(np.max(speeds)):.2f} rad/s: over the velocity limit)"
@@ -962,8 +1020,8 @@ acceleration ≤ 1.5x the plan's (MotoROS: within 5 % of it)."""
 def plan_runs(cases: Sequence[Case], policies: Sequence[str], default_policy: str) -> Iterator[tuple[Case, str, bool]]:
     """(case, policy, whether the policy is passed explicitly) for every run."""
     for case in cases:
-        if case.full:
-            yield case, default_policy, False
+        if case.full or case.profile in VENDORS:
+            yield case, "-" if case.profile in VENDORS else default_policy, False
         else:
             for policy in policies:
                 yield case, policy, True
@@ -1006,7 +1064,7 @@ async def run(cases: Sequence[Case], policies: Sequence[str], cadence: float, wo
         table.append(row_cells(row, duration, float(np.max(peak_acceleration(duration)))))
     if current is not None:
         print(markdown(COLUMNS, table))
-    checked = [r for r in rows if r.policy == "blend" or r.case.full]
+    checked = [r for r in rows if (r.policy == "blend" or r.case.full) and r.case.profile not in VENDORS]
     print()
     print("### targets")
     print()
@@ -1037,7 +1095,7 @@ def planning_table(cases: Sequence[Case], model: RobotModel, passes: int = 3) ->
     print("| case | points | median (us) | p90 (us) | max (us) |")
     print("|---|---:|---:|---:|---:|")
     for case in cases:
-        if case.full:
+        if case.full or case.profile in VENDORS:
             continue
         traj = Trajectory.plan(np.zeros(model.dof), case.planned_duration(model), case.points)
         messages = list(traj_pt_messages(traj, model))

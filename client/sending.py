@@ -129,6 +129,7 @@ class TrajectorySender:
     async def download(self, trajectory: Trajectory) -> int:
         n = len(trajectory)
         indices = list(range(n)) if n > 1 else [0, 0]
+        confirmed = -1
         for i, k in enumerate(indices):
             sequence = (
                 SpecialSeq.START_TRAJECTORY_DOWNLOAD
@@ -144,9 +145,13 @@ class TrajectorySender:
                 try:
                     await self.driver._request(point)
                 except RequestFailed:
-                    raise ExecutionAborted(f"the controller refused point {k}", k - 1 if i else -1) from None
+                    raise ExecutionAborted(f"the controller refused point {k}", confirmed) from None
                 except (_NotSent, _InFlight) as exc:
-                    raise ExecutionAborted(f"motion connection lost during the download: {exc}", -1) from None
+                    raise ExecutionAborted(
+                        f"motion connection lost during the download (nothing runs before its last point): {exc}",
+                        confirmed,
+                    ) from None
+                confirmed = k
                 continue
             try:
                 await self.driver.motion.send(self._point(trajectory, k if i else 0, sequence, CommType.TOPIC))
