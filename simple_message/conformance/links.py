@@ -6,7 +6,8 @@ it closes a link on a bad length and hides a frame in the wrong byte order behin
 conformance probe must instead *describe* what the peer did: a frame whose length prefix reads as a
 plausible length only in the other byte order is kept, marked ``swapped`` and decoded in that order
 (simple-message.md §10 pitfall 1, the dissector's heuristic); a prefix plausible in neither order
-ends the link with the bytes shown. Nothing here judges: the rules in :mod:`.server` do.
+ends the link with the bytes shown. Nothing here judges: the server suite's rules do
+(:mod:`.server`, :mod:`.server_checks`, :mod:`.server_motion`).
 """
 
 from __future__ import annotations
