@@ -39,16 +39,14 @@ Upstream = dict[str, tuple[str, int]]
 
 @contextlib.asynccontextmanager
 async def emulator(profile: str = "generic", **options: Any) -> AsyncIterator[tuple[Emulator, Upstream]]:
-    """An in-process emulator playing the controller of ``profile`` (abb: the generic one replying
-    header-only; fanuc: the generic one in big-endian), on free ports, 4x real time."""
+    """An in-process emulator playing the controller of ``profile``, on free ports, 4x real time
+    (the generic and MotoROS ones publishing state at 100 Hz; the vendors at their own rates)."""
     config = EmulatorConfig(
-        profile="generic" if profile in ("abb", "fanuc") else profile,
-        reply_style="header" if profile == "abb" else None,
-        byte_order="big" if profile == "fanuc" else None,
+        profile=profile,
         motion_port=0,
         state_port=0,
         io_port=0,
-        state_rate=100.0,
+        state_rate=100.0 if profile in ("generic", "motoros") else None,
         speedup=4.0,
         **options,
     )

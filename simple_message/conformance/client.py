@@ -26,10 +26,11 @@ its one ready line read from stdout (bounded), stopped with SIGINT at the end (t
 a *process* dependency, never an import: :mod:`simple_message` is the protocol package and imports
 only the standard library and itself (the emulator needs numpy and ruckig; a user of the protocol
 package needs neither), and a process is also exactly what a real controller is to the suite, so
-any controller can take the emulator's place. The ``abb`` profile is the generic emulator with
-header-only replies; ``fanuc`` is the generic emulator in big-endian whose echo replies to
-JOINT_TRAJ_PT are rewritten as Fanuc's JOINT_POSITION acknowledgement carrying the sequence (§3,
-§8.3): the one other change the proxy makes to the bytes.
+any controller can take the emulator's place. Each profile is played by the emulator's profile of
+the same name (``robot-server --profile abb|fanuc|generic|motoros|staubli``), which behaves as that
+controller does (docs/vendors.md): one implementation, the proxy changes no byte of it. ABB's,
+Fanuc's and Stäubli's state ports take one client: the suite's own state connection is that one,
+and the client's state connections get what it reads, frame by frame.
 
 **Injections** (each once, by trajectory count: a trajectory starts with a point of sequence 0, -1
 or -2 streamed or downloaded by the client on the motion port):
@@ -39,8 +40,9 @@ or -2 streamed or downloaded by the client on the motion port):
   MOTO_MOTION_REPLY BUSY as MotoROS builds it (§8.1: groupNo, sequence, command = the request's type,
   subcode 0). The client must send the same point again.
 * ``failure``, second trajectory: point 1 is not forwarded and is answered FAILURE in the profile's
-  style (echo with reply_code FAILURE; ABB: header-only FAILURE; Fanuc: JOINT_POSITION FAILURE;
-  MotoROS: INVALID/3010 DATA). The controller never got it, so any later point of that trajectory
+  style (echo with reply_code FAILURE; Fanuc: JOINT_POSITION FAILURE; Stäubli: the point's type,
+  zeroed, FAILURE; MotoROS: INVALID/3010 DATA). Not for ABB, whose RAPID server never answers
+  FAILURE. The controller never got it, so any later point of that trajectory
   would leave a hole.
 * ``drop``, third trajectory: right after the reply to point 1 reached the client, the suite closes
   the client's motion connection (and its own upstream one). The client may reconnect.
@@ -69,7 +71,7 @@ import sys
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Final
+from typing import Final, cast
 
 from ..constants import (
     LENGTH_SIZE,
@@ -81,7 +83,7 @@ from ..constants import (
     ReplyCode,
     ValidFields,
 )
-from ..dialects import ABB, FANUC, GENERIC, MOTOROS, Dialect, ReplyStyle
+from ..dialects import ABB, FANUC, GENERIC, MOTOROS, STAUBLI, Dialect, ReplyStyle
 from ..errors import MalformedMessage
 from ..framing import decode_or_error
 from ..messages import (
@@ -144,21 +146,23 @@ class _Profile:
     dialect: Dialect
     #: robot-server --profile
     emulator: str
-    #: robot-server --reply-style (None: the emulator profile's own)
-    reply_style: str | None = None
     #: it has an IO port (MotoROS)
     io: bool = False
-    #: replies to JOINT_TRAJ_PT are rewritten as Fanuc's JOINT_POSITION ack (§8.3)
-    fanuc_ack: bool = False
+    #: its state port takes one client (ABB, Fanuc, Stäubli): the suite's own state connection is
+    #: that one, and the client's state connections get what it reads, frame by frame
+    shared_state: bool = False
+    #: it never answers FAILURE (ABB's RAPID server answers every request SUCCESS): no failure injection
+    never_fails: bool = False
 
 
 PROFILES: Final[Mapping[str, _Profile]] = {
     p.name: p
     for p in (
-        _Profile("abb", ABB, "generic", reply_style="header"),
-        _Profile("fanuc", FANUC, "generic", fanuc_ack=True),
+        _Profile("abb", ABB, "abb", shared_state=True, never_fails=True),
+        _Profile("fanuc", FANUC, "fanuc", shared_state=True),
         _Profile("generic", GENERIC, "generic"),
         _Profile("motoros", MOTOROS, "motoros", io=True),
+        _Profile("staubli", STAUBLI, "staubli", shared_state=True),
     )
 }
 
@@ -431,9 +435,6 @@ class _Link:
             self.client_writer.write(frame)  # a topic, or a reply nothing here waits for
             return
         reply = decode_or_error(frame, self.suite.wire)
-        if self.suite.profile.fanuc_ack and isinstance(slot.request, JointTrajPt):
-            reply = _fanuc_ack(slot.request, reply)
-            frame = reply.encode(self.suite.wire)
         slot.reply = reply
         slot.frame = frame
         self._flush()
@@ -460,12 +461,6 @@ class _Link:
         self.dropped = True
         self.client_writer.close()
         self.up_writer.close()
-
-
-def _fanuc_ack(request: JointTrajPt, reply: Message | MalformedMessage) -> Message:
-    """Fanuc's acknowledgement of a JOINT_TRAJ_PT: JOINT_POSITION carrying its sequence (§3, §8.3)."""
-    code = reply.reply_code if isinstance(reply, Message) else ReplyCode.FAILURE
-    return JointPosition(request.sequence, comm_type=CommType.SERVICE_REPLY, reply_code=code)
 
 
 def _describe(reply: Message) -> str:
@@ -515,6 +510,8 @@ class ClientSuite:
         self._handlers: set[asyncio.Task[None]] = set()
         self._state_task: asyncio.Task[None] | None = None
         self._first_state = asyncio.Event()
+        #: the client connections of a shared state port (:attr:`_Profile.shared_state`)
+        self._state_clients: set[asyncio.StreamWriter] = set()
         self._activity = asyncio.Event()
         self._open = 0
         self._last_close: float | None = None
@@ -641,8 +638,6 @@ class ClientSuite:
         args += ["--byte-order", self.wire.byte_order.value]
         if self.wire.real_size == 8:
             args.append("--float64")
-        if profile.reply_style is not None:
-            args += ["--reply-style", profile.reply_style]
         args.append("--no-stdin")
         return args
 
@@ -737,6 +732,16 @@ class ClientSuite:
         by = "upstream"
         upstream: asyncio.StreamWriter | None = None
         try:
+            if role == "state" and self.profile.shared_state:
+                # a controller that takes one state client: this client gets what the suite's own
+                # state connection reads (frame by frame), and what it sends goes nowhere (these
+                # controllers never read their state socket)
+                self._state_clients.add(writer)
+                try:
+                    by = await _Link(self, state, (reader, writer), _nowhere()).run()
+                finally:
+                    self._state_clients.discard(writer)
+                return
             host, port = self.upstream[role]
             try:
                 up = await asyncio.wait_for(asyncio.open_connection(host, port), CONNECT_TIMEOUT)
@@ -776,6 +781,8 @@ class ClientSuite:
                 continue
             if kind == "busy" and not self.profile.dialect.motion_control:
                 continue
+            if kind == "failure" and self.profile.never_fails:
+                continue
             trajectory, match = self._injection_plan[kind]
             if point.trajectory == trajectory and match(point):
                 return kind
@@ -796,6 +803,8 @@ class ClientSuite:
             return HeaderOnly(request.msg_type, reply_code=ReplyCode.FAILURE)
         if style is ReplyStyle.JOINT_POSITION_ACK and isinstance(request, JointTrajPt):
             return JointPosition(request.sequence, comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.FAILURE)
+        if style is ReplyStyle.ZEROED and isinstance(request, JointTrajPt):
+            return JointTrajPt(request.sequence, comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.FAILURE)
         return request.to_reply(ReplyCode.FAILURE)
 
     # -- the suite's own view of the robot ------------------------------------------------------------
@@ -830,6 +839,9 @@ class ClientSuite:
                 for frame, order in cutter.feed(data):
                     if order is not self.wire.byte_order:
                         return
+                    for client in list(self._state_clients):  # a shared state port's clients
+                        if not client.is_closing():
+                            client.write(frame)
                     msg = decode_or_error(frame, self.wire)
                     if isinstance(msg, JointPosition) and msg.comm_type == CommType.TOPIC:
                         positions: Positions = msg.joint_data
@@ -841,6 +853,30 @@ class ClientSuite:
                         continue
                     self.observer.state_sample(positions)
                     self._first_state.set()
+
+
+class _Nowhere:
+    """The upstream of a client connection that has none of its own (a shared state port): it
+    takes what is written and never sends anything."""
+
+    def write(self, data: bytes) -> None:
+        pass
+
+    async def drain(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    async def wait_closed(self) -> None:
+        pass
+
+    def is_closing(self) -> bool:
+        return False
+
+
+def _nowhere() -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
+    return asyncio.StreamReader(), cast(asyncio.StreamWriter, _Nowhere())
 
 
 async def _until(event: asyncio.Event) -> None:

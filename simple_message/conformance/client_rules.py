@@ -325,7 +325,7 @@ def _group0(msg: Message, groups: tuple[_Group, ...]) -> Positions | None:
 class Observer:
     """Every rule's state, fed by the proxy as frames pass (all synchronous, on the event loop).
 
-    ``profile`` names the controller played (abb, fanuc, generic, motoros), ``dialect`` is its
+    ``profile`` names the controller played (abb, fanuc, generic, motoros, staubli), ``dialect`` is its
     dialect (MotoROS's motion control decides several rules), ``wire`` the controller's wire format;
     ``start_tolerance`` (rad) and ``inject`` are the suite's options of the same names, ``clock`` the
     event loop's time.
@@ -702,17 +702,25 @@ class Observer:
         download = SpecialSeq.START_TRAJECTORY_DOWNLOAD
         problem: str | None = None
         warning: str | None = None
+        # ABB's RAPID server and Stäubli's VAL3 server answer a request whatever its sequence; the
+        # C++ servers' downloads are TOPICs, and Fanuc's relay answers no -1, -2, -3
+        answered = self.profile in ("abb", "staubli")
         if seq == download:
-            if point.request:
+            if point.request and not answered:
                 problem = (
                     "a download's first point (-1) sent as a SERVICE_REQUEST: the reference downloader sends TOPICs "
                     "and Fanuc does not answer -1 (§4.4, §8.3)"
+                )
+            elif self.profile == "staubli" and not point.request:
+                warning = (
+                    "a download of TOPICs to Stäubli: VAL3 takes every point as a move and answers none, so the "
+                    "points a full queue refuses are lost unseen (pushMotion.pgx:83-113)"
                 )
             self._start(point, "download")
         elif seq == SpecialSeq.END_TRAJECTORY:
             if link.mode != "download":
                 problem = "-3 (END_TRAJECTORY) outside a download (-1 ... -3)"
-            elif point.request:
+            elif point.request and not answered:
                 problem = "a download's last point (-3) sent as a SERVICE_REQUEST: downloads are TOPICs (§4.4)"
             link.mode = None
             link.last = None
@@ -726,7 +734,7 @@ class Observer:
         elif seq < 0:
             problem = f"sequence {seq}: a reserved negative value (special values are -1 to -4, §4.1)"
         elif link.mode == "download":
-            if point.request:
+            if point.request and not answered:
                 problem = f"point {seq} of a download sent as a SERVICE_REQUEST (a download is TOPICs, §4.4)"
             elif last is not None and last.seq is not None:
                 expected = 1 if last.seq < 0 else last.seq + 1
@@ -786,12 +794,17 @@ class Observer:
             if moves and before is not None and not _same(before, msg.joint_data) and msg.duration == msg.velocity == 0:
                 rule.warn(
                     f"{link.name}: {point.what} moves with neither a duration nor a velocity: no controller can "
-                    "time it (ABB times by duration, the C++ servers and Fanuc by velocity, §4.3)",
+                    "time it (ABB times by duration, the C++ servers and Stäubli by velocity, Fanuc by neither, §4.3)",
                     self.ev(point),
                 )
         else:
             if self.profile in ("abb", "fanuc"):
                 problems.append(f"the {self.profile} controller takes JOINT_TRAJ_PT only (§8.2, §8.3)")
+            elif self.profile == "staubli":
+                problems.append(
+                    "VAL3 misreads JOINT_TRAJ_PT_FULL: its sequence, valid_fields and time all from the robot_id's "
+                    "bytes, the speed from joint 1's velocity (decTrajPtFull.pgx:34-55, pushMotion.pgx:58-61)"
+                )
             for group in point.groups:
                 problems.extend(self._group_fields(point, group))
         if problems:

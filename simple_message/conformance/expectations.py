@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..constants import MsgType
-from ..dialects import ABB, FANUC, GENERIC, MOTOROS, Dialect
+from ..dialects import ABB, FANUC, GENERIC, MOTOROS, STAUBLI, Dialect
 
 __all__ = ["Expectations", "EXPECTATIONS", "SERVER_RULES"]
 
@@ -23,8 +23,9 @@ class Expectations:
     """What one family of real servers does, where the protocol leaves it open."""
 
     dialect: Dialect
-    #: its motion port answers a PING (ABB's RAPID server takes only JOINT_TRAJ_PT; Fanuc's parser
-    #: waits for 56 bytes and would misframe one, §8.2, §8.3)
+    #: its motion port answers a PING (ABB's RAPID server takes only JOINT_TRAJ_PT and stops on
+    #: anything else; Fanuc's relay waits for 56 bytes and would misframe one; Stäubli's answers only
+    #: trajectory points, §8.2, §8.3, docs/vendors.md)
     ping: bool
     #: it can be sent a request of an unknown type (the same servers cannot)
     unknown_types: bool
@@ -53,8 +54,16 @@ EXPECTATIONS: dict[str, Expectations] = {
         False,
         False,
         MsgType.JOINT_POSITION,
-        {MsgType.JOINT_POSITION: 42.0, MsgType.STATUS: 4.2},
+        {MsgType.JOINT_POSITION: 1000.0 / 24.0, MsgType.STATUS: 1000.0 / 24.0 / 11.0},
         "fanuc_driver's KAREL servers (simple-message.md §8.3)",
+    ),
+    "staubli": Expectations(
+        STAUBLI,
+        False,
+        False,
+        MsgType.JOINT_POSITION,
+        {MsgType.JOINT_POSITION: 50.0, MsgType.STATUS: 10.0},
+        "staubli_val3_driver's VAL3 server (docs/vendors.md)",
     ),
     "motoros": Expectations(
         MOTOROS,
