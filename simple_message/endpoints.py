@@ -70,7 +70,7 @@ import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal, TypeVar
+from typing import Any, Literal, TypeVar, cast
 
 from .connection import Connection, ConnectionState, Subscription, Tap
 from .constants import CommType, MsgType, ReplyCode
@@ -242,7 +242,7 @@ class Server:
         #: what a connection beyond ``max_connections`` gets: closed at once, or a wait for its turn
         self.excess = excess
         #: connections waiting for their turn (``excess="wait"``), oldest first
-        self._waiting: deque[asyncio.Transport] = deque()
+        self._waiting: deque[_Waiting] = deque()
         #: sees the traffic of every connection accepted from now on (:class:`~.connection.Tap`,
         #: e.g. a :class:`~.capture_writer.CaptureWriter`)
         self.tap = tap
@@ -332,9 +332,18 @@ class Server:
             return
         self._serve_accepted(transport, peer)
 
-    def _serve_accepted(self, transport: asyncio.BaseTransport, peer: object) -> None:
+    def _serve_accepted(self, transport: asyncio.BaseTransport, peer: object, waited: _Waiting | None = None) -> None:
         # The session is counted at once: connections accepted in the same loop iteration see it.
-        session = self._open(self._connection(transport, f"{self.name} {peer}"), None)
+        connection = self._connection(transport, f"{self.name} {peer}")
+        if waited is not None:  # what the peer sent while it waited comes first
+            for data in waited.data:
+                connection.data_received(data)
+            if waited.ended:
+                connection.eof_received()
+        session = self._open(connection, None)
+        if waited is not None and waited.paused:
+            with contextlib.suppress(NotImplementedError, RuntimeError):
+                cast(asyncio.Transport, transport).resume_reading()
         task = asyncio.get_running_loop().create_task(self._until_closed(session), name=f"sm-serve {session.name}")
         self._accepted.add(task)
         task.add_done_callback(self._accepted.discard)
@@ -342,15 +351,18 @@ class Server:
     def _wait_turn(self, transport: asyncio.BaseTransport, peer: object) -> None:
         """A connection beyond the limit of a server whose excess waits: not read, not answered,
         until a connection ends (:meth:`_next_turn`); beyond ``MAX_WAITING`` it is closed."""
-        assert isinstance(transport, asyncio.Transport)
+        transport = cast(asyncio.Transport, transport)  # a socket's (uvloop's is no asyncio.Transport subclass)
+        self._waiting = deque(w for w in self._waiting if not w.lost)  # gone while they waited
         if len(self._waiting) >= MAX_WAITING:
             self.refused += 1
             self._log_budget.log(log, logging.WARNING, "refused %s: %d connections wait already", peer, MAX_WAITING)
             transport.close()
             return
-        with contextlib.suppress(NotImplementedError, RuntimeError):
-            transport.pause_reading()
-        self._waiting.append(transport)
+        # what it sends meanwhile is kept for its turn (a paused transport may still have read some:
+        # uvloop starts reading after connection_made whatever was asked in it)
+        waiting = _Waiting(transport)
+        transport.set_protocol(waiting)
+        self._waiting.append(waiting)
         self._log_budget.log(
             log,
             logging.INFO,
@@ -365,14 +377,13 @@ class Server:
             live = sum(1 for s in self.sessions if not s.connection.closed)
             if live >= self.max_connections:
                 return
-            transport = self._waiting.popleft()
-            if transport.is_closing():
+            waiting = self._waiting.popleft()
+            transport = waiting.transport
+            if waiting.lost or transport.is_closing():
                 continue
             peer = transport.get_extra_info("peername")
             log.info("%s: serving %s, which waited for its turn", self.name, peer)
-            self._serve_accepted(transport, peer)
-            with contextlib.suppress(NotImplementedError, RuntimeError):
-                transport.resume_reading()
+            self._serve_accepted(transport, peer, waiting)
 
     def _make_room(self, newcomer: object) -> bool:
         """The server is full and ``newcomer`` knocks: close the connection least likely to be a
@@ -557,7 +568,7 @@ class Server:
         for server in self._servers:
             server.close()
         while self._waiting:
-            self._waiting.popleft().close()
+            self._waiting.popleft().transport.close()
         for session in list(self.sessions):
             await session.connection.close()
         if self._accepted:  # each finishes its session (on_disconnect) once its connection is closed
@@ -762,6 +773,38 @@ class _Accepted(asyncio.Protocol):
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.server._accept(transport)
+
+
+class _Waiting(asyncio.Protocol):
+    """The protocol of a connection waiting for its turn: what the peer sends is kept (at most
+    ``_WAITING_BYTES``; then reading pauses), and its end noted, for the connection it becomes."""
+
+    def __init__(self, transport: asyncio.Transport) -> None:
+        self.transport = transport
+        self.data: list[bytes] = []
+        self.size = 0
+        self.ended = False
+        self.lost = False
+        self.paused = False
+
+    def data_received(self, data: bytes) -> None:
+        self.data.append(data)
+        self.size += len(data)
+        if self.size >= _WAITING_BYTES and not self.paused:
+            self.paused = True
+            with contextlib.suppress(NotImplementedError, RuntimeError):
+                self.transport.pause_reading()
+
+    def eof_received(self) -> bool:
+        self.ended = True
+        return True  # kept open: its turn may still come, and what it sent is answered then
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.lost = True
+
+
+#: what a waiting connection may send before it is read no more (a few messages' worth)
+_WAITING_BYTES = 64 * 1024
 
 
 class _Later:

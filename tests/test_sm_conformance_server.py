@@ -39,16 +39,11 @@ def failed(report: Report) -> str:
 
 
 async def against_emulator(profile: str, allow_motion: bool, **config: Any) -> Report:
-    suite_profile = profile
-    if profile == "abb":
-        config["reply_style"] = "header"
-        profile = "generic"
-    if profile == "fanuc":
-        profile = "generic"
+    """The suite of ``profile`` against the emulator's profile of the same name (the controller it plays)."""
     cfg = EmulatorConfig(profile=profile, motion_port=0, state_port=0, io_port=0, **config)
     async with Emulator(cfg) as emu:
         options = ServerSuiteOptions(
-            profile=suite_profile,
+            profile=profile,
             motion_port=emu.ports["motion"],
             state_port=emu.ports["state"],
             io_port=emu.ports.get("io"),
@@ -63,9 +58,8 @@ EMULATOR_CASES = [
     ("generic", {"byte_order": "big"}),
     ("generic", {"float64": True}),
     ("abb", {}),
-    # the emulator has no Fanuc reply style; its generic profile in big-endian is what the fanuc
-    # suite expects of ports, byte order and topics (a reply of the request's own type is accepted)
-    ("fanuc", {"byte_order": "big"}),
+    ("fanuc", {}),
+    ("staubli", {}),
     ("motoros", {}),
     ("motoros", {"byte_order": "big"}),
     ("motoros", {"float64": True}),
@@ -83,12 +77,14 @@ async def test_passes_against_the_emulator_without_motion(profile: str, config: 
     for rule in ("motion.small-move", "motion.stop", "motion.out-of-limit"):
         assert seen[rule] is Verdict.SKIP
         assert "--allow-motion" in next(r.detail for r in report.results if r.rule == rule)
-    for rule in ("framing.byte-order", "framing.body", "malformed.survival", "state.status"):
+    for rule in ("framing.byte-order", "framing.body", "state.status"):
         assert seen[rule] is Verdict.PASS, failed(report)
+    # RAPID's motion server would stop on a malformed frame: not sent to ABB
+    assert seen["malformed.survival"] is (Verdict.SKIP if profile == "abb" else Verdict.PASS), failed(report)
     # the rate is measured on this machine's clock: its jitter may WARN on a loaded one, never FAIL
     assert seen["state.rate"] in (Verdict.PASS, Verdict.WARN)
     order = next(r for r in report.results if r.rule == "framing.byte-order").detail
-    assert order.startswith(config.get("byte_order", "little"))
+    assert order.startswith(config.get("byte_order", "big" if profile == "fanuc" else "little"))
     size = next(r for r in report.results if r.rule == "framing.float-size").detail
     assert size.startswith("float64" if config.get("float64") else "float32")
 
@@ -96,15 +92,27 @@ async def test_passes_against_the_emulator_without_motion(profile: str, config: 
 @pytest.mark.slow
 @pytest.mark.parametrize(
     ("profile", "config"),
-    [("generic", {}), ("generic", {"byte_order": "big", "float64": True}), ("abb", {}), ("motoros", {})],
+    [
+        ("generic", {}),
+        ("generic", {"byte_order": "big", "float64": True}),
+        ("abb", {}),
+        ("fanuc", {}),
+        ("staubli", {}),
+        ("motoros", {}),
+    ],
     ids=str,
 )
 async def test_passes_against_the_emulator_with_motion(profile: str, config: dict[str, Any]) -> None:
     report = await against_emulator(profile, True, **config)
     seen = verdicts(report)
     assert report.exit_code == 0, failed(report)
+    # what the real controllers do, each WARNed with its source: ABB acknowledges the point beyond
+    # its limits (its motion task refuses it later); Fanuc's STOP stops nothing, and a short move
+    # may be over between two of its STATUS
+    known = {"abb": {"motion.out-of-limit"}, "fanuc": {"motion.stop", "motion.in-motion"}}.get(profile, set())
     for rule in ("motion.preconditions", "motion.small-move", "motion.in-motion", "motion.stop", "motion.out-of-limit"):
-        assert seen[rule] is Verdict.PASS, failed(report)
+        expected = (Verdict.PASS, Verdict.WARN) if rule in known else (Verdict.PASS,)
+        assert seen[rule] in expected, failed(report)
     if profile == "motoros":
         for rule in ("motoros.traj-mode", "motoros.busy", "motoros.start-position", "motoros.check-motion-ready"):
             assert seen[rule] is Verdict.PASS, failed(report)

@@ -35,6 +35,12 @@ class Expectations:
     rates: dict[int, float] = field(default_factory=dict)
     #: where its behaviour is documented
     source: str = ""
+    #: why malformed frames must not be sent to it (None: they may, each on its own connection)
+    no_malformed: str | None = None
+    #: its STOP is known to stop nothing (why; a WARN, not a FAIL, when the robot goes on)
+    stop_stops_nothing: str | None = None
+    #: it acknowledges a point before checking it, then answers FAILURE and hangs up (Fanuc's relay)
+    acks_before_checking: bool = False
 
 
 EXPECTATIONS: dict[str, Expectations] = {
@@ -48,6 +54,8 @@ EXPECTATIONS: dict[str, Expectations] = {
         MsgType.JOINT_POSITION,
         {MsgType.JOINT_POSITION: 10.0, MsgType.STATUS: 10.0},
         "abb_driver's RAPID servers (simple-message.md §8.2)",
+        no_malformed="RAPID's motion server stops on a message it cannot read, unanswered, until its program is "
+        "restarted (ROS_messages.sys:111-124, ROS_motionServer.mod:51): not sent",
     ),
     "fanuc": Expectations(
         FANUC,
@@ -56,6 +64,9 @@ EXPECTATIONS: dict[str, Expectations] = {
         MsgType.JOINT_POSITION,
         {MsgType.JOINT_POSITION: 1000.0 / 24.0, MsgType.STATUS: 1000.0 / 24.0 / 11.0},
         "fanuc_driver's KAREL servers (simple-message.md §8.3)",
+        stop_stops_nothing="Fanuc's relay answers STOP SUCCESS, but its CANCEL stops nothing: the TP program runs "
+        "the points it has taken (ros_relay.kl:309-318, ros-industrial/fanuc#93)",
+        acks_before_checking=True,
     ),
     "staubli": Expectations(
         STAUBLI,

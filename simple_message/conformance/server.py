@@ -495,6 +495,8 @@ class ServerSuite(_MotionRules):
         return _Verdict(Verdict.FAIL, f"result {msg.result}: neither TRUE nor FALSE", ev)
 
     async def _malformed(self) -> _Verdict:
+        if self.expect.no_malformed is not None:
+            raise _Skip(self.expect.no_malformed)
         assert self.wire is not None
         o = self.options
         port = o.ports["motion"]
@@ -588,6 +590,15 @@ class ServerSuite(_MotionRules):
             joints = _joints_of(seen.message)
             if joints is not None:
                 return joints
+        return None
+
+    def _status_since(self, since: float) -> Status | None:
+        """The latest STATUS received at ``time.monotonic()`` ``since`` or later, if any."""
+        for seen in reversed(self._state_seen()):
+            if seen.time < since:
+                return None
+            if isinstance(seen.message, Status):
+                return seen.message
         return None
 
     def _current_status(self) -> Status | None:

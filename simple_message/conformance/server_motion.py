@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import time
 from collections.abc import Awaitable, Callable, Sequence
 from typing import TYPE_CHECKING
@@ -42,7 +43,7 @@ from ..messages import (
     MotoMotionReply,
     Status,
 )
-from .expectations import SERVER_RULES
+from .expectations import SERVER_RULES, Expectations
 from .links import Link, Seen
 from .report import Evidence, Report, Verdict
 from .server_checks import STILL, _mode, _Skip, _status_text, _tri, _Verdict
@@ -101,6 +102,12 @@ class _MotionRules:
         def _current_joints(self) -> tuple[float, ...] | None: ...
 
         def _current_status(self) -> Status | None: ...
+
+        def _status_since(self, since: float) -> Status | None: ...
+
+        async def _reopen_motion(self) -> None: ...
+
+        expect: Expectations
 
         def _state_fresh(self, within: float = 1.0) -> bool: ...
 
@@ -191,7 +198,9 @@ class _MotionRules:
                 tuple(positions),
                 (0.0,) * len(positions),
             )
-        return JointTrajPt(sequence, tuple(positions), velocity=ratio if seconds > 0 else 0.0, duration=seconds)
+        # a controller that moves at the velocity given (Stäubli) refuses 0 even for the first point
+        velocity = ratio if seconds > 0 or not self.dialect.timed else 0.0
+        return JointTrajPt(sequence, tuple(positions), velocity=velocity, duration=seconds)
 
     def _sequences(self) -> tuple[int, int]:
         """A two-point trajectory's sequence numbers: streamed (0, 1), or for ABB a download (-1,
@@ -214,7 +223,14 @@ class _MotionRules:
         return target
 
     async def _send_move(
-        self, start: tuple[float, ...], target: Sequence[float], seconds: float, ev: list[Evidence], what: str
+        self,
+        start: tuple[float, ...],
+        target: Sequence[float],
+        seconds: float,
+        ev: list[Evidence],
+        what: str,
+        *,
+        ratio: float = 0.1,
     ) -> None:
         """A two-point trajectory from where the robot is to ``target`` in ``seconds``, both points
         accepted (BUSY is resent: MotoROS's flow control); else :class:`_Abort` saying why, with
@@ -222,7 +238,7 @@ class _MotionRules:
         assert self.motion is not None
         first, second = self._sequences()
         for seq, pos, dt in ((first, start, 0.0), (second, target, seconds)):
-            reply = await self._send_point(self._point(seq, pos, dt, dt), ev)
+            reply = await self._send_point(self._point(seq, pos, dt, dt, ratio), ev)
             if reply is None:
                 why = "the connection was closed" if not self.motion.alive else "no reply"
                 raise _Abort(f"{what}: {why} (point {seq})", ev)
@@ -248,11 +264,16 @@ class _MotionRules:
             await asyncio.sleep(0.01)  # MotoROS's client resends a BUSY point every few ms
 
     async def _settle(self, timeout: float) -> tuple[float, ...] | None:
-        """Wait for in_motion FALSE (or the joints still, when STATUS says UNKNOWN) and return the
-        joints then."""
+        """Wait for in_motion FALSE (or the joints still, when STATUS says UNKNOWN) in a STATUS
+        sent after the wait began (one from before may predate a motion that has not begun yet:
+        Fanuc sends STATUS about 4 times a second), and return the joints then."""
         last: list[tuple[float, ...]] = []
+        began = time.monotonic()
 
-        def done(joints: tuple[float, ...], status: Status | None) -> bool:
+        def done(joints: tuple[float, ...], _status: Status | None) -> bool:
+            status = self._status_since(began)
+            if status is None:
+                return False
             last.append(joints)
             if status is not None and status.in_motion == TriState.FALSE:
                 return len(last) > 1 and _distance(last[-2], joints) <= STILL
@@ -290,7 +311,7 @@ class _MotionRules:
         await self._send_move(start, target, o.move_time, ev, "a small move near the current position")
         final = await self._settle_after_motion(o.move_time + o.motion_timeout)
         took = time.monotonic() - sent_at
-        await self._rule("motion.in-motion", lambda: self._in_motion_verdict(final, ev))
+        await self._rule("motion.in-motion", lambda: self._in_motion_verdict(final, ev, took))
         if final is None:
             raise _Abort(f"the move did not end within {o.move_time + o.motion_timeout:g} s", ev)
         error = _distance(final, target)
@@ -312,11 +333,23 @@ class _MotionRules:
             return self._current_joints()
         return await self._settle(timeout)
 
-    async def _in_motion_verdict(self, final: tuple[float, ...] | None, ev: list[Evidence]) -> _Verdict:
+    async def _in_motion_verdict(
+        self, final: tuple[float, ...] | None, ev: list[Evidence], took: float = math.inf
+    ) -> _Verdict:
         status = self._current_status()
         if status is None:
             raise _Skip("no STATUS")
         if not self._saw_in_motion:
+            rate = self.expect.rates.get(MsgType.STATUS)
+            if rate is not None and took < 2.0 / rate:
+                # a controller that moves at its own speed may be done between two STATUS (Fanuc's
+                # come about every 0.26 s): nothing seen, nothing wrong
+                return _Verdict(
+                    Verdict.WARN,
+                    f"in_motion not seen TRUE: the move was over within {took:.2f} s, and STATUS comes every "
+                    f"{1.0 / rate:.2f} s; try a larger --amplitude",
+                    ev[:1],
+                )
             return _Verdict(Verdict.FAIL, "in_motion never TRUE during the move", ev[:1])
         if final is None or status.in_motion != TriState.FALSE:
             return _Verdict(
@@ -333,7 +366,9 @@ class _MotionRules:
         seconds = 2 * o.move_time
         target = self._target(start, o.amplitude)
         ev: list[Evidence] = [Evidence.note(f"a {seconds:g} s move of joint {o.joint}, stopped once it moves")]
-        await self._send_move(start, target, seconds, ev, "the move to stop")
+        # a controller that moves at the velocity given (Stäubli) is asked for 1 %: slow enough to stop
+        ratio = 0.1 if self.dialect.timed else 0.01
+        await self._send_move(start, target, seconds, ev, "the move to stop", ratio=ratio)
         # STOP once a tenth of the way is done (the move is then surely under way)
         moving = await self._wait_state(lambda j, s: _distance(j, start) > o.amplitude / 10, seconds + o.motion_timeout)
         at_stop = self._current_joints()
@@ -374,6 +409,9 @@ class _MotionRules:
         )
         await self._return_to(start)
         if short <= o.tolerance:
+            known = self.expect.stop_stops_nothing
+            if known is not None:
+                return _Verdict(Verdict.WARN, f"the robot went on to the target after STOP: {known}", ev)
             return _Verdict(Verdict.FAIL, "the robot went on to the target after STOP", ev)
         return _Verdict(Verdict.PASS, f"answered in {latency:.1f} ms, stopped {short:.4f} rad short", ev)
 
@@ -397,6 +435,25 @@ class _MotionRules:
             raise _Skip("the trajectory's first point, at the current position, was refused")
         reply = await self._send_point(self._point(second_seq, target, seconds, seconds, ratio=0.01), ev)
         accepted = self._accepted(reply)
+        if accepted and self.expect.acks_before_checking:
+            # Fanuc's relay acknowledges what it reads, then checks it: a FAILURE follows, and it hangs up
+            late = await self.motion.next_frame(self.options.reply_timeout)
+            if late is not None:
+                ev.append(late.evidence(self._real))
+            if late is not None and late.message is not None and late.message.reply_code == ReplyCode.FAILURE:
+                moved = await self._wait_state(lambda j, s: _distance(j, start) > 10 * STILL, 0.5)
+                closed = not self.motion.alive or await self.motion.next_frame(self.options.reply_timeout) is None
+                await self._reopen_motion()
+                if moved:
+                    ev.append(Evidence.note(f"moved: {self._moved_since(start)}"))
+                    return _Verdict(Verdict.FAIL, "the robot moved towards a point beyond its limits", ev)
+                return _Verdict(
+                    Verdict.PASS,
+                    "acknowledged as it was read, then refused (FAILURE)"
+                    + (" and the connection closed" if closed else "")
+                    + ", as Fanuc's relay does (ros_relay.kl:328-349); nothing moved",
+                    ev,
+                )
         if accepted or reply is None:
             with contextlib.suppress(Exception):
                 await self._exchange(self.motion, self._stop_message())
