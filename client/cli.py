@@ -163,6 +163,13 @@ def parser() -> argparse.ArgumentParser:
         + "; ".join(f"{name}: {entry.description}" for name, entry in sorted(DIALECTS.items())),
     )
     add_profile_wire_arguments(common, ("little", "big"), "fanuc: big")
+    common.add_argument(
+        "--j23-factor",
+        type=int,
+        choices=(-1, 0, 1),
+        help="fanuc: the controller's J3 is the model's J3 minus this times J2, as fanuc_driver's J23_factor "
+        "converts it (default: 1 for fanuc, 0 for the others)",
+    )
     common.add_argument("--serial", metavar="URL", help="one serial link for motion and state (pyserial URL)")
     common.add_argument(
         "--model",
@@ -291,6 +298,7 @@ def _driver(args: argparse.Namespace, model: RobotModel, capture: CaptureWriter 
         reply_timeout=args.timeout,
         serial=args.serial,
         tap=capture,
+        j23_factor=args.j23_factor,
     )
 
 

@@ -210,9 +210,17 @@ class RobotDriver:
         tcp_tolerance: float = 0.001,
         orientation_tolerance: float = 0.01,
         tap: Tap | None = None,
+        j23_factor: int | None = None,
     ) -> None:
         #: the controller family (its ports, byte order, reply rule, how motion is commanded)
         self.dialect = dialect(profile) if isinstance(profile, str) else profile
+        if j23_factor is None:
+            j23_factor = 1 if self.dialect.j23_coupled else 0
+        if j23_factor not in (-1, 0, 1):
+            raise ValueError(f"j23_factor is -1, 0 or 1 (fanuc_driver's J23_factor), not {j23_factor}")
+        #: the controller's J3 is the model's J3 minus this times J2 (Fanuc's coupling, as fanuc_driver
+        #: converts it): points are sent and joint states read in the model's joints
+        self.j23_factor = j23_factor
         self.host = host
         self.motion_port = motion_port if motion_port is not None else self.dialect.motion_port
         self.state_port = state_port if state_port is not None else self.dialect.state_port
@@ -383,7 +391,21 @@ class RobotDriver:
 
     def _positions(self, values: tuple[float, ...]) -> Array:
         dof = self.model.dof if self.model is not None else len(values)
-        return np.array(values[:dof], dtype=float)
+        return self.from_controller(np.array(values[:dof], dtype=float))
+
+    def from_controller(self, joints: Array) -> Array:
+        """The controller's joints as the model's (Fanuc's J3: + J23_factor x J2)."""
+        if self.j23_factor and joints.shape[-1] >= 3:
+            joints = joints.copy()
+            joints[..., 2] += self.j23_factor * joints[..., 1]
+        return joints
+
+    def to_controller(self, joints: Array) -> Array:
+        """The model's joints as the controller takes them (Fanuc's J3: - J23_factor x J2)."""
+        if self.j23_factor and joints.shape[-1] >= 3:
+            joints = np.array(joints, dtype=float)
+            joints[..., 2] -= self.j23_factor * joints[..., 1]
+        return joints
 
     @property
     def joint_state(self) -> JointState | None:
@@ -461,7 +483,14 @@ class RobotDriver:
     # -- requests ----------------------------------------------------------------------------------
 
     async def ping(self) -> float:
-        """Round-trip time of a PING (s)."""
+        """Round-trip time of a PING (s). A controller whose motion port answers no PING (ABB's
+        RAPID server stops on one; Fanuc's and Stäubli's never answer) is not sent one:
+        :class:`DriverError`."""
+        if not self.dialect.ping:
+            raise DriverError(
+                f"the {self.dialect.name} controller's motion port answers no PING (ABB's RAPID server would stop "
+                "on one; Fanuc's and Staubli's leave it unanswered): not sent"
+            )
         start = time.perf_counter()
         await self._request(Ping())
         return time.perf_counter() - start

@@ -66,9 +66,19 @@ class TrajectorySender:
 
     def _point(self, trajectory: Trajectory, k: int, sequence: int, comm_type: int) -> JointTrajPt:
         duration = 0.0 if k == 0 else float(trajectory.times[k] - trajectory.times[k - 1])
+        positions = trajectory.positions[k]
+        skip = self.driver.dialect.skips_first_within
+        state = self.driver.joint_state
+        if k == 0 and skip is not None and state is not None:
+            # ABB skips a first point within 0.1 degree of the robot and moves to any other in its
+            # duration (0 here): the first point sent is where the robot is (the start gap, within
+            # the goal tolerance, is made up by the next segment)
+            here = state.positions[: positions.size]
+            if np.max(np.abs(here - positions)) >= skip:
+                positions = here
         return JointTrajPt(
             sequence,
-            tuple(trajectory.positions[k]),
+            tuple(self.driver.to_controller(np.asarray(positions, dtype=float)).tolist()),
             self.ratio(trajectory, k),
             duration,
             comm_type=comm_type,

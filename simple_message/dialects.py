@@ -20,6 +20,7 @@ here, with its tests); ``robot_server.emulator.profiles`` says how the emulator 
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -113,6 +114,12 @@ class Dialect:
     #: it answers a request of a type it does not know (the C++ library: FAILURE; MotoROS: INVALID);
     #: ABB's, Fanuc's and Stäubli's servers do not (nor a PING: ``ping``)
     unknown_types: bool = True
+    #: its J3 is measured from the horizontal, not from J2's link: J3 - J23_factor x J2 of the
+    #: model's (Fanuc; fanuc_driver's ``J23_factor`` converts both ways, 1 by default here)
+    j23_coupled: bool = False
+    #: a trajectory's first point closer than this (rad, every joint) is skipped; farther, the
+    #: controller moves there first, in that point's duration (ABB's ``is_near``: 0.1 degree)
+    skips_first_within: float | None = None
 
     def __post_init__(self) -> None:
         # read-only: a built-in dialect's rules cannot be changed behind every link's back
@@ -159,6 +166,7 @@ ABB = Dialect(
     max_points=100,
     ping=False,
     unknown_types=False,
+    skips_first_within=math.radians(0.1),
 )
 FANUC = Dialect(
     name="fanuc",
@@ -173,6 +181,7 @@ FANUC = Dialect(
     modes=("stream",),
     ping=False,
     unknown_types=False,
+    j23_coupled=True,
 )
 STAUBLI = Dialect(
     name="staubli",
