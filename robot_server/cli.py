@@ -111,13 +111,13 @@ def parser() -> argparse.ArgumentParser:
         "--motion-port",
         type=server_port,
         metavar="PORT",
-        help="motion port to bind, 0..65535, 0: any free port (default: the profile's, 11000 generic, 50240 motoros)",
+        help="motion port to bind, 0..65535, 0: any free port (default: the profile's, 11000; motoros 50240)",
     )
     p.add_argument(
         "--state-port",
         type=server_port,
         metavar="PORT",
-        help="state port to bind, 0..65535, 0: any free port (default: the profile's, 11002 generic, 50241 motoros)",
+        help="state port to bind, 0..65535, 0: any free port (default: the profile's, 11002; motoros 50241)",
     )
     p.add_argument(
         "--io-port",
@@ -134,12 +134,12 @@ def parser() -> argparse.ArgumentParser:
         + "; ".join(f"{name}: {entry.description}".replace("%", "%%") for name, entry in PROFILES.items())
         + ")",
     )
-    add_profile_wire_arguments(p, ("little", "big", "auto"), "little for both built-in profiles")
+    add_profile_wire_arguments(p, ("little", "big", "auto"), "little; fanuc big")
     p.add_argument(
         "--reply-style",
         choices=("echo", "header"),
-        help="generic replies echo the body (echo: the C++ library) or are header-only (header: ABB) "
-        "(default: the profile's; echo for generic)",
+        help="generic replies echo the body (echo: the C++ library) or are header-only (header: as ABB's) "
+        "(default: the profile's; echo for generic; the vendors' profiles reply their own way only)",
     )
     p.add_argument(
         "--state-rate",

@@ -29,6 +29,7 @@ PAGES = [
     "cartesian.md",
     "demo.md",
     "ros.md",
+    "vendors.md",
     "troubleshooting.md",
     "conformance.md",
     "web.md",

@@ -367,6 +367,7 @@ FANUC_PROFILE = register_profile(
         state_rate=1000.0 / 24.0,
         on_disconnect=OnDisconnect.CONTINUE,
         fixed_wire=True,
+        motion="J moves at the R[1] % speed, CNT R[2] (the TP program's)",
         options={
             "speed": f"R[1], the moves' speed in % of the joints' maximum, default {DEFAULT_SPEED}",
             "cnt": f"R[2], the moves' CNT 0..100, default {DEFAULT_CNT}",

@@ -136,6 +136,9 @@ class EmulatorProfile:
     fixed_wire: bool = False
     #: the profile settings ``--profile-option KEY=VALUE`` takes, with their help
     options: Mapping[str, str] = field(default_factory=dict)
+    #: how its points are moved, when not by the interpolation policy (``--interpolation``): said in
+    #: the ready line (Fanuc's and Stäubli's are the controller's own joint moves)
+    motion: str | None = None
 
     def __post_init__(self) -> None:
         unknown = set(self.ports) - set(ROLES)

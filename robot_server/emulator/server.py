@@ -601,5 +601,5 @@ class Emulator:
         return (
             f"robot-server ready: {cfg.profile} profile, {models}, {ports}, {order} float{64 if cfg.float64 else 32}, "
             f"{cfg.replies.value} replies, "
-            f"{cfg.interpolation} interpolation, {timing}"
+            f"{self.config.emulated.motion or f'{cfg.interpolation} interpolation'}, {timing}"
         )

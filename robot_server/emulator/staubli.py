@@ -382,6 +382,7 @@ STAUBLI_PROFILE = register_profile(
         "point; 10-point queue, FAILURE when full; motion only while both sockets are connected",
         state_rate=50.0,
         fixed_wire=True,
+        motion="movej at each point's velocity share, stopping at each",
         options={"motion_stack": f"moves the VAL3 motion stack holds, default {VAL3_MOTION_STACK}"},
     )
 )
