@@ -175,7 +175,13 @@ def add_conformance_parser(sub: argparse._SubParsersAction[ArgumentParser]) -> N
 
 
 def _add_profile(parser: argparse.ArgumentParser, what: str, choices: Sequence[str] = _PROFILES) -> None:
-    parser.add_argument("--profile", choices=tuple(choices), default="generic", help=f"{what} (default: generic)")
+    parser.add_argument(
+        "--profile",
+        choices=tuple(choices),
+        default="generic",
+        metavar="PROFILE",
+        help=f"{what}: {', '.join(choices)} (default: generic)",
+    )
 
 
 def _add_report_arguments(parser: argparse.ArgumentParser) -> None:
