@@ -73,6 +73,8 @@ class RobotCell:
         self._was_moving = [False] * len(self.groups)
         self._points = [0] * len(self.groups)
         self._started = [0.0] * len(self.groups)
+        #: the group's last motion was joint moves (submit_move), not a trajectory
+        self._moves = [False] * len(self.groups)
         #: called with (group, point) for every joint point a controller accepted, in order (e.g. a
         #: display marking the waypoints); must not raise or block
         self.point_listeners: list[Callable[[int, Point], None]] = []
@@ -205,7 +207,14 @@ class RobotCell:
         self.check_ready()
         if target.positions is None:
             raise PointRejected(Reason.MISSING_FIELDS, "a move needs a target position")
+        from_rest = not controller.in_motion
         begin = controller.add_move(target.positions, speed=speed, blend=blend, acceleration=acceleration)
+        self._moves[group] = True
+        if from_rest:
+            self._points[group] = 0
+            self._started[group] = controller.time
+            log.info("group %d: joint moves started", group)
+        self._points[group] += 1
         for listener in self.point_listeners:
             listener(group, target)
         return begin
@@ -231,6 +240,7 @@ class RobotCell:
 
     def _count(self, group: int, trajectories_before: int) -> None:
         controller = self.groups[group]
+        self._moves[group] = False
         if controller.trajectories != trajectories_before:
             self._points[group] = 0
             self._started[group] = controller.time
@@ -314,10 +324,11 @@ class RobotCell:
         for i, (now, before) in enumerate(zip(moving, self._was_moving, strict=True)):
             if before and not now:
                 g = self.groups[i]
+                what = "joint moves" if self._moves[i] else f"trajectory {g.trajectories}"
                 log.info(
-                    "group %d: trajectory %d done: %d points, settled after %.3f s",
+                    "group %d: %s done: %d points, settled after %.3f s",
                     i,
-                    g.trajectories,
+                    what,
                     self._points[i],
                     g.time - self._started[i],
                 )
