@@ -58,7 +58,6 @@ from simple_message.dialects import ABB
 from simple_message.endpoints import NO_REPLY, HandlerResult, Server, Session
 from simple_message.errors import MalformedMessage
 from simple_message.fixed_reads import FRAME_HEAD, FixedReads
-from simple_message.framing import DEFAULT_MAX_LENGTH
 from simple_message.messages import JointPosition, Message, RawMessage, Status
 from simple_message.wire import WireFormat
 
@@ -339,18 +338,12 @@ class AbbBehaviour:
         return self.cell.status()
 
 
-def _reads(wire: WireFormat, lenient: bool = False) -> FixedReads:
-    return AbbReads(wire, lenient=lenient)
-
-
 ABB_PROFILE = register_profile(
     EmulatorProfile(
         ABB,
         AbbBehaviour,
         ports={
-            "motion": PortRules(
-                max_connections=1, excess="wait", answer_topics=True, reader=_reads, max_length=DEFAULT_MAX_LENGTH
-            ),
+            "motion": PortRules(max_connections=1, excess="wait", answer_topics=True, reader=AbbReads),
             "state": PortRules(max_connections=1, excess="wait", listen_only=True),
         },
         start_tolerance=ABB_SKIP_TOLERANCE,

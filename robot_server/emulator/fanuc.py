@@ -350,16 +350,12 @@ class FanucBehaviour:
         return self.cell.status()
 
 
-def _reads(wire: WireFormat, lenient: bool = False) -> FixedReads:
-    return FanucReads(wire, lenient=lenient)
-
-
 FANUC_PROFILE = register_profile(
     EmulatorProfile(
         FANUC,
         FanucBehaviour,
         ports={
-            "motion": PortRules(max_connections=1, excess="wait", answer_topics=True, reader=_reads),
+            "motion": PortRules(max_connections=1, excess="wait", answer_topics=True, reader=FanucReads),
             "state": PortRules(max_connections=1, excess="wait", listen_only=True),
         },
         description="Fanuc, fanuc_driver's KAREL relay and TP program: each point a J move at 20 % CNT50 (time "

@@ -23,7 +23,6 @@ from typing import Literal, Protocol
 from simple_message.dialects import Dialect
 from simple_message.endpoints import Server, Session
 from simple_message.fixed_reads import FixedReads
-from simple_message.framing import DEFAULT_MAX_LENGTH
 from simple_message.registry import Registry
 from simple_message.wire import WireFormat
 
@@ -52,6 +51,12 @@ STATE_LINK = "carries_state"
 ROLES = ("motion", "state", "io")
 
 
+class ReaderFactory(Protocol):
+    """Makes a connection's frame cutter: ``reader(wire, lenient=...)`` (a FixedReads subclass)."""
+
+    def __call__(self, wire: WireFormat, *, lenient: bool = False) -> FixedReads: ...
+
+
 @dataclass(frozen=True)
 class PortRules:
     """What the emulated controller allows on one of its ports."""
@@ -67,13 +72,11 @@ class PortRules:
     #: ends (a controller whose server accepts its next client only when the last has gone: the
     #: newcomer's connect succeeds in the listen backlog and nothing answers it)
     excess: Literal["close", "wait"] = "close"
-    #: how the controller cuts its input, given the wire format and whether the emulator is lenient
-    #: (``--lenient``): ``None`` by the length prefix; else a :class:`~simple_message.fixed_reads.FixedReads`
-    reader: Callable[[WireFormat, bool], FixedReads] | None = None
+    #: how the controller cuts its input: ``None`` by the length prefix; else a
+    #: :class:`~simple_message.fixed_reads.FixedReads` made per connection (``--lenient`` given)
+    reader: ReaderFactory | None = None
     #: each frame written in these pieces, one write each (``None``: one write per frame)
     write_split: Callable[[bytes], Sequence[bytes]] | None = None
-    #: the largest length prefix it takes (a larger one ends the connection)
-    max_length: int = DEFAULT_MAX_LENGTH
 
 
 @dataclass(frozen=True)

@@ -58,7 +58,7 @@ from .cell import RobotCell, apply_fault_command
 from .generic import GENERIC_PROFILE
 from .io_table import IoTable
 from .owner import MotionOwner, OnDisconnect
-from .profiles import ROLES, STATE_LINK, Behaviour, EmulatorProfile, ProfileContext, profile_named
+from .profiles import ROLES, STATE_LINK, Behaviour, EmulatorProfile, ProfileContext, ReaderFactory, profile_named
 
 __all__ = ["Emulator", "EmulatorConfig", "PeriodStats"]
 
@@ -223,9 +223,9 @@ class EmulatorConfig:
         return default if chosen is None else chosen
 
 
-def _reader(make: Callable[[WireFormat, bool], FixedReads], lenient: bool, wire: WireFormat) -> FixedReads:
+def _reader(make: ReaderFactory, lenient: bool, wire: WireFormat) -> FixedReads:
     """A connection's frame cutter, as the profile makes it."""
-    return make(wire, lenient)
+    return make(wire, lenient=lenient)
 
 
 def _check_fixed_wire(config: EmulatorConfig, profile: EmulatorProfile) -> None:
@@ -359,7 +359,6 @@ class Emulator:
                 write_split=rules.write_split,
                 validate_headers=reader is None,
                 excess=rules.excess,
-                max_length=rules.max_length,
             )
         self.motion_server = self.servers["motion"]
         # a profile without a state port still has one server for the serial link's state topics

@@ -364,17 +364,13 @@ class StaubliBehaviour:
         return self.state.status()
 
 
-def _reads(wire: WireFormat, lenient: bool = False) -> FixedReads:
-    return StaubliReads(wire, lenient=lenient)
-
-
 STAUBLI_PROFILE = register_profile(
     EmulatorProfile(
         STAUBLI,
         StaubliBehaviour,
         ports={
             "motion": PortRules(
-                max_connections=1, excess="wait", answer_topics=True, reader=_reads, write_split=staubli_split
+                max_connections=1, excess="wait", answer_topics=True, reader=StaubliReads, write_split=staubli_split
             ),
             "state": PortRules(max_connections=1, excess="wait", listen_only=True, write_split=staubli_split),
         },
