@@ -91,17 +91,28 @@ async def test_the_relay_reads_the_next_point_only_when_the_tp_program_has_taken
         assert acked > 0.5
 
 
-async def test_cnt50_blends_the_moves_without_a_stop_and_the_robot_ends_on_the_last_point() -> None:
+#: onwards from A: no joint turns back at A
+ONWARD = [0.6, -0.4, 0.1, 0.6, -0.5, 0.7]
+
+
+@pytest.mark.parametrize("last", [ONWARD, B], ids=["onward", "turning-back"])
+async def test_cnt50_blends_the_moves_within_the_limits_and_the_robot_ends_on_the_last_point(last: list[float]) -> None:
     async with vendor_emulator("fanuc") as (emu, clock, wire):
         recorders = emu.record(30.0)
         motion = await connect(emu, "motion", ">")
-        for seq, q in enumerate([A, B]):
+        for seq, q in enumerate([A, last]):
             await motion.send(point(seq, q))
         await until(clock, lambda: len(replies(wire)) == 2 and not emu.cell.in_motion, limit=20.0)
         speed = np.max(np.abs(recorders[0].get("command_velocity")), axis=1)
         fast = np.flatnonzero(speed > 0.05)
-        assert np.all(speed[fast[0] : fast[-1]] > 0.05)  # no stop between the first and the last point
-        assert np.max(np.abs(position(emu) - model_joints(B))) < 1e-6
+        slowest = np.min(speed[fast[0] : fast[-1]])
+        if last is ONWARD:
+            assert slowest > 0.05  # the corner blended at speed
+        else:  # joints 1 and 4 turn back: only the jerk ramps overlap, the robot slows but never stops
+            assert 0.0 < slowest < 0.05
+        acceleration = np.abs(recorders[0].get("command_acceleration"))
+        assert np.all(acceleration <= MODEL.max_acceleration + 1e-6)
+        assert np.max(np.abs(position(emu) - model_joints(last))) < 1e-6
 
 
 async def test_start_download_and_end_points_get_no_reply_and_stop_stops_nothing(

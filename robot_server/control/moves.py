@@ -29,9 +29,17 @@ that comes after the current one has ended starts from rest.
 
 :meth:`JointMoves.ready_at` tells when the program running the moves could take the next one: a
 TP program's ``J ... CNT`` line lets the program go on when the blending window begins (at once
-for a move from rest). A stop decelerates from the current setpoint to rest, jerk-limited within
-the full limits (as :meth:`.motion.MotionQueue.stop`). Sans-I/O and deterministic: the controller
-samples it at its interpolation instants.
+for a move from rest). Where a joint turns back (its way in the next move is opposite to the
+one in the current move), the current move's deceleration and the next one's acceleration have
+the same sign for that joint and add up: the overlap is then at most the last jerk ramp of the
+current move (its acceleration dying away) and the first of the next (building up), over which the
+sum of the two ramps stays within the larger of them, so within the joint's acceleration limit.
+
+A stop decelerates from the current setpoint to rest, jerk-limited within the full limits (as
+:meth:`.motion.MotionQueue.stop`). A move that comes while a stop is under way is planned from
+where the stop ends and begins when it has ended: a stop is never cut short, so the setpoint stays
+continuous in velocity and acceleration. Sans-I/O and deterministic: the controller samples it at
+its interpolation instants.
 """
 
 from __future__ import annotations
@@ -66,6 +74,9 @@ class Move:
     #: how long the profile accelerates and decelerates (s)
     accelerating: float
     decelerating: float
+    #: how long its acceleration takes to build up at the start and to die away at the end (s)
+    ramp_in: float = 0.0
+    ramp_out: float = 0.0
 
     @property
     def duration(self) -> float:
@@ -104,17 +115,32 @@ class JointMoves:
 
     def remaining(self) -> float:
         """Seconds until the last move (or the stop) ends."""
+        ends = [m.end for m in self._moves]
         if self._stopping is not None:
-            begin, segment = self._stopping
-            return max(0.0, begin + segment.duration - self._t)
-        return max((m.end - self._t for m in self._moves), default=0.0) if self._moves else 0.0
+            ends.append(self._stop_end())
+        return max(0.0, max(ends) - self._t) if ends else 0.0
 
     @property
     def end_position(self) -> Array:
-        """Where the queued moves end (the target of the last one)."""
+        """Where the queued moves end (the target of the last one), or the stop does."""
         if self._moves:
             return self._moves[-1].target
+        if self._stopping is not None:
+            return self._stop_position()
         return self._state.position
+
+    def _stop_end(self) -> float:
+        assert self._stopping is not None
+        begin, segment = self._stopping
+        return begin + segment.duration
+
+    def _stop_position(self) -> Array:
+        assert self._stopping is not None
+        return self._stop_position_of(self._stopping[1])
+
+    @staticmethod
+    def _stop_position_of(segment: RuckigSegment) -> Array:
+        return np.array(segment.sample(segment.duration).position, dtype=float)
 
     def ready_at(self, blend: float) -> float:
         """When a program running these moves one instruction at a time could take the next one:
@@ -156,9 +182,11 @@ class JointMoves:
         if not 0.0 <= blend <= 1.0:
             raise ValueError(f"blend must be within 0..1, not {blend}")
         within(target, lim.lower, lim.upper, Reason.POSITION_LIMIT, "position")
-        previous = self._moves[-1] if self._moves and self._stopping is None else None
+        previous = self._moves[-1] if self._moves else None
         if previous is not None:
             start = previous.target
+        elif self._stopping is not None:  # the stop runs to its end first
+            start = self._stop_position()
         elif rest is not None:
             start = np.array(rest, dtype=float)
         else:
@@ -166,8 +194,9 @@ class JointMoves:
         delta = target - start
         way = np.abs(delta)
         moving = way > _STILL
+        earliest = self._t if self._stopping is None else max(self._t, self._stop_end())
         if not np.any(moving):
-            begin = self._t if previous is None else max(self._t, previous.end)
+            begin = earliest if previous is None else max(earliest, previous.end)
             return Move(begin, start, target, None, 0.0, 0.0)
         share = way[moving]
         v = float(np.min(speed * lim.velocity[moving] / share))
@@ -179,16 +208,15 @@ class JointMoves:
             raise PointRejected(Reason.TIMING, f"the move cannot be planned: {exc}") from None
         t = profile.trajectory.profiles[0][0].t
         accelerating, decelerating = float(t[0] + t[1] + t[2]), float(t[4] + t[5] + t[6])
-        begin = self._t
+        begin = earliest
         if previous is not None:
-            begin = max(begin, previous.end - blend * min(previous.decelerating, accelerating))
-        return Move(begin, start, target, profile, accelerating, decelerating)
+            turning = bool(np.any((previous.target - previous.start) * delta < 0.0))
+            window = min(previous.ramp_out, float(t[0])) if turning else min(previous.decelerating, accelerating)
+            begin = max(begin, previous.end - blend * window)
+        return Move(begin, start, target, profile, accelerating, decelerating, float(t[0]), float(t[6]))
 
     def commit(self, move: Move) -> None:
-        """Queue a move of :meth:`plan` (a stop under way is replaced: the move starts from where
-        the robot is, ``rest`` of the plan)."""
-        if self._stopping is not None:
-            self._stopping = None
+        """Queue a move of :meth:`plan` (after a stop under way, which runs to its end)."""
         if not self._moves:
             self._base = move.start.copy()
         self._moves.append(move)
@@ -200,13 +228,15 @@ class JointMoves:
         self._t = t
         if self._stopping is not None:
             begin, segment = self._stopping
-            s = segment.sample(t - begin)
-            self._state = State(s.position, s.velocity, s.acceleration)
-            if t >= begin + segment.duration:
-                self._stopping = None
-                self._base = self._state.position.copy()
+            if t < begin + segment.duration:
+                s = segment.sample(t - begin)
+                self._state = State(s.position, s.velocity, s.acceleration)
+                return self._state
+            self._stopping = None  # over: the moves queued meanwhile start where it ended
+            if not self._moves:
+                self._base = self._stop_position_of(segment)
                 self._state = State.rest(self._base)
-            return self._state
+                return self._state
         position = self._base.copy()
         velocity = np.zeros_like(position)
         acceleration = np.zeros_like(position)
