@@ -31,8 +31,8 @@ arrival order and answers every SERVICE_REQUEST exactly once, in order (simple-m
 * at most ``max_connections`` connections per server: excess ones are accepted and closed at once,
   with a log line, so the peer sees a clean EOF rather than a hang; or, with ``excess="wait"``, they
   wait unserved (not read, not written) until a connection ends, as in the listen backlog of a
-  controller that accepts its next client only when the last one has gone (at most
-  ``MAX_WAITING`` of them; more are closed);
+  controller that accepts its next client only when the last one has gone (:mod:`.backlog`; at
+  most ``MAX_WAITING`` of them; more are closed);
 * writes are bounded per connection (:class:`~.connection.Connection`), so a stalled peer is closed
   and never delays the others. :meth:`Server.broadcast` publishes a topic to every connection: encoded
   once per wire format, and what one loop iteration broadcasts is written in one go per connection
@@ -67,11 +67,11 @@ import os
 import random
 import socket
 import time
-from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal, TypeVar, cast
+from typing import Any, Literal, TypeVar
 
+from .backlog import MAX_WAITING, Backlog, Waiting
 from .connection import Connection, ConnectionState, Subscription, Tap
 from .constants import CommType, MsgType, ReplyCode
 from .dialects import Dialect, ReplyStyle, any_dialect_answers, reply_style_of
@@ -111,8 +111,6 @@ DEFAULT_IDLE_AFTER = 10.0
 _DEAF_BYTES = 16 * 1024
 #: how long a full port trusts its last look at what its peers left unread (s)
 _UNREAD_SCAN_AGE = 1.0
-#: connections a full server with ``excess="wait"`` keeps waiting for their turn
-MAX_WAITING = 8
 
 
 class _NoReply(enum.Enum):
@@ -241,8 +239,6 @@ class Server:
             raise ValueError(f"excess must be 'close' or 'wait', not {excess!r}")
         #: what a connection beyond ``max_connections`` gets: closed at once, or a wait for its turn
         self.excess = excess
-        #: connections waiting for their turn (``excess="wait"``), oldest first
-        self._waiting: deque[_Waiting] = deque()
         #: sees the traffic of every connection accepted from now on (:class:`~.connection.Tap`,
         #: e.g. a :class:`~.capture_writer.CaptureWriter`)
         self.tap = tap
@@ -285,6 +281,8 @@ class Server:
         self.evicted = 0
         #: the lines refused and evicted connections cause (one budget for the port)
         self._log_budget = LogBudget(name)
+        #: connections waiting for their turn (``excess="wait"``), oldest first
+        self._waiting = Backlog(name, self._log_budget)
         #: (when, unread bytes by session) of the last look a full port took (``_make_room``)
         self._unread_scan: tuple[float, dict[Session, int]] = (-_UNREAD_SCAN_AGE, {})
         #: PING is answered by the server itself (no handler, no arrival hook): the fast path
@@ -332,7 +330,7 @@ class Server:
             return
         self._serve_accepted(transport, peer)
 
-    def _serve_accepted(self, transport: asyncio.BaseTransport, peer: object, waited: _Waiting | None = None) -> None:
+    def _serve_accepted(self, transport: asyncio.BaseTransport, peer: object, waited: Waiting | None = None) -> None:
         # The session is counted at once: connections accepted in the same loop iteration see it.
         connection = self._connection(transport, f"{self.name} {peer}")
         if waited is not None:  # what the peer sent while it waited comes first
@@ -341,9 +339,8 @@ class Server:
             if waited.ended:
                 connection.eof_received()
         session = self._open(connection, None)
-        if waited is not None and waited.paused:
-            with contextlib.suppress(NotImplementedError, RuntimeError):
-                cast(asyncio.Transport, transport).resume_reading()
+        if waited is not None:
+            waited.resume()
         task = asyncio.get_running_loop().create_task(self._until_closed(session), name=f"sm-serve {session.name}")
         self._accepted.add(task)
         task.add_done_callback(self._accepted.discard)
@@ -351,36 +348,20 @@ class Server:
     def _wait_turn(self, transport: asyncio.BaseTransport, peer: object) -> None:
         """A connection beyond the limit of a server whose excess waits: not read, not answered,
         until a connection ends (:meth:`_next_turn`); beyond ``MAX_WAITING`` it is closed."""
-        transport = cast(asyncio.Transport, transport)  # a socket's (uvloop's is no asyncio.Transport subclass)
-        self._waiting = deque(w for w in self._waiting if not w.lost)  # gone while they waited
-        if len(self._waiting) >= MAX_WAITING:
+        if not self._waiting.add(transport, peer, self.max_connections):
             self.refused += 1
             self._log_budget.log(log, logging.WARNING, "refused %s: %d connections wait already", peer, MAX_WAITING)
             transport.close()
-            return
-        # what it sends meanwhile is kept for its turn (a paused transport may still have read some:
-        # uvloop starts reading after connection_made whatever was asked in it)
-        waiting = _Waiting(transport)
-        transport.set_protocol(waiting)
-        self._waiting.append(waiting)
-        self._log_budget.log(
-            log,
-            logging.INFO,
-            "%s waits: %d connection(s) is the limit, it is served when one ends",
-            peer,
-            self.max_connections,
-        )
 
     def _next_turn(self) -> None:
         """A connection ended: serve the oldest waiting one still open, if there is room."""
         while self._waiting and not self._closing:
-            live = sum(1 for s in self.sessions if not s.connection.closed)
-            if live >= self.max_connections:
+            if sum(1 for s in self.sessions if not s.connection.closed) >= self.max_connections:
                 return
-            waiting = self._waiting.popleft()
+            waiting = self._waiting.next_open()
+            if waiting is None:
+                return
             transport = waiting.transport
-            if waiting.lost or transport.is_closing():
-                continue
             peer = transport.get_extra_info("peername")
             log.info("%s: serving %s, which waited for its turn", self.name, peer)
             self._serve_accepted(transport, peer, waiting)
@@ -567,8 +548,7 @@ class Server:
         self._closing = True
         for server in self._servers:
             server.close()
-        while self._waiting:
-            self._waiting.popleft().transport.close()
+        self._waiting.drop()
         for session in list(self.sessions):
             await session.connection.close()
         if self._accepted:  # each finishes its session (on_disconnect) once its connection is closed
@@ -773,38 +753,6 @@ class _Accepted(asyncio.Protocol):
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.server._accept(transport)
-
-
-class _Waiting(asyncio.Protocol):
-    """The protocol of a connection waiting for its turn: what the peer sends is kept (at most
-    ``_WAITING_BYTES``; then reading pauses), and its end noted, for the connection it becomes."""
-
-    def __init__(self, transport: asyncio.Transport) -> None:
-        self.transport = transport
-        self.data: list[bytes] = []
-        self.size = 0
-        self.ended = False
-        self.lost = False
-        self.paused = False
-
-    def data_received(self, data: bytes) -> None:
-        self.data.append(data)
-        self.size += len(data)
-        if self.size >= _WAITING_BYTES and not self.paused:
-            self.paused = True
-            with contextlib.suppress(NotImplementedError, RuntimeError):
-                self.transport.pause_reading()
-
-    def eof_received(self) -> bool:
-        self.ended = True
-        return True  # kept open: its turn may still come, and what it sent is answered then
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        self.lost = True
-
-
-#: what a waiting connection may send before it is read no more (a few messages' worth)
-_WAITING_BYTES = 64 * 1024
 
 
 class _Later:
