@@ -32,7 +32,8 @@ arrival order and answers every SERVICE_REQUEST exactly once, in order (simple-m
   with a log line, so the peer sees a clean EOF rather than a hang; or, with ``excess="wait"``, they
   wait unserved (not read, not written) until a connection ends, as in the listen backlog of a
   controller that accepts its next client only when the last one has gone (:mod:`.backlog`; at
-  most ``MAX_WAITING`` of them; more are closed);
+  most ``MAX_WAITING`` of them; more are closed); :meth:`Server.reset_backlog` closes those
+  waiting (a controller that closes its listening socket and opens a new one);
 * writes are bounded per connection (:class:`~.connection.Connection`), so a stalled peer is closed
   and never delays the others. :meth:`Server.broadcast` publishes a topic to every connection: encoded
   once per wire format, and what one loop iteration broadcasts is written in one go per connection
@@ -365,6 +366,15 @@ class Server:
             peer = transport.get_extra_info("peername")
             log.info("%s: serving %s, which waited for its turn", self.name, peer)
             self._serve_accepted(transport, peer, waiting)
+
+    def reset_backlog(self, why: str) -> int:
+        """Close every connection waiting for its turn (``excess="wait"``), as a controller that
+        closes its listening socket and opens a new one resets the old one's backlog: only a
+        connect made after that is served. Logged with ``why``; returns how many were closed."""
+        dropped = self._waiting.drop()
+        if dropped:
+            self._log_budget.log(log, logging.WARNING, "%d waiting connection(s) closed: %s", dropped, why)
+        return dropped
 
     def _make_room(self, newcomer: object) -> bool:
         """The server is full and ``newcomer`` knocks: close the connection least likely to be a

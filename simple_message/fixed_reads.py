@@ -31,7 +31,7 @@ from .errors import FrameError, MalformedMessage
 from .messages import Message, RawMessage
 from .wire import ByteOrder, WireFormat
 
-__all__ = ["FixedReads", "FRAME_HEAD", "prefix_cut"]
+__all__ = ["DiscardReads", "FixedReads", "FRAME_HEAD", "prefix_cut"]
 
 #: the bytes of the length prefix and the header: what every read of these servers begins with
 FRAME_HEAD = LENGTH_SIZE + HEADER_SIZE
@@ -126,6 +126,22 @@ class FixedReads(ABC):
             yield self._frames.popleft()
         if self.error is not None:
             raise self.error
+
+
+class DiscardReads(FixedReads):
+    """A server that never reads its input (a controller's state server sends and never reads):
+    every byte is dropped as it comes, so no read is ever cut, nothing is answered and nothing is
+    held. :attr:`discarded` counts the bytes."""
+
+    def __init__(self, wire: WireFormat) -> None:
+        super().__init__(wire)
+        self.discarded = 0
+
+    def cut(self, buf: bytes, start: int) -> int | None:
+        return len(buf)  # never called: feed drops the bytes
+
+    def feed(self, data: bytes | bytearray | memoryview) -> None:
+        self.discarded += len(data)
 
 
 def prefix_cut(buf: bytes, start: int, wire: WireFormat, max_length: int) -> int | None:

@@ -208,9 +208,12 @@ async def test_an_unexpected_message_stops_the_rapid_server_until_the_operators_
             assert logged(caplog, "the RAPID motion server stops", logging.ERROR) == 1
             await motion.close()
             await step(clock, 0.5)
-            assert written(wire, "motion") == []  # the task is still stopped
-            emu.command("reset")  # the operator restarts the program
-            await until(clock, lambda: len(written(wire, "motion")) == 1, what="the newcomer's reply")
+            assert written(wire, "motion") == []  # the task is still stopped: nothing is read
+            emu.command("reset")  # the operator restarts the program: its UNDO closes the sockets
+            assert await waiting.closed()
+            again = await connect(emu, "motion")  # the new listening socket serves a new connect
+            await again.send(point(0, HOME, 0.0))
+            await until(clock, lambda: len(written(wire, "motion")) == 1, what="the new client's reply")
         assert written(wire, "motion")[0][1] == ACK
 
 
@@ -250,7 +253,9 @@ async def test_state_joint_position_then_status_every_tenth_of_a_second_one_writ
         assert all(len(chunk) in (60, 44) for _, chunk in wire.out("state"))  # one message per write
 
 
-async def test_one_client_per_port_the_second_waits_for_the_first_to_leave() -> None:
+async def test_one_motion_client_a_second_waits_and_is_reset_when_the_first_goes(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     async with vendor_emulator("abb") as (emu, clock, wire):
         first = await connect(emu, "motion")
         second = await connect(emu, "motion")
@@ -258,9 +263,24 @@ async def test_one_client_per_port_the_second_waits_for_the_first_to_leave() -> 
         await first.send(point(0, HOME, 0.0))
         await until(clock, lambda: len(written(wire, "motion")) == 1, what="the first client's reply")
         await step(clock, 0.2)
-        assert len(written(wire, "motion")) == 1
+        assert len(written(wire, "motion")) == 1  # the second is not served
+        with caplog.at_level(logging.WARNING):
+            await first.close()
+            assert await second.closed()  # the old listening socket's backlog is gone
+        assert logged(caplog, "closes its listening socket") == 1
+        third = await connect(emu, "motion")
+        await third.send(point(0, HOME, 0.0))
+        await until(clock, lambda: len(written(wire, "motion")) == 2, what="a new client served")
+
+
+async def test_the_state_port_serves_the_waiting_client_when_the_first_goes() -> None:
+    async with vendor_emulator("abb") as (emu, clock, _wire):
+        first = await connect(emu, "state")
+        second = await connect(emu, "state")
+        await first.frame()
         await first.close()
-        await until(clock, lambda: len(written(wire, "motion")) == 2, what="the second client served")
+        await step(clock, 0.2)
+        assert (await second.frame()).msg_type in (10, 13)  # RAPID's state server keeps its socket
 
 
 @pytest.mark.parametrize("options", [{"byte_order": "big"}, {"float64": True}, {"reply_style": "echo"}])

@@ -3,13 +3,15 @@
 Read from ros-industrial/abb_driver ``rapid/`` (melodic-devel f3068b9; the kinetic branches have the
 same files); docs/vendors.md has every rule with its file:line, and what the emulator does.
 
-**Motion port** (11000, one client; a second waits unserved in the listen backlog until the first
-has gone: ``ROS_motionServer.mod:42-49``). RAPID reads the length prefix, then that many bytes
-(``ROS_socket.sys:67-71``), and takes only JOINT_TRAJ_PT: another type, a body under 52 bytes, or a
-length RAPID cannot read (0, or over its 1024-byte rawbytes) raises an error no handler catches
-(``ROS_messages.sys:111-124``, ``ROS_motionServer.mod:51``): the motion server task stops, unanswered,
-reading nothing more, until the operator restarts it (here: the ``reset`` fault command). That is
-reproduced and logged once; ``--lenient`` drops such a message with a warning instead.
+**Motion port** (11000, one client: ``ROS_motionServer.mod:42-49``; a second waits unserved in the
+listen backlog, and is reset when the first goes: the server closes its listening socket then,
+``:59-61``, and opens a new one, ``:41-43``, so only a connect made after that is served). RAPID
+reads the length prefix, then that many bytes (``ROS_socket.sys:67-71``), and takes only
+JOINT_TRAJ_PT: another type, a body under 52 bytes, or a length RAPID cannot read (0, or over its
+1024-byte rawbytes) raises an error no handler catches (``ROS_messages.sys:111-124``,
+``ROS_motionServer.mod:51``): the motion server task stops, unanswered, reading nothing more, until
+the operator restarts it (here: the ``reset`` fault command), which closes every connection of the
+port. That is reproduced and logged once; ``--lenient`` drops such a message with a warning instead.
 
 * A SERVICE_REQUEST gets a header-only SUCCESS (length 12) once the point is handled, a TOPIC
   nothing; FAILURE never (``ROS_motionServer.mod:91-94``).
@@ -64,7 +66,7 @@ from simple_message.wire import WireFormat
 from ..control import Point, PointRejected, check_point
 from .cell import RobotCell
 from .owner import OnDisconnect
-from .profiles import EmulatorProfile, PortRules, ProfileContext, register_profile
+from .profiles import EmulatorProfile, PortRules, ProfileContext, never_read, register_profile
 
 __all__ = [
     "ABB_BUFFER",
@@ -142,14 +144,25 @@ class AbbMotion:
         self.dropped = 0
         #: the motion server task stopped on an error (until the operator's reset)
         self.dead: str | None = None
-        self._restarted = asyncio.Event()
-        self._killer: Session | None = None
+        #: the motion port's server (:meth:`install`)
+        self.server: Server | None = None
         self._said: set[str] = set()
 
     def install(self, server: Server) -> None:
+        self.server = server
         server.unknown_request = self.on_read  # every read: the server registers no type of its own
         server.malformed_request = self.on_bad_length
         self.cell.reset_listeners.append(self.restart)
+
+    def client_gone(self, session: Session) -> None:
+        """The client left: ``main``'s handler ends the cycle and the UNDO closes the listening
+        socket too (``ROS_motionServer.mod:51-61``); the new cycle opens a new one. A client that
+        waited in the old backlog is reset. (A stopped task runs no handler: see :meth:`restart`.)"""
+        if self.dead is None and self.server is not None:
+            self.server.reset_backlog(
+                "the RAPID motion server closes its listening socket when its client goes and opens "
+                "a new one (ROS_motionServer.mod:41-43,59-61): connect again"
+            )
 
     # -- the server task ---------------------------------------------------------------------------
 
@@ -190,8 +203,6 @@ class AbbMotion:
 
     def _stop_task(self, session: Session, why: str) -> None:
         self.dead = why
-        self._killer = session
-        self._restarted.clear()
         session.log(
             log,
             logging.ERROR,
@@ -202,23 +213,24 @@ class AbbMotion:
         )
 
     async def _while_dead(self, session: Session) -> HandlerResult:
-        """A read while the server task is stopped: not answered, and nothing more is read from the
-        connection that killed it; another connection is served once the task is restarted."""
-        if session is self._killer:
-            await asyncio.Event().wait()  # for ever: the connection ends first
-        await self._restarted.wait()
-        return NO_REPLY
+        """A read while the server task is stopped: never answered (the connection is closed at
+        the restart, or by its peer, first)."""
+        await asyncio.Event().wait()
+        return NO_REPLY  # never reached
 
     def restart(self) -> None:
-        """The operator restarts the RAPID program (the reset fault command)."""
+        """The operator restarts the RAPID program (the reset fault command): the UNDO closes the
+        client socket and the listening one (``ROS_motionServer.mod:59-61``), and ``main`` opens a
+        new one. Every connection of the motion port is closed, those still waiting included; the
+        next connect is served."""
         if self.dead is None:
             return
-        log.info("the RAPID motion server is restarted: it listens for a client again")
+        log.info("the RAPID motion server is restarted: it listens for a client again, connect anew")
         self.dead = None
-        killer, self._killer = self._killer, None
-        if killer is not None:
-            killer.connection.abort()  # the restarted task opens its socket anew
-        self._restarted.set()
+        assert self.server is not None
+        self.server.reset_backlog("the restarted RAPID motion server opens a new listening socket: connect again")
+        for session in list(self.server.sessions):
+            session.connection.abort()
 
     def _say(self, session: Session, level: int, text: str) -> None:
         if text not in self._said:
@@ -327,6 +339,8 @@ class AbbBehaviour:
         self.cell = context.cell
         self.motion = AbbMotion(context.cell, lenient=context.lenient)
         self.state = AbbState(context.cell)
+        if context.owner is not None:
+            context.owner.when_gone(self.motion.client_gone)
 
     def install(self, servers: Mapping[str, Server]) -> None:
         self.motion.install(servers["motion"])
@@ -344,7 +358,7 @@ ABB_PROFILE = register_profile(
         AbbBehaviour,
         ports={
             "motion": PortRules(max_connections=1, excess="wait", answer_topics=True, reader=AbbReads),
-            "state": PortRules(max_connections=1, excess="wait", listen_only=True),
+            "state": PortRules(max_connections=1, excess="wait", listen_only=True, reader=never_read),
         },
         start_tolerance=ABB_SKIP_TOLERANCE,
         description="ABB IRC5, abb_driver's RAPID: JOINT_TRAJ_PT downloads of at most 100 points (-1 ... -3), "

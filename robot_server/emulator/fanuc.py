@@ -67,7 +67,7 @@ from ..control import Point, PointRejected, Reason
 from ..control.points import within
 from .cell import RobotCell
 from .owner import OnDisconnect
-from .profiles import EmulatorProfile, PortRules, ProfileContext, register_profile
+from .profiles import EmulatorProfile, PortRules, ProfileContext, never_read, register_profile
 
 __all__ = [
     "FANUC_PROFILE",
@@ -356,7 +356,7 @@ FANUC_PROFILE = register_profile(
         FanucBehaviour,
         ports={
             "motion": PortRules(max_connections=1, excess="wait", answer_topics=True, reader=FanucReads),
-            "state": PortRules(max_connections=1, excess="wait", listen_only=True),
+            "state": PortRules(max_connections=1, excess="wait", listen_only=True, reader=never_read),
         },
         description="Fanuc, fanuc_driver's KAREL relay and TP program: each point a J move at 20 % CNT50 (time "
         "ignored), JOINT_POSITION acks, big-endian",

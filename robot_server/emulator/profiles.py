@@ -22,7 +22,7 @@ from typing import Literal, Protocol
 
 from simple_message.dialects import Dialect
 from simple_message.endpoints import Server, Session
-from simple_message.fixed_reads import FixedReads
+from simple_message.fixed_reads import DiscardReads, FixedReads
 from simple_message.registry import Registry
 from simple_message.wire import WireFormat
 
@@ -38,6 +38,7 @@ __all__ = [
     "PortRules",
     "ProfileContext",
     "STATE_LINK",
+    "never_read",
     "profile_named",
     "register_profile",
     "unregister_profile",
@@ -55,6 +56,12 @@ class ReaderFactory(Protocol):
     """Makes a connection's frame cutter: ``reader(wire, lenient=...)`` (a FixedReads subclass)."""
 
     def __call__(self, wire: WireFormat, *, lenient: bool = False) -> FixedReads: ...
+
+
+def never_read(wire: WireFormat, *, lenient: bool = False) -> FixedReads:
+    """The reader of a port its controller never reads (RAPID's, KAREL's and VAL3's state servers
+    only send): whatever a client sends there is dropped unanswered, a PING included."""
+    return DiscardReads(wire)
 
 
 @dataclass(frozen=True)

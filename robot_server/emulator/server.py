@@ -352,7 +352,8 @@ class Emulator:
                 reply_style=config.replies,
                 max_connections=config.max_connections if rules.max_connections is None else rules.max_connections,
                 answer_topics=rules.answer_topics,
-                frame_timeout=config.frame_timeout,
+                # a controller that reads fixed sizes waits for ever for the rest of a read
+                frame_timeout=config.frame_timeout if reader is None or config.lenient else None,
                 idle_after=None if rules.listen_only else DEFAULT_IDLE_AFTER,
                 batch_topics=profile.batch_topics,
                 reader=None if reader is None else functools.partial(_reader, reader, config.lenient),

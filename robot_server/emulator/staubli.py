@@ -66,7 +66,7 @@ from simple_message.wire import WireFormat
 from ..control import Point, PointRejected, Reason
 from ..control.points import within
 from .cell import RobotCell
-from .profiles import EmulatorProfile, PortRules, ProfileContext, register_profile
+from .profiles import EmulatorProfile, PortRules, ProfileContext, never_read, register_profile
 
 __all__ = [
     "STAUBLI_PROFILE",
@@ -372,7 +372,9 @@ STAUBLI_PROFILE = register_profile(
             "motion": PortRules(
                 max_connections=1, excess="wait", answer_topics=True, reader=StaubliReads, write_split=staubli_split
             ),
-            "state": PortRules(max_connections=1, excess="wait", listen_only=True, write_split=staubli_split),
+            "state": PortRules(
+                max_connections=1, excess="wait", listen_only=True, reader=never_read, write_split=staubli_split
+            ),
         },
         description="Staubli CS8/CS9, staubli_val3_driver's VAL3: movej at the velocity share, stopping at each "
         "point; 10-point queue, FAILURE when full; motion only while both sockets are connected",

@@ -41,6 +41,10 @@ class Expectations:
     stop_stops_nothing: str | None = None
     #: it acknowledges a point before checking it, then answers FAILURE and hangs up (Fanuc's relay)
     acks_before_checking: bool = False
+    #: its motion port serves one client; a second waits in the listen backlog, and ABB's server
+    #: resets its backlog when its client goes (docs/vendors.md): the suite closes its link before
+    #: it connects anew, and connects once more if the new link is reset
+    one_client: bool = False
 
 
 EXPECTATIONS: dict[str, Expectations] = {
@@ -56,6 +60,7 @@ EXPECTATIONS: dict[str, Expectations] = {
         "abb_driver's RAPID servers (simple-message.md §8.2)",
         no_malformed="RAPID's motion server stops on a message it cannot read, unanswered, until its program is "
         "restarted (ROS_messages.sys:111-124, ROS_motionServer.mod:51): not sent",
+        one_client=True,
     ),
     "fanuc": Expectations(
         FANUC,
@@ -67,6 +72,7 @@ EXPECTATIONS: dict[str, Expectations] = {
         stop_stops_nothing="Fanuc's relay answers STOP SUCCESS, but its CANCEL stops nothing: the TP program runs "
         "the points it has taken (ros_relay.kl:309-318, ros-industrial/fanuc#93)",
         acks_before_checking=True,
+        one_client=True,
     ),
     "staubli": Expectations(
         STAUBLI,
@@ -75,6 +81,7 @@ EXPECTATIONS: dict[str, Expectations] = {
         MsgType.JOINT_POSITION,
         {MsgType.JOINT_POSITION: 50.0, MsgType.STATUS: 10.0},
         "staubli_val3_driver's VAL3 server (docs/vendors.md)",
+        one_client=True,
     ),
     "motoros": Expectations(
         MOTOROS,

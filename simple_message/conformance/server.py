@@ -85,6 +85,11 @@ __all__ = ["ServerSuiteOptions", "ServerSuite", "Expectations", "EXPECTATIONS", 
 
 log = logging.getLogger(__name__)
 
+#: a one-client server that resets a new motion link does so this soon after it connects (s)
+_RESET_WINDOW = 0.3
+#: how often the suite connects anew when its new motion link is reset
+_REOPENS = 3
+
 
 @dataclass(frozen=True)
 class ServerSuiteOptions:
@@ -360,17 +365,24 @@ class ServerSuite(_MotionRules):
 
     async def _reopen_motion(self) -> None:
         """A fresh motion link: a controller takes one motion client, and each new connection of the
-        malformed-frame rule replaced (or was refused beside) the suite's own (§6 connection limits)."""
+        malformed-frame rule replaced (or was refused beside) the suite's own (§6 connection limits).
+        The old link is closed first: a one-client server leaves a second connect waiting in its
+        backlog, and ABB's resets that backlog when its client goes; a new link it resets within
+        ``_RESET_WINDOW`` is opened again (at most ``_REOPENS`` times)."""
         if self.motion is None or self.wire is None:
             return
-        link = Link("motion", self.wire)
-        try:
-            await link.open(self.options.host, self.options.ports["motion"], self.options.reply_timeout)
-        except (OSError, TimeoutError):
-            return
         await self.motion.close()
-        self.motion = link
-        self.links.append(link)
+        for _ in range(_REOPENS):
+            link = Link("motion", self.wire)
+            try:
+                await link.open(self.options.host, self.options.ports["motion"], self.options.reply_timeout)
+            except (OSError, TimeoutError):
+                return
+            self.links.append(link)
+            self.motion = link
+            if not (self.expect.one_client and await link.wait_closed(_RESET_WINDOW)):
+                return
+            await link.close()
 
     async def _ping(self) -> _Verdict:
         if not self.expect.ping:
