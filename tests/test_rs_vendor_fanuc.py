@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import logging
+import socket
 import struct
 
 import numpy as np
@@ -225,6 +226,47 @@ async def test_a_lost_motion_client_does_not_stop_the_motion() -> None:
         await motion.close()
         await until(clock, lambda: not emu.cell.in_motion, limit=20.0)
         assert np.max(np.abs(position(emu) - model_joints(A))) < 1e-6
+
+
+@pytest.mark.parametrize("reset", [False, True], ids=["fin", "reset"])
+async def test_a_hand_over_under_way_completes_after_the_client_is_lost_and_holds_the_next_client(reset: bool) -> None:
+    async with vendor_emulator("fanuc") as (emu, clock, wire):
+        moves = emu.cell.groups[0].moves
+        first = await connect(emu, "motion", ">")
+        for seq, q in enumerate([A, B]):
+            await first.send(point(seq, q))
+        await until(clock, lambda: len(replies(wire)) == 2, what="both acks")  # B acked, waiting for the TP
+        assert not np.allclose(moves.end_position, model_joints(B))
+        if reset:  # the connection ends at once, with the relay's read still under way
+            sock = first.writer.get_extra_info("socket")
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        await first.close()
+        second = await connect(emu, "motion", ">")
+        await second.send(point(0, A))
+        await until(clock, lambda: np.allclose(moves.end_position, model_joints(B)), limit=10.0, what="B handed over")
+        handed_over = emu.cell.time
+        assert len(replies(wire)) == 2  # the second client's point is not read before that
+        await until(clock, lambda: len(replies(wire)) == 3, limit=10.0, what="the second client's ack")
+        assert written(wire, "motion", ">")[2][0] >= handed_over - 1e-9
+        await until(clock, lambda: not emu.cell.in_motion, limit=20.0)
+        assert np.max(np.abs(position(emu) - model_joints(A))) < 1e-6
+
+
+async def test_after_an_estop_and_reset_the_point_being_handed_over_runs_the_interrupted_move_does_not() -> None:
+    async with vendor_emulator("fanuc") as (emu, clock, wire):
+        motion = await connect(emu, "motion", ">")
+        for seq, q in enumerate([A, B]):
+            await motion.send(point(seq, q))
+        await until(clock, lambda: len(replies(wire)) == 2, what="both acks")
+        emu.command("estop")
+        await step(clock, 0.5)
+        assert not emu.cell.in_motion
+        stopped = position(emu).copy()
+        assert np.max(np.abs(stopped - model_joints(A))) > 0.01  # short of A: its move was abandoned
+        emu.command("reset")
+        await until(clock, lambda: emu.cell.in_motion, what="the move to B")
+        await until(clock, lambda: not emu.cell.in_motion, limit=20.0)
+        assert np.max(np.abs(position(emu) - model_joints(B))) < 1e-6
 
 
 async def test_the_speed_and_cnt_registers_are_profile_options() -> None:

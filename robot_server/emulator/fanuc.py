@@ -39,7 +39,13 @@ fanuc_driver converts both ways (``fanuc_joint_streamer_node.cpp:70-76``,
 limits are what fanuc_driver publishes with that factor.
 
 **Connections**: a lost motion client does not stop the motion (the TP program runs on), and a
-point the relay was handing over is still handed over (``ros_relay.kl:278-284,365-366``).
+point the relay was handing over is still handed over (``ros_relay.kl:278-284,365-366``); the next
+client's points are read only after that.
+
+**E-stop, alarms, reset**: the e-stop (or an alarm, or the drives off) abandons the move under way
+and the moves the TP program had taken; a point the relay is handing over waits, as the relay
+waits for F[1], and is handed over after ``reset``, so the robot moves on to it: the TP program's
+interrupted moves are not resumed (the ROS driver sees the robot short of its goal).
 
 **State port** (11002, one client, never read): every 24 ms a JOINT_POSITION (sequence 0, the
 controller's joints), and a STATUS after every 11th, the count kept across clients
@@ -160,6 +166,12 @@ class FanucRelay:
         self.server = server
         server.unknown_request = self.on_read
         self.cell.tick_listeners.append(self.tick)
+
+    def close(self) -> None:
+        """The controller is switched off: a hand-over still waiting for the TP program ends."""
+        if self._handover is not None and not self._handover.done():
+            self._handover.cancel()
+        self._handover = None
 
     # -- the coupling ----------------------------------------------------------------------------
 
@@ -342,6 +354,9 @@ class FanucBehaviour:
 
     def install(self, servers: Mapping[str, Server]) -> None:
         self.relay.install(servers["motion"])
+
+    def close(self) -> None:
+        self.relay.close()
 
     def publish(self, server: Server, sessions: Iterable[Session]) -> None:
         self.state.publish(server, sessions)

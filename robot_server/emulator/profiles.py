@@ -115,7 +115,9 @@ class Behaviour(Protocol):
         A controller that sends some topics every Nth round counts the rounds itself."""
 
     # A behaviour may also have ``status() -> Status``: STATUS as its state topic reports it (the
-    # web view shows that one; without it, the cell's own, :meth:`~.cell.RobotCell.status`).
+    # web view shows that one; without it, the cell's own, :meth:`~.cell.RobotCell.status`); and
+    # ``close() -> None``, called when the emulator closes, after its connections: it ends the
+    # tasks of its own (Fanuc's relay hand-over).
 
 
 @dataclass(frozen=True)

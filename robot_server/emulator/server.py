@@ -535,6 +535,9 @@ class Emulator:
             )
         for server in {*self.servers.values(), self.state_server}:
             await server.close()
+        close_behaviour = getattr(self.behaviour, "close", None)
+        if close_behaviour is not None:
+            close_behaviour()
         if self.capture is not None:  # after the connections: their ends are in the file
             self.capture.close()
         if self._log_ceiling is not None:
