@@ -67,6 +67,7 @@ from ..control import Point, PointRejected, check_point
 from .cell import RobotCell
 from .owner import OnDisconnect
 from .profiles import EmulatorProfile, PortRules, ProfileContext, never_read, register_profile
+from .quirks import Quirks
 
 __all__ = [
     "ABB_BUFFER",
@@ -146,7 +147,7 @@ class AbbMotion:
         self.dead: str | None = None
         #: the motion port's server (:meth:`install`)
         self.server: Server | None = None
-        self._said: set[str] = set()
+        self._quirks = Quirks(log)
 
     def install(self, server: Server) -> None:
         self.server = server
@@ -188,7 +189,7 @@ class AbbMotion:
 
     def on_bad_length(self, error: MalformedMessage, session: Session) -> Message | None:
         if self.lenient:
-            self._say(session, logging.WARNING, f"{error}: the connection is closed (--lenient)")
+            self._quirks.say(session, "bad length", f"{error}: the connection is closed (--lenient)")
             session.connection.abort()
         elif self.dead is None:
             self._stop_task(session, str(error))
@@ -196,7 +197,7 @@ class AbbMotion:
 
     def _die(self, session: Session, why: str) -> HandlerResult | Awaitable[HandlerResult]:
         if self.lenient:
-            self._say(session, logging.WARNING, f"{why}; the message is dropped (--lenient)")
+            self._quirks.say(session, "dropped", f"{why}; the message is dropped (--lenient)")
             return NO_REPLY
         self._stop_task(session, why)
         return self._while_dead(session)
@@ -231,11 +232,6 @@ class AbbMotion:
         self.server.reset_backlog("the restarted RAPID motion server opens a new listening socket: connect again")
         for session in list(self.server.sessions):
             session.connection.abort()
-
-    def _say(self, session: Session, level: int, text: str) -> None:
-        if text not in self._said:
-            self._said.add(text)
-            session.log(log, level, "%s", text)
 
     # -- trajectory_pt_callback ----------------------------------------------------------------------
 

@@ -74,6 +74,7 @@ from ..control.points import within
 from .cell import RobotCell
 from .owner import OnDisconnect
 from .profiles import EmulatorProfile, PortRules, ProfileContext, never_read, register_profile
+from .quirks import Quirks
 
 __all__ = [
     "FANUC_PROFILE",
@@ -159,7 +160,7 @@ class FanucRelay:
         #: controller time when the relay last found nothing to read (it looks again every 24 ms)
         self._idle_since = 0.0
         self._handover: asyncio.Task[None] | None = None
-        self._said: set[str] = set()
+        self._quirks = Quirks(log)
         self._short_seen: dict[Session, float] = {}
 
     def install(self, server: Server) -> None:
@@ -213,13 +214,16 @@ class FanucRelay:
         wire = session.wire
         is_point = msg.msg_type == MsgType.JOINT_TRAJ_PT
         if self.lenient and not is_point:
-            self._say(
-                session, f"message type {msg.msg_type} dropped: the relay takes only trajectory points (--lenient)"
+            self._quirks.say(
+                session,
+                "not a point",
+                f"message type {msg.msg_type} dropped: the relay takes only trajectory points (--lenient)",
             )
             return NO_REPLY
         if not is_point:
-            self._say(
+            self._quirks.say(
                 session,
+                "misframed",
                 f"a read of {len(msg.body) + FRAME_HEAD} bytes whose header says type {msg.msg_type} is taken for a "
                 "trajectory point, as the relay takes any read (libind_pkt.kl:218-258); a message of another size "
                 "than a point misframes the stream from there on",
@@ -232,8 +236,9 @@ class FanucRelay:
                 duration = self.cell.stop()
                 session.log(log, logging.INFO, "STOP: decelerating for %.3f s (--lenient)", duration)
             else:
-                self._say(
+                self._quirks.say(
                     session,
+                    "stop",
                     "STOP (-4) answered SUCCESS, but the relay's CANCEL stops nothing: the TP program runs the "
                     "points it has taken to their end (ros_relay.kl:309-318, ros-industrial/fanuc#93; --lenient "
                     "stops the robot)",
@@ -296,8 +301,9 @@ class FanucRelay:
             if 0 < waiting < KAREL_GATE:
                 seen = self._short_seen.setdefault(session, now)
                 if now - seen >= 2 * KAREL_PERIOD:
-                    self._say(
+                    self._quirks.say(
                         session,
+                        "stalled",
                         f"{waiting} bytes wait unread: the relay reads only once {KAREL_GATE} are waiting "
                         "(libind_pkt.kl:310-314), so a message shorter than that stalls it (a PING is never answered)",
                     )
@@ -305,11 +311,6 @@ class FanucRelay:
                 self._short_seen.pop(session, None)
         for session in [s for s in self._short_seen if s not in server.sessions]:
             del self._short_seen[session]
-
-    def _say(self, session: Session, text: str) -> None:
-        if text not in self._said:
-            self._said.add(text)
-            session.log(log, logging.WARNING, "%s", text)
 
 
 def _ack(sequence: int, code: ReplyCode) -> JointPosition:

@@ -67,6 +67,7 @@ from ..control import Point, PointRejected, Reason
 from ..control.points import within
 from .cell import RobotCell
 from .profiles import EmulatorProfile, PortRules, ProfileContext, never_read, register_profile
+from .quirks import Quirks
 
 __all__ = [
     "STAUBLI_PROFILE",
@@ -159,7 +160,7 @@ class StaubliMotion:
         self.state_server: Server | None = None
         self._tick = -1  # the last motionControl tick run
         self._read_tick = -1  # the tick of the last message read
-        self._said: set[str] = set()
+        self._quirks = Quirks(log)
 
     def install(self, servers: Mapping[str, Server]) -> None:
         self.motion_server = servers["motion"]
@@ -203,8 +204,9 @@ class StaubliMotion:
         assert isinstance(msg, RawMessage)
         body = msg.body
         if msg.msg_type not in VAL3_BODIES:
-            self._say(
+            self._quirks.say(
                 session,
+                "other type",
                 f"message type {msg.msg_type}: VAL3 reads only JOINT_TRAJ_PT and JOINT_TRAJ_PT_FULL and answers "
                 + "nothing "
                 + (
@@ -308,11 +310,6 @@ class StaubliMotion:
 
     def _ticks(self, time: float) -> int:
         return math.floor(time / VAL3_TICK + 1e-9)
-
-    def _say(self, session: Session, text: str) -> None:
-        if text not in self._said:
-            self._said.add(text)
-            session.log(log, logging.WARNING, "%s", text)
 
 
 class StaubliState:
