@@ -30,6 +30,7 @@ class Quirks:
         if kind in self._said:
             return False
         self._said.add(kind)
-        # the text is the line's cause in a budget summary: one per kind, so it may vary
-        session.log(self._logger, level, text.replace("%", "%%"))
+        # the text is the line's cause in a budget summary (one per kind); no arguments, so it is
+        # never %-formatted
+        session.log(self._logger, level, text)
         return True
