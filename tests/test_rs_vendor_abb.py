@@ -174,6 +174,24 @@ async def test_a_first_point_within_a_tenth_of_a_degree_is_skipped_else_reached_
         assert emu.cell.time - begun >= 2.9
 
 
+@pytest.mark.parametrize("bad", [-0.5, math.nan], ids=["negative", "nan"])
+async def test_a_point_whose_duration_movabsj_cannot_take_aborts_the_trajectory_there(
+    bad: float, caplog: pytest.LogCaptureFixture
+) -> None:
+    path = ramp(HOME, GOAL, 5)
+    frames = download(path, 0.5)
+    frames[3] = point(3, path[3], bad)
+    async with vendor_emulator("abb") as (emu, clock, _wire):
+        motion = await connect(emu, "motion")
+        with caplog.at_level(logging.WARNING):
+            for frame in frames:
+                await motion.send(frame)
+            await until(clock, lambda: emu.cell.in_motion, what="the motion")
+            await until(clock, lambda: not emu.cell.in_motion, limit=20.0)
+        assert np.max(np.abs(position(emu) - np.array(path[2]))) < 1e-6  # the points before it ran
+        assert logged(caplog, "point 4 of 5") == 1
+
+
 async def test_a_lost_motion_client_does_not_stop_the_motion_and_the_buffer_is_kept() -> None:
     async with vendor_emulator("abb") as (emu, clock, _wire):
         motion = await connect(emu, "motion")

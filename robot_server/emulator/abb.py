@@ -309,10 +309,11 @@ class AbbMotion:
 
 
 def _point(stored: _Stored) -> Point:
-    """MoveAbsJ with \\T:=duration: the duration times the segment; 0 is as fast as the joints allow."""
-    if stored.duration > 0.0:
-        return Point(stored.positions.copy(), duration=stored.duration)
-    return Point(stored.positions.copy(), duration=0.0, velocity_ratio=1.0)
+    """MoveAbsJ with \\T:=duration: the duration times the segment; 0 is as fast as the joints allow.
+    A negative or NaN duration is kept, so the check refuses it (MoveAbsJ fails there)."""
+    if stored.duration == 0.0:
+        return Point(stored.positions.copy(), duration=0.0, velocity_ratio=1.0)
+    return Point(stored.positions.copy(), duration=stored.duration)
 
 
 class AbbState:
