@@ -90,10 +90,12 @@ async def test_fanuc_j2_j3_coupling_both_ways() -> None:
         assert np.max(np.abs(commanded(emu) - TARGET)) < 1e-5  # the emulator's model agrees
 
 
-async def test_fanuc_and_staubli_take_their_own_time_without_a_deadline() -> None:
-    # a 0.2 s trajectory that Fanuc's 20 % moves take well over a second for: the driver waits for
-    # the goal (no deadline from the trajectory's times), and the goal_timeout does not cut it
-    async with setup("fanuc", speedup=1.0, driver={"goal_timeout": 0.1}) as (emu, driver):
+@pytest.mark.parametrize("profile", ["fanuc", "staubli"])
+async def test_fanuc_and_staubli_take_their_own_time_without_a_deadline(profile: str) -> None:
+    # a 0.2 s trajectory that Fanuc's 20 % moves, and Staubli's movej at the points' velocity
+    # share, take well over a second for: the driver waits for the goal (no deadline from the
+    # trajectory's times), and the goal_timeout does not cut it
+    async with setup(profile, speedup=1.0, driver={"goal_timeout": 0.1}) as (emu, driver):
         began = emu.cell.time
         final = await driver.execute(line([0.0] * 6, TARGET, 0.2, n=4))
         assert np.max(np.abs(final.positions - TARGET)) <= driver.goal_tolerance

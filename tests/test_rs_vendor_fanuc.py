@@ -208,7 +208,7 @@ async def test_j23_factor_0_is_no_coupling() -> None:
 
 
 async def test_state_status_after_every_eleventh_joint_position_count_kept_across_clients() -> None:
-    async with vendor_emulator("fanuc") as (emu, _clock, _wire):
+    async with vendor_emulator("fanuc") as (emu, clock, wire):
         assert abs(emu.config.rate - 1 / KAREL_PERIOD) < 1e-6
         state = await connect(emu, "state", ">")
         kinds = [(await state.frame()).msg_type for _ in range(40)]
@@ -216,6 +216,16 @@ async def test_state_status_after_every_eleventh_joint_position_count_kept_acros
         gaps = {b - a for a, b in itertools.pairwise(statuses)}
         assert gaps == {12}  # eleven JOINT_POSITIONs, then a STATUS, ...
         assert all(kinds[i - 1] == 10 for i in statuses)
+        await state.close()
+        await until(clock, lambda: not emu.state_server.sessions, what="the state client's end")
+        again = await connect(emu, "state", ">")
+        while (await again.frame()).msg_type != 13:  # the new client's first STATUS
+            pass
+        # every state message written, both clients', in order: the count went on across them
+        everything = [struct.unpack_from(">i", f, 4)[0] for _, f in written(wire, "state", ">")]
+        statuses = [i for i, k in enumerate(everything) if k == 13]
+        assert len(statuses) >= 4  # three to the first client, one to the second
+        assert {b - a for a, b in itertools.pairwise(statuses)} == {12}
 
 
 async def test_a_lost_motion_client_does_not_stop_the_motion() -> None:

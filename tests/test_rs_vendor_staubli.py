@@ -237,6 +237,24 @@ async def test_joint_traj_pt_full_is_read_as_val3_reads_it() -> None:
         assert abs(emu.cell.time - begun - expected) <= 2 * VAL3_TICK
 
 
+@pytest.mark.parametrize("where", ["robot_id", "sequence"])
+async def test_a_full_point_stops_with_minus_4_in_its_robot_id_not_in_its_sequence(where: str) -> None:
+    async with vendor_emulator("staubli") as (emu, clock, wire):
+        motion, _ = await both(emu, clock)
+        share = {"accelerations": [100.0] + [0.0] * 5}  # joint 1's acceleration: VAL3's percentage
+        await motion.send(joint_traj_pt_full(FULL, 0, 0, 7, 0.5, A, [0.3] + [0.0] * 5, **share))
+        await until(clock, lambda: emu.cell.in_motion, what="the move to A")
+        robot_id, sequence = (-4, 1) if where == "robot_id" else (1, -4)
+        stop = joint_traj_pt_full(FULL, robot_id, sequence, 7, 0.5, B, [0.3] + [0.0] * 5, **share)
+        await motion.send(stop)
+        await until(clock, lambda: len(replies(wire)) == 2, what="both replies")
+        await until(clock, lambda: not emu.cell.in_motion, limit=20.0)
+        if where == "robot_id":  # VAL3's "sequence" is -4: a STOP, the robot short of A
+            assert np.max(np.abs(position(emu) - np.array(A))) > 0.01
+        else:  # an ordinary point: the robot goes to A, then B
+            assert np.max(np.abs(position(emu) - np.array(B))) < 1e-6
+
+
 async def test_state_first_joint_position_a_second_after_connecting_status_with_every_fifth() -> None:
     async with vendor_emulator("staubli") as (emu, clock, wire):
         assert emu.config.rate == 50.0
