@@ -44,6 +44,8 @@ docs/protocol.md). :meth:`RobotDriver.supports_lines` asks the controller once p
 run them and the actual TCP is at the last one; a refused line raises :class:`LineRefused`, which
 names the controller's :class:`~simple_message.constants.LineResult`. :meth:`RobotDriver.subscribe_tool_pose`
 asks for TOOL_POSE on the state connection; :attr:`RobotDriver.tool_pose` is the latest one.
+The lines are :mod:`.lines`; the trajectories' sending :mod:`.sending`; the wait for the goal,
+for both, :meth:`RobotDriver._wait_done` with :mod:`.waiting`.
 """
 
 from __future__ import annotations
@@ -56,17 +58,13 @@ import time
 from collections.abc import AsyncIterator, Callable, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from robot_server import RobotModel
-from robot_server.kinematics import fk, quaternion_angle, rotation_to_quaternion
 from simple_message.connection import Connection, ConnectionState, Subscription, Tap
 from simple_message.constants import (
-    CommType,
-    LineResult,
     MotoCommand,
     MotoResult,
     MsgType,
@@ -83,11 +81,8 @@ from simple_message.errors import (
     RequestFailed,
     RequestTimeout,
     SimpleMessageError,
-    UnexpectedReply,
 )
 from simple_message.messages import (
-    CartesianLine,
-    CartesianLineReply,
     JointFeedback,
     JointPosition,
     JointTrajPt,
@@ -101,8 +96,10 @@ from simple_message.messages import (
 from simple_message.wire import WireFormat
 
 from .errors import DriverError, ExecutionAborted, _InFlight, _NotSent
+from .lines import CartesianLines, LineGoal, LineRefused
 from .sending import TrajectorySender
 from .trajectory import Trajectory
+from .waiting import Look, Stall, Wait
 
 __all__ = ["RobotDriver", "DriverError", "ExecutionAborted", "LineRefused", "LineGoal", "JointState", "Mode"]
 
@@ -114,63 +111,6 @@ Array = NDArray[np.float64]
 class Mode(StrEnum):
     STREAM = "stream"
     DOWNLOAD = "download"
-
-
-#: what each refusal of a straight line means (docs/protocol.md, CARTESIAN_LINE's reply)
-LINE_REFUSALS = {
-    LineResult.NOT_READY: "the robot cannot move",
-    LineResult.BUSY: "a joint trajectory is under way",
-    LineResult.INVALID: "a field is out of bounds",
-    LineResult.SEQUENCE: "a sequence number the controller does not accept",
-    LineResult.UNREACHABLE: "the target, or a point of the line, is out of reach",
-    LineResult.SINGULAR: "it passes a singularity",
-    LineResult.JOINT_LIMIT: "it would take a joint past its limits, or the joints cannot follow it",
-    LineResult.WORKSPACE: "it leaves the allowed workspace",
-    LineResult.TCP_SPEED: "the speed is more than the controller allows",
-}
-
-
-def line_reason(result: int) -> str:
-    """A CARTESIAN_LINE reply's result, named and explained: ``SINGULAR (it passes a singularity)``."""
-    try:
-        name = LineResult(result)
-    except ValueError:
-        return f"result {result} (not a known LineResult)"
-    meaning = LINE_REFUSALS.get(name)
-    return f"{name.name} ({meaning})" if meaning else name.name
-
-
-class LineRefused(ExecutionAborted):
-    """The controller refused straight line ``line`` with ``result`` (a :class:`LineResult`):
-    nothing of it ran, nothing after it was sent, and the lines before it were stopped."""
-
-    def __init__(self, line: int, result: int, confirmed: int, why: str = "") -> None:
-        super().__init__(
-            f"the controller refused line {line}: {line_reason(result)}{f'; {why}' if why else ''}",
-            confirmed,
-            what="line",
-        )
-        self.line = line
-        self.result = result
-
-
-class LineGoal(NamedTuple):
-    """Where a straight line ends: the TCP position (m, in the controller's cell frame) and
-    orientation, a unit quaternion ``(w, x, y, z)`` (w first, as ``robot_server.kinematics``; the
-    wire's CARTESIAN_LINE has x y z w)."""
-
-    position: ArrayLike
-    orientation: ArrayLike
-
-    @classmethod
-    def from_pose(cls, pose: ArrayLike) -> LineGoal:
-        """The goal of a 4x4 homogeneous pose (a planner's, :func:`robot_server.kinematics.fk`'s)."""
-        t = np.asarray(pose, dtype=float)
-        return cls(t[:3, 3].copy(), rotation_to_quaternion(t))
-
-
-class _LineInFlight(ExecutionAborted):
-    """A line got no reply (lost connection, timeout): the controller may have it, so stop."""
 
 
 @dataclass(frozen=True)
@@ -533,7 +473,7 @@ class RobotDriver:
                 raise DriverError("the controller answered FAILURE to STOP") from None
         log.info("stop sent")
 
-    # -- straight lines run by the controller (CARTESIAN_LINE, this project's extension) -----------
+    # -- straight lines run by the controller (CARTESIAN_LINE, this project's extension; lines.py) --
 
     async def supports_lines(self) -> bool:
         """Whether the controller runs straight lines itself (CARTESIAN_LINE, docs/protocol.md).
@@ -545,43 +485,7 @@ class RobotDriver:
         that does not decode, no reply within ``min(reply_timeout, 1)`` s (the link is then reset,
         as for any lost reply, and the answer kept for the driver's life). The answer is kept for
         the motion connection it was found on."""
-        cached = self._lines
-        if cached is not None and (cached[0] is None or cached[0] is self.motion.connection):
-            return cached[1]
-        if not self.dialect.unknown_types:  # a probe would stop ABB's server, misframe Fanuc's, hang on Staubli's
-            self._lines = (None, False)
-            return False
-        await self._motion_up()
-        connection = self.motion.connection
-        timeout = min(self.reply_timeout, 1.0)
-        reply: object
-        try:
-            reply = await self.motion.request(CartesianLine(0, SpecialSeq.STOP_TRAJECTORY), timeout)
-        except RequestFailed as exc:
-            reply = exc.reply  # a refused STOP is still a CARTESIAN_LINE reply; a header-only one is not
-        except UnexpectedReply as exc:
-            reply = exc.reply  # another type, or a body no layout fits: the link stays aligned
-        except RequestTimeout:
-            if connection is not None:
-                log.warning("no reply to the CARTESIAN_LINE probe within %s s: resetting the motion link", timeout)
-                await connection.close()
-            log.info("%s: no reply to CARTESIAN_LINE: no straight-line motion", self.motion.name)
-            self._lines = (None, False)
-            return False
-        except NotConnected as exc:
-            raise DriverError(f"motion connection down: {exc}") from None
-        except ConnectionClosed as exc:
-            raise DriverError(f"motion connection lost while asking for straight lines: {exc}") from None
-        supported = isinstance(reply, CartesianLineReply) and reply.comm_type == CommType.SERVICE_REPLY
-        log.info(
-            "%s: %s",
-            self.motion.name,
-            "runs CARTESIAN_LINE"
-            if supported
-            else f"no CARTESIAN_LINE (answered {getattr(reply, 'name', None) or type(reply).__name__})",
-        )
-        self._lines = (connection, supported)
-        return supported
+        return await CartesianLines(self).supports()
 
     async def _motion_up(self) -> None:
         """Wait (bounded) for the motion link if it is being re-established, e.g. after a reset."""
@@ -609,139 +513,15 @@ class RobotDriver:
         :class:`ExecutionAborted` as :meth:`execute` does (an alarm or e-stop, a lost connection,
         a robot standing still short of the goal, no goal in time). Once a line has been
         accepted, any failure (and a cancellation) sends a STOP before raising."""
-        goals = _line_goals(targets)
-        if not (math.isfinite(speed) and speed > 0.0):
-            raise DriverError(f"the TCP speed must be a number > 0, not {speed}")
-        if not (math.isfinite(blend_radius) and blend_radius >= 0.0):
-            raise DriverError(f"the blend radius must be a number >= 0, not {blend_radius}")
-        if group < 0:
-            raise DriverError(f"no motion group {group}")
-        await self.wait_state()
-        await self._motion_up()
-        if not await self.supports_lines():
-            raise DriverError(
-                f"the controller at {self.address} has no straight-line motion (it does not answer CARTESIAN_LINE)"
-            )
-        await self.subscribe_tool_pose()
-        start = self._tcp(group, self._latest)
-        if start is None:
-            raise DriverError(
-                "cannot tell where the TCP is: the controller sends no TOOL_POSE and the driver has no robot model"
-            )
-        confirmed, pending = -1, False
-        try:
-            for k, (position, orientation) in enumerate(goals):
-                (px, py, pz), (w, x, y, z) = position.tolist(), orientation.tolist()
-                line = CartesianLine(group, k, px, py, pz, x, y, z, w, speed, blend_radius)
-                pending = True
-                try:
-                    reply = await self._send_line(k, line, confirmed)
-                except ExecutionAborted as exc:
-                    pending = isinstance(exc, _LineInFlight)  # else answered (refused) or never sent
-                    raise
-                pending = False
-                if not isinstance(reply, CartesianLineReply) or reply.result != LineResult.ACCEPTED:
-                    raise ExecutionAborted(f"line {k} answered with {reply.name}", confirmed, what="line")
-                confirmed = k
-            return await self._wait_lines(group, start, goals, speed, confirmed)
-        except (asyncio.CancelledError, ExecutionAborted):
-            if confirmed >= 0 or pending:
-                await self._stop_lines_quietly(group)
-            raise
+        return await CartesianLines(self).move(targets, speed=speed, blend_radius=blend_radius, group=group)
 
-    async def _send_line(self, k: int, line: CartesianLine, confirmed: int) -> Message:
-        """Send line ``k`` and return its reply; a refusal or a failure to send raises."""
-        try:
-            return await self._request(line)
-        except RequestFailed as exc:
-            reply = exc.reply
-            if isinstance(reply, CartesianLineReply):
-                why = await self._why_now() if reply.result == LineResult.NOT_READY else ""
-                raise LineRefused(k, reply.result, confirmed, why) from None
-            name = getattr(reply, "name", type(reply).__name__)
-            raise ExecutionAborted(f"line {k} answered FAILURE ({name})", confirmed, what="line") from None
-        except UnexpectedReply as exc:
-            raise ExecutionAborted(f"line {k}: {exc}", confirmed, what="line") from None
-        except _NotSent as exc:
-            raise ExecutionAborted(f"{exc}; line {k} was never sent", confirmed, what="line") from None
-        except _InFlight as exc:
-            raise _LineInFlight(
-                f"{exc} with line {k} awaiting its reply: the controller may or may not have it", confirmed, what="line"
-            ) from None
-        except DriverError as exc:  # no reply in time (the link is reset): the controller may have it
-            raise _LineInFlight(f"line {k}: {exc}", confirmed, what="line") from None
-
-    async def _stop_lines_quietly(self, group: int) -> None:
-        """A CARTESIAN_LINE STOP after an abort (the plain STOP if that fails); bounded, never raises."""
-
-        async def stop() -> None:
-            if self.motion.state is not ConnectionState.CONNECTED:
-                await self.motion.wait_for(ConnectionState.CONNECTED, self.reply_timeout)
-            try:
-                reply = await self._request(CartesianLine(group, SpecialSeq.STOP_TRAJECTORY))
-            except (RequestFailed, UnexpectedReply):
-                reply = None
-            if not isinstance(reply, CartesianLineReply):
-                await self.stop()
-            else:
-                log.info("line stop sent")
-
-        with contextlib.suppress(DriverError, SimpleMessageError, TimeoutError):
-            await asyncio.shield(stop())
-
-    def _tcp(self, group: int, state: JointState | None) -> tuple[Array, Array] | None:
-        """The actual TCP position and orientation ``(w, x, y, z)``: the latest TOOL_POSE, else
-        the forward kinematics of ``state`` (group 0 with a model), else None."""
-        pose = self._tool_poses.get(group)
-        if pose is not None:
-            return np.array([pose.x, pose.y, pose.z]), np.array([pose.qw, pose.qx, pose.qy, pose.qz])
-        if self.model is None or group != 0 or state is None:
-            return None
-        t = fk(self.model, state.positions[: self.model.dof])
-        return t[:3, 3].copy(), rotation_to_quaternion(t)
-
-    async def _wait_lines(
-        self, group: int, start: tuple[Array, Array], goals: list[tuple[Array, Array]], speed: float, confirmed: int
-    ) -> ToolPose:
-        """Wait until the robot has run the lines (see :meth:`move_lines`), as :meth:`_wait_goal`
-        does for a trajectory; the TCP is compared with the last target."""
-        goal_position, goal_orientation = goals[-1]
-
-        def off(pose: tuple[Array, Array], position: Array, orientation: Array) -> tuple[float, float]:
-            return float(np.linalg.norm(pose[0] - position)), quaternion_angle(pose[1], orientation)
-
-        def look(state: JointState) -> _Look | None:
-            tcp = self._tcp(group, state)
-            if tcp is None:  # TOOL_POSE came and went? (a group without it): nothing to compare yet
-                return None
-            distance, angle = off(tcp, goal_position, goal_orientation)
-            away, turned = off(tcp, *start)
-            return _Look(
-                distance <= self.tcp_tolerance and angle <= self.orientation_tolerance,
-                away > self.tcp_tolerance or turned > self.orientation_tolerance,
-                f"{distance * 1000:.3g} mm and {angle:.3g} rad from the last line's end",
-            )
-
-        # a rough duration: the lengths at the TCP speed (the turns, accelerations and any slowing
-        # down are the controller's; goal_timeout covers them)
-        corners = np.array([start[0], *(p for p, _ in goals)])
-        length = float(np.sum(np.linalg.norm(np.diff(corners, axis=0), axis=1)))
-        moves = any(
-            d > self.tcp_tolerance or a > self.orientation_tolerance for d, a in (off(start, p, q) for p, q in goals)
-        )
-        wait = _Wait("line", "the last line's end", "the lines", length / speed, moves, stops=True)
-        state = await self._wait_done(wait, look, confirmed)
-        tcp = self._tcp(group, state)
-        assert tcp is not None  # done means it was compared
-        return self._final_pose(group, tcp, state)
-
-    async def _wait_done(self, wait: _Wait, look: Callable[[JointState], _Look | None], confirmed: int) -> JointState:
+    async def _wait_done(self, wait: Wait, look: Callable[[JointState], Look | None], confirmed: int) -> JointState:
         """Wait until the robot has done what was sent (``look`` says of each joint state where it
         is: at the goal, moved from the start): see :meth:`_wait_goal`. Returns the last state."""
         what = wait.what
         sent = time.monotonic()
         deadline = sent + wait.duration + self.goal_timeout
-        stall = _Stall(self.stall_timeout)
+        stall = Stall(self.stall_timeout)
         seen_moving = False
         late = f"the robot did not reach {wait.goal} in time"
         while True:
@@ -786,13 +566,6 @@ class RobotDriver:
                     confirmed,
                     what=what,
                 )
-
-    def _final_pose(self, group: int, tcp: tuple[Array, Array], state: JointState) -> ToolPose:
-        pose = self._tool_poses.get(group)
-        if pose is not None:
-            return pose
-        (x, y, z), (qw, qx, qy, qz) = tcp[0].tolist(), tcp[1].tolist()
-        return ToolPose(group, 0, state.received, x, y, z, qx, qy, qz, qw, 0.0)
 
     # -- execution ---------------------------------------------------------------------------------
 
@@ -924,7 +697,7 @@ class RobotDriver:
         start = trajectory.positions[0]
         moves = bool(np.max(np.abs(trajectory.positions - start)) > self.goal_tolerance)
 
-        def look(state: JointState) -> _Look:
+        def look(state: JointState) -> Look:
             here = state.positions[: goal.size]
             if self.path_tolerance is not None:
                 deviation = _path_deviation(trajectory, here)
@@ -934,79 +707,13 @@ class RobotDriver:
                     )
             error = float(np.max(np.abs(here - goal)))
             moved = bool(np.max(np.abs(here - start)) > self.goal_tolerance)
-            return _Look(error <= self.goal_tolerance, moved, f"{error:.4g} from the goal")
+            return Look(error <= self.goal_tolerance, moved, f"{error:.4g} from the goal")
 
         # a controller that moves at its own speed (Fanuc, Staubli) takes as long as it takes: no
         # deadline from the trajectory's times, the robot standing still short of the goal ends it
         duration = trajectory.duration if self.dialect.timed else math.inf
-        wait = _Wait("point", "the goal", "the trajectory", duration, moves, stops=False)
+        wait = Wait("point", "the goal", "the trajectory", duration, moves, stops=False)
         return await self._wait_done(wait, look, confirmed)
-
-
-class _Look(NamedTuple):
-    """Where one joint state finds the robot: at the goal, moved from the start, and how far off (words)."""
-
-    at_goal: bool
-    moved: bool
-    short: str
-
-
-@dataclass(frozen=True)
-class _Wait:
-    """What :meth:`RobotDriver._wait_done` waits for: ``what`` the items confirmed (``point``,
-    ``line``), ``goal`` and ``motion`` in words, the planned ``duration``, whether it ``moves`` the
-    robot at all, and whether an e-stop or drives off ends it at once (``stops``; else a trajectory
-    that never moved is given up on once the controller shows a fault)."""
-
-    what: str
-    goal: str
-    motion: str
-    duration: float
-    moves: bool
-    stops: bool
-
-
-class _Stall:
-    """How long the robot has stood still short of its goal (STATUS in_motion FALSE)."""
-
-    def __init__(self, limit: float) -> None:
-        self.limit = limit
-        self.since: float | None = None
-
-    def standing(self, still: bool) -> bool:
-        """Note one sample (``still``: standing short of the goal); True once that has lasted
-        more than the limit."""
-        if not still:
-            self.since = None
-            return False
-        now = time.monotonic()
-        if self.since is None:
-            self.since = now
-        return now - self.since > self.limit
-
-
-def _line_goals(targets: Sequence[LineGoal]) -> list[tuple[Array, Array]]:
-    """The targets as (position, unit quaternion w x y z) arrays; a quaternion within 1e-3 of
-    unit length is normalised, anything else refused (DriverError) before anything is sent."""
-    goals = []
-    for k, target in enumerate(targets):
-        try:
-            position, orientation = target
-            p = np.asarray(position, dtype=float).reshape(3)
-            q = np.asarray(orientation, dtype=float).reshape(4)
-        except (TypeError, ValueError):
-            raise DriverError(
-                f"line {k}: a target is a position (x, y, z) and a quaternion (w, x, y, z), not {target!r}"
-            ) from None
-        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
-            raise DriverError(f"line {k}: the target is not finite")
-        norm = float(np.linalg.norm(q))
-        if abs(norm - 1.0) > 1e-3:
-            raise DriverError(f"line {k}: the orientation is not a unit quaternion (norm {norm:.6g})")
-        goals.append((p, q / norm))
-    if not goals:
-        raise DriverError("no line to move along (give at least one target)")
-    return goals
 
 
 def _path_deviation(trajectory: Trajectory, position: Array) -> float:
