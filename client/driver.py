@@ -626,6 +626,15 @@ class RobotDriver:
         if mode is None:
             return Mode(modes[0])
         chosen = Mode(mode)
+        if self.dialect.motion_control:  # one way only, whatever is asked (as before the vendor modes)
+            if chosen.value not in modes:
+                log.warning(
+                    "%s: the %s controller runs a trajectory one way, its trajectory mode: %s is not a choice there",
+                    self.address,
+                    self.dialect.name,
+                    chosen.value,
+                )
+            return Mode(modes[0])
         if chosen.value not in modes:
             raise DriverError(
                 f"the {self.dialect.name} controller takes trajectories {' or '.join(f'{m}ed' for m in modes)}, "

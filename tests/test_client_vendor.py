@@ -58,6 +58,14 @@ async def test_abb_downloads_each_point_as_a_request_and_reaches_the_goal() -> N
             await driver.execute(line(list(final.positions), [0.0] * 6, 1.0), "stream")
 
 
+async def test_motoros_has_one_way_whatever_mode_is_asked(caplog: pytest.LogCaptureFixture) -> None:
+    async with setup("motoros") as (_emu, driver):
+        with caplog.at_level(logging.WARNING, "client.driver"):
+            final = await driver.execute(line([0.0] * 6, TARGET, 1.0, n=6), "download")
+        assert np.max(np.abs(final.positions - TARGET)) <= driver.goal_tolerance
+        assert "its trajectory mode: download is not a choice there" in caplog.text
+
+
 async def test_abb_refuses_more_than_100_points_before_sending_any() -> None:
     async with setup("abb") as (emu, driver):
         with pytest.raises(DriverError, match="keeps 100 points of a trajectory"):
