@@ -128,6 +128,9 @@ FIRST_STATE_TIMEOUT = 5.0
 MAX_PENDING = 256
 
 _READ = 65536
+#: what a client of a shared state port may leave unread before it is closed (a client that does
+#: not read must not make the suite hold the controller's whole state stream)
+_STATE_BACKLOG = 1024 * 1024
 #: MotoROS closes the motion connection on these, without a reply (§8.1)
 _MOTO_CLOSERS = frozenset(
     {MsgType.STATUS, MsgType.JOINT_FEEDBACK, MsgType.MOTO_MOTION_REPLY, MsgType.JOINT_FEEDBACK_EX}
@@ -840,8 +843,15 @@ class ClientSuite:
                     if order is not self.wire.byte_order:
                         return
                     for client in list(self._state_clients):  # a shared state port's clients
-                        if not client.is_closing():
-                            client.write(frame)
+                        if client.is_closing():
+                            continue
+                        if client.transport.get_write_buffer_size() > _STATE_BACKLOG:
+                            log.warning(
+                                "a state client left %d bytes unread: closed", client.transport.get_write_buffer_size()
+                            )
+                            client.close()
+                            continue
+                        client.write(frame)
                     msg = decode_or_error(frame, self.wire)
                     if isinstance(msg, JointPosition) and msg.comm_type == CommType.TOPIC:
                         positions: Positions = msg.joint_data
