@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from client.driver import DriverError, RobotDriver
-from client.trajectory import Trajectory
 from robot_server.emulator import Emulator, EmulatorConfig
 from robot_server.loader import load_model
+from tests.test_client_driver import line
 
 MODEL = load_model("jibot_zxs")
 TARGET = [0.3, -0.2, 0.4, 0.5, -0.3, 0.6]
@@ -35,14 +35,6 @@ async def setup(profile: str, **options: Any) -> AsyncIterator[tuple[Emulator, R
         )
         async with driver:
             yield emu, driver
-
-
-def line(start: list[float], end: list[float], seconds: float, n: int = 20) -> Trajectory:
-    s = np.linspace(0.0, 1.0, n)
-    blend = 10 * s**3 - 15 * s**4 + 6 * s**5
-    rate = (30 * s**2 - 60 * s**3 + 30 * s**4) / seconds
-    a, b = np.array(start), np.array(end)
-    return Trajectory(s * seconds, a + np.outer(blend, b - a), np.outer(rate, b - a))
 
 
 def commanded(emu: Emulator) -> np.ndarray:
