@@ -3,10 +3,11 @@
 A controller-side server that serves one client at a time (RAPID's, KAREL's, VAL3's) calls accept
 only when its last client has gone. A second client's connect still succeeds (the kernel completes
 it in the listen backlog) and then nothing reads or answers it until its turn comes. A
-:class:`~.endpoints.Server` with ``excess="wait"`` (or ``"relisten"``) plays that: a connection beyond
+:class:`~.endpoints.Server` with ``excess="wait"`` plays that: a connection beyond
 its limit is accepted, handed to a :class:`Backlog`, kept unread (what the peer sends meanwhile is
 kept, up to ``WAITING_BYTES``, then reading pauses), and served when a connection ends, oldest
-first. At most ``MAX_WAITING`` wait; more are closed, as a full backlog refuses.
+first. At most ``MAX_WAITING`` wait; more are closed, as a full backlog refuses;
+:meth:`~.endpoints.Server.reset_backlog` closes them all (a server that reopens its socket).
 """
 
 from __future__ import annotations

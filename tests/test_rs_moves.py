@@ -79,10 +79,12 @@ def test_a_move_during_a_stop_waits_for_its_end_and_the_setpoint_stays_continuou
     stopped_at = moves.end_position.copy()
     after = moves.plan(np.array([0.0, 0.0]), speed=1.0, rest=np.array([9.0, 9.0]))  # rest ignored meanwhile
     moves.commit(after)
+    assert moves.stopping  # still braking: the controller keeps its stop's supervision until the end
     assert np.array_equal(after.start, stopped_at)
     assert after.begin == pytest.approx(stop_end)
     assert moves.remaining() == pytest.approx(after.end - 0.5)
     p, v, a = run(moves, 0.5 + DT, after.end + 0.05)
+    assert not moves.stopping
     assert np.max(np.abs(np.diff(v[:, 0]))) <= 8.0 * DT + 1e-6  # no jump in velocity
     assert np.max(np.abs(a)) <= 8.0 + 1e-6
     assert np.array_equal(p[-1], [0.0, 0.0])

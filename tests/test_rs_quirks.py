@@ -9,16 +9,19 @@ import pytest
 
 from robot_server.emulator.quirks import Quirks
 from simple_message.endpoints import Session
+from simple_message.lograte import LogBudget
 
 log = logging.getLogger("tests.quirks")
 
 
 class _Session:
-    """What Quirks uses of a session: its budgeted log."""
+    """What Quirks uses of a session: its budgeted log (a real budget, which formats the line)."""
+
+    def __init__(self) -> None:
+        self.budget = LogBudget("peer")
 
     def log(self, logger: logging.Logger, level: int, msg: str, *args: Any) -> bool:
-        logger.log(level, msg, *args)
-        return True
+        return self.budget.log(logger, level, msg, *args)
 
 
 def test_a_kind_is_said_once_whatever_its_text(caplog: pytest.LogCaptureFixture) -> None:
@@ -28,4 +31,5 @@ def test_a_kind_is_said_once_whatever_its_text(caplog: pytest.LogCaptureFixture)
         said = [quirks.say(session, "other type", f"message type {t}: not read") for t in range(1000)]
         said.append(quirks.say(session, "stalled", "12 bytes (100%) wait unread"))
     assert said.count(True) == 2
-    assert [r.getMessage() for r in caplog.records] == ["message type 0: not read", "12 bytes (100%) wait unread"]
+    said_lines = [r.getMessage() for r in caplog.records]
+    assert said_lines == ["peer: message type 0: not read", "peer: 12 bytes (100%) wait unread"]

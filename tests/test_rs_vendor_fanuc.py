@@ -3,6 +3,7 @@ program do (robot_server/emulator/fanuc.py has the rules, docs/vendors.md their 
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 import logging
 import socket
@@ -260,6 +261,22 @@ async def test_a_hand_over_under_way_completes_after_the_client_is_lost_and_hold
         assert written(wire, "motion", ">")[2][0] >= handed_over - 1e-9
         await until(clock, lambda: not emu.cell.in_motion, limit=20.0)
         assert np.max(np.abs(position(emu) - model_joints(A))) < 1e-6
+
+
+async def test_closing_the_emulator_ends_a_hand_over_first_and_nothing_more_is_handed_over() -> None:
+    async with vendor_emulator("fanuc") as (emu, clock, wire):
+        motion = await connect(emu, "motion", ">")
+        for seq, q in enumerate([A, B]):
+            await motion.send(point(seq, q))
+        await until(clock, lambda: len(replies(wire)) == 2, what="both acks")  # B waits for the TP
+        handover = emu.behaviour.relay._handover  # type: ignore[attr-defined]
+        assert handover is not None and not handover.done()
+        closing = asyncio.ensure_future(emu.close(settle_timeout=1.0))
+        await until(clock, handover.done, what="the hand-over's end")
+        assert handover.cancelled()
+        await until(clock, lambda: not emu.cell.in_motion, what="the shutdown stop")
+        await asyncio.wait_for(closing, 5.0)
+        assert not np.allclose(emu.cell.groups[0].moves.end_position, model_joints(B))  # B never handed over
 
 
 async def test_after_an_estop_and_reset_the_point_being_handed_over_runs_the_interrupted_move_does_not() -> None:

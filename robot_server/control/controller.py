@@ -404,7 +404,7 @@ class Controller:
         )
         self.moves.commit(move)
         self.points_accepted += 1
-        self._stopping = False
+        self._stopping = self.moves.stopping  # a stop under way still brakes: it runs to its end
         self._settled = False
         return move.begin
 

@@ -109,6 +109,11 @@ class JointMoves:
         return bool(self._moves) or self._stopping is not None
 
     @property
+    def stopping(self) -> bool:
+        """A stop decelerates (moves queued meanwhile begin when it has ended)."""
+        return self._stopping is not None
+
+    @property
     def fill(self) -> int:
         """Moves not yet ended (the running ones included)."""
         return sum(1 for m in self._moves if m.end > self._t)
@@ -144,7 +149,8 @@ class JointMoves:
 
     def ready_at(self, blend: float) -> float:
         """When a program running these moves one instruction at a time could take the next one:
-        when the last move's blending window begins (``blend`` as in :meth:`plan`), or now."""
+        when the last move's blending window begins (``blend`` times its deceleration, as a TP
+        program's CNT; the next move may still begin later, where a joint turns back), or now."""
         if not self._moves:
             return self._t
         last = self._moves[-1]

@@ -116,8 +116,8 @@ class Behaviour(Protocol):
 
     # A behaviour may also have ``status() -> Status``: STATUS as its state topic reports it (the
     # web view shows that one; without it, the cell's own, :meth:`~.cell.RobotCell.status`); and
-    # ``close() -> None``, called when the emulator closes, after its connections: it ends the
-    # tasks of its own (Fanuc's relay hand-over).
+    # ``close() -> None``, called first when the emulator closes (before the shutdown stop): it ends
+    # the tasks of its own (Fanuc's relay hand-over).
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ class Quirks:
         if kind in self._said:
             return False
         self._said.add(kind)
-        # the text is the line's cause in a budget summary (one per kind); no arguments, so it is
-        # never %-formatted
-        session.log(self._logger, level, text)
+        # the text is the line's cause in a budget summary (one per kind); the budget formats it
+        # (its "<name>: " prefix is an argument), so a literal % is doubled
+        session.log(self._logger, level, text.replace("%", "%%"))
         return True

@@ -512,6 +512,9 @@ class Emulator:
         if self._closed:
             return
         self._closed = True
+        close_behaviour = getattr(self.behaviour, "close", None)
+        if close_behaviour is not None:  # its own tasks end first: none hands over a move meanwhile
+            close_behaviour()
         if self._started and self.cell.in_motion:
             duration = self.cell.stop()
             log.info("shutting down: decelerating to rest (%.3f s)", duration)
@@ -535,9 +538,6 @@ class Emulator:
             )
         for server in {*self.servers.values(), self.state_server}:
             await server.close()
-        close_behaviour = getattr(self.behaviour, "close", None)
-        if close_behaviour is not None:
-            close_behaviour()
         if self.capture is not None:  # after the connections: their ends are in the file
             self.capture.close()
         if self._log_ceiling is not None:

@@ -366,10 +366,20 @@ class ServerSuite(_MotionRules):
     async def _reopen_motion(self) -> None:
         """A fresh motion link: a controller takes one motion client, and each new connection of the
         malformed-frame rule replaced (or was refused beside) the suite's own (§6 connection limits).
-        The old link is closed first: a one-client server leaves a second connect waiting in its
-        backlog, and ABB's resets that backlog when its client goes; a new link it resets within
+        Against a one-client server the old link is closed first: it leaves a second connect waiting
+        in its backlog, and ABB's resets that backlog when its client goes; a new link reset within
         ``_RESET_WINDOW`` is opened again (at most ``_REOPENS`` times)."""
         if self.motion is None or self.wire is None:
+            return
+        if not self.expect.one_client:  # the new link first: a server that takes over keeps serving
+            link = Link("motion", self.wire)
+            try:
+                await link.open(self.options.host, self.options.ports["motion"], self.options.reply_timeout)
+            except (OSError, TimeoutError):
+                return
+            await self.motion.close()
+            self.motion = link
+            self.links.append(link)
             return
         await self.motion.close()
         for _ in range(_REOPENS):
@@ -380,7 +390,7 @@ class ServerSuite(_MotionRules):
                 return
             self.links.append(link)
             self.motion = link
-            if not (self.expect.one_client and await link.wait_closed(_RESET_WINDOW)):
+            if not await link.wait_closed(_RESET_WINDOW):
                 return
             await link.close()
 
