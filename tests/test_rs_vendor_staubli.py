@@ -270,3 +270,11 @@ async def test_state_first_joint_position_a_second_after_connecting_status_with_
         assert [b - a for a, b in itertools.pairwise(statuses)] == [6]  # then every fifth
         first = wire.out("state")[0][0]
         assert first - connected_at >= 1.0 - 1e-9
+
+
+@pytest.mark.parametrize("depth", ["0", "ten"])
+def test_a_motion_stack_that_is_not_a_whole_number_of_moves_is_refused(depth: str) -> None:
+    from robot_server.emulator import Emulator, EmulatorConfig
+
+    with pytest.raises(ValueError, match="staubli profile option motion_stack"):
+        Emulator(EmulatorConfig(profile="staubli", profile_options=(("motion_stack", depth),)))

@@ -73,7 +73,7 @@ from ..control import Point, PointRejected, Reason
 from ..control.points import within
 from .cell import RobotCell
 from .owner import OnDisconnect
-from .profiles import EmulatorProfile, PortRules, ProfileContext, never_read, register_profile
+from .profiles import EmulatorProfile, PortRules, ProfileContext, int_option, never_read, register_profile
 from .quirks import Quirks
 
 __all__ = [
@@ -118,21 +118,6 @@ class FanucReads(FixedReads):
         length, msg_type, _, _ = self.wire.header.unpack_from(buf, start)
         size = KAREL_POINT_READ if msg_type == MsgType.JOINT_TRAJ_PT and length >= 64 else KAREL_READ
         return start + size if waiting >= size else None  # READ blocks until the rest has come
-
-
-def _option(options: Mapping[str, str], key: str, default: int, allowed: Iterable[int] | range) -> int:
-    text = options.get(key, str(default))
-    try:
-        value: int | None = int(text)
-    except ValueError:
-        value = None
-    if value is None or value not in allowed:
-        raise ValueError(f"fanuc profile option {key}={text!r}: expected a whole number in {_span(allowed)}")
-    return value
-
-
-def _span(allowed: Iterable[int] | range) -> str:
-    return f"{allowed.start}..{allowed.stop - 1}" if isinstance(allowed, range) else ", ".join(map(str, allowed))
 
 
 class FanucRelay:
@@ -347,9 +332,9 @@ class FanucBehaviour:
         self.relay = FanucRelay(
             context.cell,
             lenient=context.lenient,
-            speed=_option(options, "speed", DEFAULT_SPEED, range(1, 101)),
-            cnt=_option(options, "cnt", DEFAULT_CNT, range(101)),
-            j23_factor=_option(options, "j23_factor", 1, (-1, 0, 1)),
+            speed=int_option("fanuc", options, "speed", DEFAULT_SPEED, allowed=range(1, 101), what="in 1..100"),
+            cnt=int_option("fanuc", options, "cnt", DEFAULT_CNT, allowed=range(101), what="in 0..100"),
+            j23_factor=int_option("fanuc", options, "j23_factor", 1, allowed=(-1, 0, 1), what="in -1, 0, 1"),
         )
         self.state = FanucState(context.cell, self.relay)
 

@@ -38,6 +38,7 @@ __all__ = [
     "PortRules",
     "ProfileContext",
     "STATE_LINK",
+    "int_option",
     "never_read",
     "profile_named",
     "register_profile",
@@ -62,6 +63,21 @@ def never_read(wire: WireFormat, *, lenient: bool = False) -> FixedReads:
     """The reader of a port its controller never reads (RAPID's, KAREL's and VAL3's state servers
     only send): whatever a client sends there is dropped unanswered, a PING included."""
     return DiscardReads(wire)
+
+
+def int_option(
+    profile: str, options: Mapping[str, str], key: str, default: int, *, allowed: range | Sequence[int], what: str
+) -> int:
+    """A whole-number ``--profile-option KEY=VALUE`` (``default`` when not given); a value not in
+    ``allowed`` (described by ``what``) is refused with a :class:`ValueError` that names it."""
+    text = options.get(key, str(default))
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if value is None or value not in allowed:
+        raise ValueError(f"{profile} profile option {key}={text!r}: expected a whole number {what}")
+    return value
 
 
 @dataclass(frozen=True)

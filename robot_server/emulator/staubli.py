@@ -66,7 +66,7 @@ from simple_message.wire import WireFormat
 from ..control import Point, PointRejected, Reason
 from ..control.points import within
 from .cell import RobotCell
-from .profiles import EmulatorProfile, PortRules, ProfileContext, never_read, register_profile
+from .profiles import EmulatorProfile, PortRules, ProfileContext, int_option, never_read, register_profile
 from .quirks import Quirks
 
 __all__ = [
@@ -341,13 +341,14 @@ class StaubliBehaviour:
 
     def __init__(self, context: ProfileContext) -> None:
         self.cell = context.cell
-        stack = context.options.get("motion_stack", str(VAL3_MOTION_STACK))
-        try:
-            depth = int(stack)
-        except ValueError:
-            depth = 0
-        if depth < 1:
-            raise ValueError(f"motion_stack must be a whole number of moves >= 1, not {stack!r}")
+        depth = int_option(
+            "staubli",
+            context.options,
+            "motion_stack",
+            VAL3_MOTION_STACK,
+            allowed=range(1, 2**31),
+            what="of moves, >= 1",
+        )
         self.motion = StaubliMotion(context.cell, lenient=context.lenient, motion_stack=depth)
         self.state = StaubliState(context.cell, self.motion)
 
