@@ -348,6 +348,13 @@ class RobotCell:
         """Wait for the next control-loop wake-up, stop or fault."""
         await self._wakeup.wait()
 
+    async def until(self, predicate: Callable[[], bool]) -> None:
+        """Wait until ``predicate()`` holds, checked now and after every :meth:`changed` (no
+        timeout of its own: a controller task waits as long as its controller would, and is
+        cancelled with its connection; bound it with ``asyncio.timeout`` otherwise)."""
+        while not predicate():
+            await self.changed()
+
 
 class Wakeup:
     """Tasks waiting for the next time something happens: :meth:`wait` until the next :meth:`wake`

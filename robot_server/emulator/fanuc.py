@@ -145,6 +145,8 @@ class FanucRelay:
         #: controller time when the relay last found nothing to read (it looks again every 24 ms)
         self._idle_since = 0.0
         self._handover: asyncio.Task[None] | None = None
+        #: the motion port's server (:meth:`install`)
+        self.server: Server | None = None
         self._quirks = Quirks(log)
         self._short_seen: dict[Session, float] = {}
 
@@ -182,7 +184,8 @@ class FanucRelay:
 
     async def _relay(self, msg: Message, session: Session) -> HandlerResult:
         assert isinstance(msg, RawMessage)
-        await self._until(self._read_at())
+        read_at = self._read_at()
+        await self.cell.until(lambda: self.cell.time >= read_at - 1e-9)
         try:
             return await self._point(msg, session)
         finally:
@@ -271,13 +274,9 @@ class FanucRelay:
                         return
             await self.cell.changed()
 
-    async def _until(self, when: float) -> None:
-        while self.cell.time < when - 1e-9:
-            await self.cell.changed()
-
     def tick(self) -> None:
         """A message shorter than 56 bytes waiting on its own is never read: say so once."""
-        server = getattr(self, "server", None)
+        server = self.server
         if server is None or self.lenient:
             return
         now = self.cell.time

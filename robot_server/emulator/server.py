@@ -587,8 +587,7 @@ class Emulator:
     async def wait_until(self, predicate: Callable[[], bool], timeout: float) -> None:
         """Wait until ``predicate()`` holds, checked after every control-loop wake-up."""
         async with asyncio.timeout(timeout):
-            while not predicate():
-                await self.cell.changed()
+            await self.cell.until(predicate)
 
     def describe(self) -> str:
         """The one-line summary printed when the emulator is ready."""

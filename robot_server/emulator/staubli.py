@@ -198,8 +198,7 @@ class StaubliMotion:
 
     async def _receive(self, msg: Message, session: Session) -> HandlerResult:
         # one message per 4 ms tick: a second one waits for the next tick
-        while self._ticks(self.cell.time) <= self._read_tick:
-            await self.cell.changed()
+        await self.cell.until(lambda: self._ticks(self.cell.time) > self._read_tick)
         self._read_tick = self._ticks(self.cell.time)
         assert isinstance(msg, RawMessage)
         body = msg.body
