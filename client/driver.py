@@ -68,7 +68,6 @@ from simple_message.constants import (
     MotoCommand,
     MotoResult,
     MsgType,
-    RobotMode,
     SpecialSeq,
     TriState,
     ValidFields,
@@ -96,7 +95,9 @@ from simple_message.messages import (
 from simple_message.wire import WireFormat
 
 from .errors import DriverError, ExecutionAborted, _InFlight, _NotSent
+from .limits import check_limits, path_deviation
 from .lines import CartesianLines, LineGoal, LineRefused
+from .reasons import status_faults, status_why
 from .sending import TrajectorySender
 from .trajectory import Trajectory
 from .waiting import Look, Stall, Wait
@@ -655,35 +656,15 @@ class RobotDriver:
 
     def _faults(self) -> list[str]:
         """The reasons the latest STATUS gives for the robot not to move (none: nothing wrong)."""
-        status = self._status
-        if status is None:
-            return []
-        reasons = []
-        if status.e_stopped == TriState.TRUE:
-            reasons.append("the controller is e-stopped")
-        if status.drives_powered == TriState.FALSE:
-            reasons.append("the drives are off")
-        if status.in_error == TriState.TRUE:
-            reasons.append(f"it is in error (code {status.error_code})")
-        if status.mode == RobotMode.MANUAL:
-            reasons.append("it is in MANUAL mode (motion from a PC needs AUTO)")
-        if not reasons and status.motion_possible == TriState.FALSE:
-            reasons.append("STATUS says motion is not possible")
-        return reasons
+        return status_faults(self._status)
 
     def _faulted(self) -> bool:
         """The latest STATUS shows a reason the robot cannot move (see :meth:`_why`)."""
         return bool(self._faults())
 
     def _why(self) -> str:
-        """Why the controller may refuse motion, as its latest STATUS says (it gives no reason with a
-        FAILURE): e-stop, drives, an alarm, the mode; or that STATUS shows nothing wrong."""
-        if self._status is None:
-            return "no STATUS received to say why"
-        reasons = self._faults()
-        if reasons:
-            return "; ".join(reasons)
-        return "STATUS shows nothing wrong, so the point itself was refused (beyond a limit, or not where the robot is)"
+        """Why the controller may refuse motion, as its latest STATUS says (:func:`.reasons.status_why`)."""
+        return status_why(self._status)
 
     async def _stop_quietly(self) -> None:
         """Stop after an abort; if the motion link is down, wait (bounded) for it to come back."""
@@ -709,7 +690,7 @@ class RobotDriver:
         def look(state: JointState) -> Look:
             here = state.positions[: goal.size]
             if self.path_tolerance is not None:
-                deviation = _path_deviation(trajectory, here)
+                deviation = path_deviation(trajectory, here)
                 if deviation > self.path_tolerance:
                     raise ExecutionAborted(
                         f"the robot is {deviation:.4g} from the path (tolerance {self.path_tolerance})", confirmed
@@ -723,45 +704,3 @@ class RobotDriver:
         duration = trajectory.duration if self.dialect.timed else math.inf
         wait = Wait("point", "the goal", "the trajectory", duration, moves, stops=False)
         return await self._wait_done(wait, look, confirmed)
-
-
-def _path_deviation(trajectory: Trajectory, position: Array) -> float:
-    """Distance (max over joints) from ``position`` to the piecewise-linear joint path."""
-    q = trajectory.positions
-    if len(trajectory) == 1:
-        return float(np.max(np.abs(position - q[0])))
-    a, b = q[:-1], q[1:]
-    d = b - a
-    length = np.einsum("ij,ij->i", d, d)
-    s = np.clip(np.einsum("ij,ij->i", position - a, d) / np.where(length > 0, length, 1.0), 0.0, 1.0)
-    nearest = a + s[:, None] * d
-    return float(np.min(np.max(np.abs(nearest - position), axis=1)))
-
-
-def check_limits(trajectory: Trajectory, model: RobotModel, *, speeds: bool = True) -> None:
-    """Refuse, before anything is sent, a trajectory the robot cannot follow: a position beyond a
-    joint's limits, or (``speeds``) a segment whose mean speed is beyond a joint's maximum speed
-    (no controller can run it in its time; one that moves at its own speed takes longer). The
-    message names the point, the joint, the value and the limit."""
-    names = model.joint_names
-    units = ["m" if joint.type.value == "prismatic" else "rad" for joint in model.joints]
-    lower, upper, vmax = model.lower, model.upper, model.max_velocity
-    q = trajectory.positions
-    for bound, beyond, side in ((lower, q < lower - 1e-9, "lower"), (upper, q > upper + 1e-9, "upper")):
-        if beyond.any():
-            k, j = (int(i) for i in np.argwhere(beyond)[0])
-            raise DriverError(
-                f"point {k}: joint {j + 1} ({names[j]}) at {q[k, j]:.4g} is beyond its {side} limit "
-                f"{bound[j]:.4g} {units[j]}"
-            )
-    dt = np.diff(trajectory.times)
-    if dt.size and speeds:
-        speed = np.abs(np.diff(q, axis=0)) / np.maximum(dt, 1e-12)[:, None]
-        over = speed > vmax * (1 + 1e-6)
-        if over.any():
-            k, j = (int(i) for i in np.argwhere(over)[0])
-            raise DriverError(
-                f"segment {k}->{k + 1}: joint {j + 1} ({names[j]}) would move at {speed[k, j]:.4g} {units[j]}/s on "
-                f"average, beyond its maximum {vmax[j]:.4g} {units[j]}/s (give the segment at least "
-                f"{abs(q[k + 1, j] - q[k, j]) / vmax[j]:.3g} s)"
-            )

@@ -1,0 +1,59 @@
+"""What the driver checks of a trajectory against the robot model before and while it runs: the
+joints' position and speed limits (before anything is sent) and the distance from the planned
+joint path (while the robot follows it)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from robot_server import RobotModel
+
+from .errors import DriverError
+from .trajectory import Trajectory
+
+__all__ = ["check_limits", "path_deviation"]
+
+Array = NDArray[np.float64]
+
+
+def path_deviation(trajectory: Trajectory, position: Array) -> float:
+    """Distance (max over joints) from ``position`` to the piecewise-linear joint path."""
+    q = trajectory.positions
+    if len(trajectory) == 1:
+        return float(np.max(np.abs(position - q[0])))
+    a, b = q[:-1], q[1:]
+    d = b - a
+    length = np.einsum("ij,ij->i", d, d)
+    s = np.clip(np.einsum("ij,ij->i", position - a, d) / np.where(length > 0, length, 1.0), 0.0, 1.0)
+    nearest = a + s[:, None] * d
+    return float(np.min(np.max(np.abs(nearest - position), axis=1)))
+
+
+def check_limits(trajectory: Trajectory, model: RobotModel, *, speeds: bool = True) -> None:
+    """Refuse, before anything is sent, a trajectory the robot cannot follow: a position beyond a
+    joint's limits, or (``speeds``) a segment whose mean speed is beyond a joint's maximum speed
+    (no controller can run it in its time; one that moves at its own speed takes longer). The
+    message names the point, the joint, the value and the limit."""
+    names = model.joint_names
+    units = ["m" if joint.type.value == "prismatic" else "rad" for joint in model.joints]
+    lower, upper, vmax = model.lower, model.upper, model.max_velocity
+    q = trajectory.positions
+    for bound, beyond, side in ((lower, q < lower - 1e-9, "lower"), (upper, q > upper + 1e-9, "upper")):
+        if beyond.any():
+            k, j = (int(i) for i in np.argwhere(beyond)[0])
+            raise DriverError(
+                f"point {k}: joint {j + 1} ({names[j]}) at {q[k, j]:.4g} is beyond its {side} limit "
+                f"{bound[j]:.4g} {units[j]}"
+            )
+    dt = np.diff(trajectory.times)
+    if dt.size and speeds:
+        speed = np.abs(np.diff(q, axis=0)) / np.maximum(dt, 1e-12)[:, None]
+        over = speed > vmax * (1 + 1e-6)
+        if over.any():
+            k, j = (int(i) for i in np.argwhere(over)[0])
+            raise DriverError(
+                f"segment {k}->{k + 1}: joint {j + 1} ({names[j]}) would move at {speed[k, j]:.4g} {units[j]}/s on "
+                f"average, beyond its maximum {vmax[j]:.4g} {units[j]}/s (give the segment at least "
+                f"{abs(q[k + 1, j] - q[k, j]) / vmax[j]:.3g} s)"
+            )
