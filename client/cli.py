@@ -40,6 +40,7 @@ from simple_message.cliargs import (
     add_profile_wire_arguments,
     add_version_argument,
     client_port,
+    options_after_command,
     positive_float,
     positive_int,
     preimport,
@@ -140,7 +141,8 @@ _DESCRIPTIONS = {
 }
 
 
-def parser() -> argparse.ArgumentParser:
+def _common() -> ArgumentParser:
+    """The options every command takes (before or after the command's name)."""
     common = ArgumentParser(add_help=False)
     common.add_argument("--host", default="127.0.0.1", help="controller address")
     common.add_argument(
@@ -183,11 +185,16 @@ def parser() -> argparse.ArgumentParser:
     add_capture_arguments(common, "the command's traffic", DEFAULT_MAX_BYTES / 1e6)
     add_log_level_argument(common)
     add_import_argument(common)  # e.g. a module that registers a dialect or an interpolation policy
+    return common
 
+
+def parser() -> argparse.ArgumentParser:
+    common = _common()
     p = ArgumentParser(
         prog="robot-client",
         description="Drive a robot controller (or the emulator) over ROS-Industrial simple_message.",
-        epilog="Angles in radians, lengths in metres. Run 'robot-client COMMAND -h' for a command's options. "
+        epilog="Angles in radians, lengths in metres. Run 'robot-client COMMAND -h' for a command's options; the "
+        "options every command takes (--host, the ports, --profile, --model...) may also come before COMMAND. "
         "Exit status: 0 done, 1 the robot or the controller failed, 2 bad arguments or input, 130 interrupted, "
         "143 terminated (the robot stopped first).",
     )
@@ -630,7 +637,8 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     if failure is not None:
         print(f"robot-client: {failure}", file=sys.stderr)
         return EXIT_USAGE
-    args = parser().parse_args(argv)
+    top = parser()
+    args = top.parse_args(options_after_command(sys.argv[1:] if argv is None else argv, _common(), top))
     stream = out if out is not None else sys.stdout
     logging.basicConfig(
         level=args.log_level, stream=sys.stderr, format="%(asctime)s %(levelname)s %(name)s: %(message)s"

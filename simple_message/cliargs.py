@@ -33,6 +33,7 @@ __all__ = [
     "add_version_argument",
     "client_port",
     "distribution_version",
+    "options_after_command",
     "log_level",
     "non_negative_float",
     "non_negative_int",
@@ -115,6 +116,41 @@ class ArgumentParser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         text = " ".join(message.split())
         self.exit(2, f"{self.prog}: error: {text} (see '{self.prog} --help')\n")
+
+
+class _Unparsed(Exception):
+    """What :func:`options_after_command`'s probe could not parse (the real parser reports it)."""
+
+
+class _Probe(ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        raise _Unparsed(message)
+
+
+def options_after_command(
+    argv: Sequence[str], common: argparse.ArgumentParser, parser: argparse.ArgumentParser
+) -> list[str]:
+    """``argv`` with the options of ``common`` (the parent parser every subcommand of ``parser``
+    shares) that were given before the subcommand moved after it, where argparse looks for them:
+    ``robot-client --profile motoros status`` is ``robot-client status --profile motoros``. A bad
+    value there is ``parser``'s usage error (exit status 2); anything else before the subcommand
+    (``--help``, ``--version``, an option ``common`` does not have) leaves ``argv`` as it is, for
+    ``parser`` to answer or report."""
+    args = list(argv)
+    probe = _Probe(add_help=False, parents=[common])
+    probe.add_argument("rest", nargs=argparse.REMAINDER)
+    try:
+        known, extras = probe.parse_known_args(args)
+    except _Unparsed as exc:
+        parser.error(str(exc))
+    rest = list(known.rest)
+    stray = [a for a in extras if a.startswith("-") and a.split("=")[0] not in ("-h", "--help", "--version")]
+    if stray and rest:
+        parser.error(f"{stray[0]} is not an option of {parser.prog} itself: a command's own options go after it")
+    if extras or not rest or len(rest) == len(args):
+        return args
+    before = len(args) - len(rest)
+    return [rest[0], *args[:before], *rest[1:]]
 
 
 # -- argument types ------------------------------------------------------------------------------------
