@@ -26,6 +26,9 @@ If a controller already answers on the given ports, the rectangle runs there onc
 interpolation is its own business) and the row is computed from the joint states it publishes;
 the MOVL row then runs there too if the controller has straight lines
 (:meth:`~.driver.RobotDriver.supports_lines`), and is skipped, with a line saying so, if not.
+The options that only choose how the embedded emulator runs (``simulated``, ``speedup``,
+``policies`` other than the paper's) are then not used: a line names those given
+(:func:`embedded_only`) and says that ``--embedded`` runs them.
 
 **The table** (all from the controller's record, or from the published joint states):
 
@@ -76,6 +79,7 @@ __all__ = [
     "DemoResult",
     "analyse",
     "corner_error",
+    "embedded_only",
     "plan_rectangle",
     "run_demo",
     "format_table",
@@ -519,6 +523,18 @@ async def _probe(config: DemoConfig, model: RobotModel) -> RobotDriver | None:
     return driver
 
 
+def embedded_only(config: DemoConfig) -> list[str]:
+    """The options of ``config`` that only the embedded emulator takes, as given (not defaults)."""
+    given = []
+    if config.simulated:
+        given.append("--simulated")
+    if config.speedup != 1.0:
+        given.append(f"--speedup {config.speedup:g}")
+    if tuple(config.policies) != PAPER_POLICIES:
+        given.append(f"--policies {' '.join(config.policies)}")
+    return given
+
+
 async def run_demo(config: DemoConfig, progress: Callable[[str], None] = print) -> DemoResult:
     """Plan and run the experiment (see the module doc); writes CSV files (and a figure)."""
     model = load_model(config.model)
@@ -537,6 +553,12 @@ async def run_demo(config: DemoConfig, progress: Callable[[str], None] = print) 
     if external is not None:
         result.external = f"{external.host}:{external.motion_port}"
         progress(f"a controller answers at {result.external}: running the rectangle there")
+        ignored = embedded_only(config)
+        if ignored:
+            progress(
+                f"ignored here: {', '.join(ignored)} (they choose how the embedded emulator runs; a running controller "
+                "interpolates its own way, in real time): add --embedded to run them"
+            )
         try:
             row, t, q = await _external_run(external, config, plan)
             result.rows.append(row)

@@ -5,6 +5,7 @@ model the controller runs, a recording's replay, the demo against a running cont
 from __future__ import annotations
 
 import io
+from pathlib import Path
 
 import pytest
 
@@ -35,3 +36,27 @@ def test_a_mistake_before_the_command_is_named_as_it_is(
         cli.main(argv, io.StringIO())
     assert exit_.value.code == cli.EXIT_USAGE
     assert says in capsys.readouterr().err
+
+
+async def test_the_demo_against_a_running_controller_names_the_options_it_does_not_use(tmp_path: Path) -> None:
+    async with controller() as (_emu, ports):
+        code, out = await client(
+            "demo", *ports, "--short", "--simulated", "--policies", "quintic", "ruckig", "--no-plot", "--no-movl",
+            "--output", str(tmp_path),
+        )  # fmt: skip
+    assert code == 0, out
+    assert "a controller answers at 127.0.0.1:" in out
+    assert (
+        "ignored here: --simulated, --policies quintic ruckig (they choose how the embedded emulator runs; a "
+        "running controller interpolates its own way, in real time): add --embedded to run them"
+    ) in out
+    docs = (Path(__file__).parents[1] / "docs" / "demo.md").read_text()
+    shown = next(line for line in docs.splitlines() if line.startswith("ignored here:"))
+    assert shown in out  # the docs show what the command prints
+
+
+async def test_the_demo_says_nothing_is_ignored_when_nothing_is(tmp_path: Path) -> None:
+    async with controller() as (_emu, ports):
+        code, out = await client("demo", *ports, "--short", "--no-plot", "--no-movl", "--output", str(tmp_path))
+    assert code == 0, out
+    assert "ignored here" not in out
