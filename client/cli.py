@@ -461,6 +461,9 @@ async def _move(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> N
     model = driver.model
     assert model is not None
     here = (await driver.wait_state()).positions[: model.dof]
+    busy = driver.moving_elsewhere()  # a move is planned from the robot at rest, where it is
+    if busy is not None:
+        raise CommandError(busy)
     here = np.clip(here, model.lower, model.upper)
     planner = Planner(
         model,

@@ -97,7 +97,7 @@ from simple_message.wire import WireFormat
 from .errors import DriverError, ExecutionAborted, _InFlight, _NotSent
 from .limits import check_limits, path_deviation
 from .lines import CartesianLines, LineGoal, LineRefused
-from .reasons import status_faults, status_why
+from .reasons import moving_elsewhere, status_faults, status_why
 from .sending import TrajectorySender
 from .trajectory import Trajectory
 from .waiting import Look, Stall, Wait
@@ -448,9 +448,16 @@ class RobotDriver:
                 await connection.close()
             raise DriverError(f"no reply to {msg.name} within {self.reply_timeout} s") from None
         except NotConnected as exc:
+            busy = self.moving_elsewhere()
             raise _NotSent(
-                f"motion connection down: {exc} (if the controller is up, another client may be moving the robot: "
-                "a controller takes one motion client at a time)"
+                f"motion connection down: {exc} ("
+                + (
+                    busy
+                    if busy is not None
+                    else "if the controller is up, another client may be moving the robot: a controller takes one "
+                    "motion client at a time"
+                )
+                + ")"
             ) from None
         except ConnectionClosed as exc:
             raise _InFlight(f"motion connection lost: {exc}") from None
@@ -487,6 +494,17 @@ class RobotDriver:
         as for any lost reply, and the answer kept for the driver's life). The answer is kept for
         the motion connection it was found on."""
         return await CartesianLines(self).supports()
+
+    def moving_elsewhere(self) -> str | None:
+        """Why a motion cannot start now because the robot is moving (the latest STATUS says in_motion
+        TRUE): under another motion client when the controller closed this client's motion
+        connection, else a motion still under way (:func:`.reasons.moving_elsewhere`). None when
+        STATUS does not say the robot moves."""
+        return moving_elsewhere(self._status, self._motion_closed())
+
+    def _motion_closed(self) -> bool:
+        """The controller has closed this client's motion connection (it is down, or was re-established)."""
+        return self.serial is None and (self.motion.state is not ConnectionState.CONNECTED or self.motion.connects > 1)
 
     async def _motion_up(self) -> None:
         """Wait (bounded) for the motion link if it is being re-established, e.g. after a reset."""
@@ -597,6 +615,9 @@ class RobotDriver:
         if self.model is not None and self.check_limits:
             check_limits(trajectory, self.model, speeds=self.dialect.timed)
         gap = float(np.max(np.abs(trajectory.positions[0] - state.positions[: trajectory.dof])))
+        busy = self.moving_elsewhere()
+        if busy is not None and (gap > self.goal_tolerance or self._motion_closed()):
+            raise DriverError(busy)
         if gap > self.goal_tolerance:
             raise DriverError(
                 f"the trajectory starts {gap:.4g} away from the robot's position (tolerance {self.goal_tolerance})"

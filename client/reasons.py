@@ -1,12 +1,15 @@
 """Why a controller will not move the robot, as its STATUS says: a FAILURE to a point carries no
-reason, so the driver reads the reason from the STATUS that came with (or after) it."""
+reason, so the driver reads the reason from the STATUS that came with (or after) it. And who
+moves it when this client does not: a controller takes motion from one client at a time (MotoROS,
+ABB's and Fanuc's servers, the emulator) and closes a newcomer's motion connection while the robot
+is busy, without a word on the wire; STATUS in_motion TRUE with that connection closed says so."""
 
 from __future__ import annotations
 
 from simple_message.constants import RobotMode, TriState
 from simple_message.messages import Status
 
-__all__ = ["status_faults", "status_why"]
+__all__ = ["moving_elsewhere", "status_faults", "status_why"]
 
 
 def status_faults(status: Status | None) -> list[str]:
@@ -36,3 +39,19 @@ def status_why(status: Status | None) -> str:
     if reasons:
         return "; ".join(reasons)
     return "STATUS shows nothing wrong, so the point itself was refused (beyond a limit, or not where the robot is)"
+
+
+def moving_elsewhere(status: Status | None, link_closed: bool) -> str | None:
+    """Why this client cannot start a motion while ``status`` says the robot moves (in_motion
+    TRUE) and nothing of this client's runs: another motion client's motion if the controller
+    closed this client's motion connection (``link_closed``), else a motion still under way. None
+    when STATUS does not say the robot moves."""
+    if status is None or status.in_motion != TriState.TRUE:
+        return None
+    if link_closed:
+        return (
+            "another motion client is moving the robot: the controller closed this client's motion connection "
+            "(it takes motion from one client at a time; STATUS says in_motion TRUE); try again once the robot is "
+            "at rest, or stop it from that client"
+        )
+    return "the robot is still moving (STATUS says in_motion TRUE): a motion starts from rest; wait until it stops"

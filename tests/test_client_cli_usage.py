@@ -4,12 +4,19 @@ model the controller runs, a recording's replay, the demo against a running cont
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import io
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from client import cli
+from client.driver import RobotDriver
+from client.trajectory import Trajectory
+from robot_server.loader import load_model
+from tests.stepped import poll
 from tests.test_client_cli_inprocess import client, controller
 
 
@@ -60,3 +67,40 @@ async def test_the_demo_says_nothing_is_ignored_when_nothing_is(tmp_path: Path) 
         code, out = await client("demo", *ports, "--short", "--no-plot", "--no-movl", "--output", str(tmp_path))
     assert code == 0, out
     assert "ignored here" not in out
+
+
+@pytest.mark.parametrize("profile", ["generic", "motoros"])
+async def test_a_second_motion_client_is_told_that_another_client_moves_the_robot(
+    profile: str, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    model = load_model("jibot_zxs")
+    elsewhere = tmp_path / "elsewhere.csv"
+    Trajectory(np.array([0.0, 2.0]), np.array([[0.0] * 6, [0.2] * 6]), joint_names=model.joint_names).save(elsewhere)
+    async with controller(profile=profile, speedup=1.0) as (emu, ports):
+        owner = RobotDriver("127.0.0.1", emu.ports["motion"], emu.ports["state"], profile=profile, model=model)
+        await owner.connect(10.0)
+        start = owner.joint_state
+        assert start is not None
+        goal = start.positions.copy()
+        goal[0] += 1.0
+        slow = Trajectory(np.array([0.0, 60.0]), np.stack([start.positions, goal]))  # moving for the whole test
+        moving = asyncio.get_running_loop().create_task(owner.execute(slow))
+        try:
+            await poll(lambda: emu.cell.in_motion, 10.0)
+            for argv in (
+                ["move", "--joints", "0", "0", "0", "0", "0", "0"],
+                ["move", "--pose", "0.3", "0", "0.3"],
+                ["run", str(elsewhere)],  # the driver's own check (RobotDriver.execute)
+            ):
+                code, _ = await client(*argv, *ports)
+                err = capsys.readouterr().err
+                assert code == cli.EXIT_FAILED
+                assert "another motion client is moving the robot: the controller closed this client's motion " in err
+                assert "away from the robot's position" not in err
+            assert emu.owner.refused >= 3
+            assert emu.cell.in_motion  # the owner's motion runs on
+        finally:
+            moving.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await moving
+            await owner.close()
