@@ -54,6 +54,7 @@ from simple_message.wire import ByteOrder, WireFormat
 
 from .demo import PAPER_POLICIES, DemoConfig, format_table, run_demo
 from .driver import DriverError, JointState, LineGoal, Mode, RobotDriver
+from .identity import check_model
 from .planner import Planner, PlanningError, pose
 from .trajectory import Trajectory, recording
 
@@ -232,6 +233,12 @@ def parser() -> argparse.ArgumentParser:
         action="store_true",
         help="with --pose: let the controller run the straight line (CARTESIAN_LINE) if it can; else it is planned "
         "on the PC, as without --linear",
+    )
+    move.add_argument(
+        "--no-model-check",
+        action="store_true",
+        help="with --pose: do not compare --model with the robot the controller says it drives (its TOOL_POSE, or "
+        "MotoROS's D-H table); a --pose move is refused when they differ by more than 1 mm",
     )
     move.add_argument(
         "--tcp-speed",
@@ -477,6 +484,12 @@ async def _move(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> N
     if args.joints is not None:
         motion = planner.joint_move(here, args.joints)
     else:
+        if not args.no_model_check:
+            check = await check_model(driver, model)
+            if check.agrees is None:
+                print(f"note: {check.how}", file=out, flush=True)
+            else:
+                log.info("%s", check.how)
         values = args.pose
         rotation = fk(model, here)[:3, :3] if len(values) == 3 else rpy_matrix(*values[3:])
         target = pose(values[:3], rotation)

@@ -366,7 +366,7 @@ class RobotDriver:
         """The latest TOOL_POSE of motion group ``group`` (None until one arrives)."""
         return self._tool_poses.get(group)
 
-    async def subscribe_tool_pose(self, *, wait: bool = True, rounds: int = 3) -> ToolPose | None:
+    async def subscribe_tool_pose(self, *, wait: bool = True, rounds: int | None = 3) -> ToolPose | None:
         """Ask the controller for TOOL_POSE (this project's extension, docs/protocol.md: the actual
         TCP pose and speed each state round) by sending one TOOL_POSE on the state connection,
         and again after each reconnection. A TOPIC: a controller that does not know it ignores it,
@@ -374,7 +374,9 @@ class RobotDriver:
 
         With ``wait``, returns the first TOOL_POSE if it comes within ``rounds`` joint-state
         samples after asking (a controller that has the extension sends it with the next round)
-        or the watchdog period, else None; without, returns at once what is known."""
+        or the watchdog period, else None; without, returns at once what is known. ``rounds``
+        None waits the watchdog period whatever arrives: samples read late come in a burst, which
+        would count as rounds before the controller has seen the request."""
         self._tool_wanted = True
         if self.state.connection is not self._tool_asked_on:
             self._ask_tool_pose()
@@ -384,7 +386,7 @@ class RobotDriver:
         start = self._samples
         with contextlib.suppress(TimeoutError):
             async with asyncio.timeout(self.watchdog):
-                while self.tool_pose is None and self._samples - start < rounds:
+                while self.tool_pose is None and (rounds is None or self._samples - start < rounds):
                     await self._activity.wait()
         return self.tool_pose
 

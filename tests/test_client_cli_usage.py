@@ -104,3 +104,33 @@ async def test_a_second_motion_client_is_told_that_another_client_moves_the_robo
             with contextlib.suppress(asyncio.CancelledError):
                 await moving
             await owner.close()
+
+
+@pytest.mark.parametrize(("profile", "compared"), [("generic", "TOOL_POSE"), ("motoros", "D-H table")])
+async def test_a_pose_move_with_a_model_that_is_not_the_controllers_is_refused_naming_model(
+    profile: str, compared: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    async with controller(profile=profile, models=("puma560",)) as (emu, ports):
+        code, out = await client("move", "--joints", "0", "0.3", "-0.2", "0", "0.9", "0", "--model", "puma560", *ports)
+        assert code == 0, out  # out of the wrist singularity of the zero pose
+        before = np.array(emu.cell.groups[0].command.command_position)
+        code, out = await client("move", "--pose", "0.4", "0.05", "0.2", *ports)  # --model jibot_zxs, the default
+        err = capsys.readouterr().err
+        assert code == cli.EXIT_FAILED, out
+        assert "robot-client: --model jibot_zxs is not the controller's robot: " in err
+        assert "give --model the model the controller runs" in err
+        assert (compared == "TOOL_POSE") == ("mm and" in err)  # TOOL_POSE: how far apart the tools are
+        assert np.array_equal(np.array(emu.cell.groups[0].command.command_position), before)  # nothing moved
+        code, out = await client("move", "--pose", "0.5", "0.1", "0.3", "--model", "puma560", *ports)
+        assert code == 0, capsys.readouterr().err
+        assert "note:" not in out  # the controller said which robot it drives
+
+
+async def test_a_controller_that_says_nothing_of_its_model_gets_a_note_that_the_result_rests_on_model() -> None:
+    async with controller(profile="abb") as (_emu, ports):
+        code, out = await client("move", "--joints", "0", "0.3", "-0.2", "0", "0.9", "0", *ports)
+        assert code == 0, out
+        code, out = await client("move", "--pose", "0.45", "0.05", "0.4", *ports)
+    assert code == 0, out
+    assert out.count("note: the controller says nothing about its robot model") == 1
+    assert "the Cartesian result rests on --model jibot_zxs being the controller's robot" in out

@@ -1,0 +1,160 @@
+"""Which robot the controller drives, as far as it says: a Cartesian command is planned with the
+client's model (``robot-client --model``), and a model that is not the controller's robot puts
+the tool somewhere else than asked while every joint reaches its goal. So before a Cartesian
+command the client compares its model with what the controller says about its own:
+
+* **TOOL_POSE** (this project's extension, docs/protocol.md; the emulator sends it on request,
+  asked for and awaited up to the driver's watchdog period, not from a controller family whose
+  server takes no unknown message, ABB's, Fanuc's, Staubli's): the controller's actual TCP pose
+  beside its joint state. The model's forward kinematics at
+  those joints must put the TCP within :data:`POSITION_TOLERANCE` (1 mm) and
+  :data:`ORIENTATION_TOLERANCE` of it.
+* **GET_DH_PARAMETERS** (MotoROS, asked first, ``Ros_MotionServer_GetDhParameters``, motoman_driver
+  MotoPlus/MotionServer.c:2157-2184: one ``DH_LINK {theta, d, a, alpha}`` per axis of each group,
+  ParameterTypes.h:116-126): the controller's D-H table, compared with the model's (lengths
+  within 1 mm, angles within 1 mrad). MotoPlus does not document the table's units: a table whose
+  lengths are the model's in millimetres agrees too.
+* Otherwise the controller says nothing about its model (ABB, Fanuc, Staubli, the C++ reference
+  server, a MotoROS without GET_DH_PARAMETERS): the result rests on ``--model``, and
+  :class:`ModelCheck` says so.
+
+A disagreement is :class:`ModelMismatch`, one line naming ``--model`` and by how much they
+differ; nothing is sent to move the robot.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from robot_server.kinematics import fk, quaternion_angle, rotation_to_quaternion
+from robot_server.model import RobotModel
+from simple_message.errors import SimpleMessageError
+from simple_message.messages import DhLink, GetDhParameters, GetDhParametersReply, ToolPose
+
+from .errors import DriverError
+
+if TYPE_CHECKING:
+    from .driver import RobotDriver
+
+__all__ = ["ModelCheck", "ModelMismatch", "POSITION_TOLERANCE", "ORIENTATION_TOLERANCE", "check_model"]
+
+#: how far (m) the model may put the TCP from the controller's TOOL_POSE at the same joints
+POSITION_TOLERANCE = 0.001
+#: how far (rad) the model's TCP orientation may be from the controller's
+ORIENTATION_TOLERANCE = 0.002
+#: D-H angles agree within this (rad)
+_DH_ANGLE = 0.001
+
+
+class ModelMismatch(DriverError):
+    """The client's model is not the robot the controller drives (see the module doc)."""
+
+
+@dataclass(frozen=True)
+class ModelCheck:
+    """What the controller said about its model: ``agrees`` True (``how`` says what was compared)
+    or None (it says nothing: ``how`` says the result rests on the client's model). A
+    disagreement raises :class:`ModelMismatch` instead."""
+
+    agrees: bool | None
+    how: str
+
+
+async def check_model(driver: RobotDriver, model: RobotModel, *, option: str = "--model") -> ModelCheck:
+    """Compare ``model`` with what the controller of ``driver`` says of its own (module doc);
+    ``option`` is how the caller's user gives the model (named in the messages)."""
+    if driver.dialect.motion_control:
+        table = await _dh_table(driver)
+        if table is not None:
+            return _against_dh(model, table, option)
+    if driver.dialect.unknown_types:  # a TOPIC it may not know: ABB's, Fanuc's, Staubli's servers take none
+        pose = await driver.subscribe_tool_pose(rounds=None)
+        state = driver.joint_state
+        if pose is not None and state is not None and pose.tool == 0:
+            return _against_tool_pose(model, state.positions[: model.dof], pose, option)
+    return ModelCheck(
+        None,
+        f"the controller says nothing about its robot model (no TOOL_POSE, no D-H table): the Cartesian result rests "
+        f"on {option} {model.name} being the controller's robot",
+    )
+
+
+def _against_tool_pose(model: RobotModel, q: np.ndarray, pose: ToolPose, option: str) -> ModelCheck:
+    mine = fk(model, q)
+    theirs = np.array([pose.x, pose.y, pose.z])
+    apart = float(np.linalg.norm(mine[:3, 3] - theirs))
+    # the pose and the joints are of the same state round; a moving robot moves a little between
+    allowed = POSITION_TOLERANCE + abs(pose.speed) * 0.05
+    quaternion = np.array([pose.qw, pose.qx, pose.qy, pose.qz])
+    turned = quaternion_angle(_quaternion(mine), quaternion / max(float(np.linalg.norm(quaternion)), 1e-12))
+    if apart > allowed or turned > ORIENTATION_TOLERANCE + abs(pose.speed) * 0.05:
+        here = ", ".join(f"{v:.4f}" for v in mine[:3, 3])
+        there = ", ".join(f"{v:.4f}" for v in theirs)
+        raise ModelMismatch(
+            f"{option} {model.name} is not the controller's robot: at the robot's joints it puts the tool at ({here}) "
+            f"m, the controller reports ({there}) m, {apart * 1000:.1f} mm and {math.degrees(turned):.1f} deg apart; "
+            f"give {option} the model the controller runs (the one robot-server was started with)"
+        )
+    return ModelCheck(True, f"{option} {model.name} agrees with the controller's TOOL_POSE ({apart * 1000:.3f} mm)")
+
+
+def _quaternion(pose: np.ndarray) -> np.ndarray:
+    return np.asarray(rotation_to_quaternion(pose[:3, :3]), dtype=float)
+
+
+async def _dh_table(driver: RobotDriver) -> GetDhParametersReply | None:
+    """The controller's GET_DH_PARAMETERS reply, or None (refused, unknown, no reply)."""
+    with contextlib.suppress(DriverError, SimpleMessageError):
+        reply = await driver._request(GetDhParameters())
+        if isinstance(reply, GetDhParametersReply):
+            return reply
+    return None
+
+
+def _against_dh(model: RobotModel, reply: GetDhParametersReply, option: str) -> ModelCheck:
+    rows = [joint.dh for joint in model.joints]
+    theirs = reply.groups[0]
+    if not any(v != 0.0 for link in theirs for v in (link.theta, link.d, link.a, link.alpha)):
+        return ModelCheck(None, f"the controller's D-H table is empty: the Cartesian result rests on {option}")
+    if any(row is None for row in rows):
+        return ModelCheck(
+            None,
+            f"the controller sends its D-H table, but {option} {model.name} has none to compare: the Cartesian "
+            f"result rests on {option} {model.name} being the controller's robot",
+        )
+    who = f"{option} {model.name}"
+    worst = _dh_difference(rows, theirs, 1.0, "m", who)
+    if not worst or not _dh_difference(rows, theirs, 1000.0, "mm", who):  # MotoPlus does not say its units
+        return ModelCheck(True, f"{who} agrees with the controller's D-H table")
+    raise ModelMismatch(
+        f"{option} {model.name} is not the controller's robot: its D-H table differs from the controller's "
+        f"({worst}); give {option} the model the controller runs"
+    )
+
+
+def _dh_difference(
+    rows: list[tuple[float, float, float, float] | None], theirs: tuple[DhLink, ...], scale: float, unit: str, who: str
+) -> str:
+    """The largest difference of the two D-H tables beyond the tolerances (lengths times
+    ``scale``, in ``unit``), in words, or "" when they agree."""
+    worst, text = 1.0, ""
+    for j, row in enumerate(rows):
+        assert row is not None
+        link = theirs[j]
+        for name, mine, other, angle in (
+            ("theta", row[0], link.theta, True),
+            ("d", row[1], link.d, False),
+            ("a", row[2], link.a, False),
+            ("alpha", row[3], link.alpha, True),
+        ):
+            off = abs(mine - other) / _DH_ANGLE if angle else abs(mine * scale - other) / (POSITION_TOLERANCE * scale)
+            if off > worst:
+                there = f"{other:.4g} rad" if angle else f"{other:.4g} {unit}"
+                here = f"{mine:.4g} rad" if angle else f"{mine * scale:.4g} {unit}"
+                worst, text = off, f"joint {j + 1} {name} is {there} there, {here} in {who}"
+    return text
