@@ -52,8 +52,9 @@ from simple_message.jsonio import message_to_json, symbolic_names
 from simple_message.messages import Status, ToolPose
 from simple_message.wire import ByteOrder, WireFormat
 
+from .advice import instead, line_check
 from .demo import PAPER_POLICIES, DemoConfig, format_table, run_demo
-from .driver import DriverError, JointState, LineGoal, Mode, RobotDriver
+from .driver import DriverError, JointState, LineGoal, LineRefused, Mode, RobotDriver
 from .identity import check_model
 from .planner import Planner, PlanningError, pose
 from .trajectory import Trajectory, recording
@@ -496,13 +497,31 @@ async def _move(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> N
         if args.linear:
             if await driver.supports_lines():
                 print("the controller runs the straight line (CARTESIAN_LINE)", file=out, flush=True)
-                await _move_line(driver, LineGoal.from_pose(target), args, out)
+                try:
+                    await _move_line(driver, LineGoal.from_pose(target), args, out)
+                except LineRefused as exc:
+                    where = line_check(model, here, target, _tcp_speed(args))
+                    ways = instead(model, here, target, planner, linear=True)
+                    raise CommandError(_advised(str(exc), where, ways)) from None
                 return
             print("the controller has no straight-line motion: planned on the PC", file=out, flush=True)
-        motion = planner.linear_moves(here, [target])
+        try:
+            motion = planner.linear_moves(here, [target])
+        except PlanningError as exc:
+            raise PlanningError(_advised(str(exc), None, instead(model, here, target, planner, linear=False))) from None
     # JOINT_TRAJ_PT points are joined at rest by the controllers that take them
     rest_to_rest = driver.dialect.point_type == MsgType.JOINT_TRAJ_PT
     await _execute(driver, motion.sparse(rest_to_rest=rest_to_rest), args.mode, out)
+
+
+def _advised(refusal: str, where: str | None, ways: list[str]) -> str:
+    """A refusal with where the client's check places it and what would run instead."""
+    text = refusal
+    if where is not None:
+        text += f"; by the client's check of the line on its model: {where}"
+    if ways:
+        text += "; instead: " + "; or ".join(ways)
+    return text
 
 
 def _tcp_speed(args: argparse.Namespace) -> float:

@@ -134,3 +134,29 @@ async def test_a_controller_that_says_nothing_of_its_model_gets_a_note_that_the_
     assert code == 0, out
     assert out.count("note: the controller says nothing about its robot model") == 1
     assert "the Cartesian result rests on --model jibot_zxs being the controller's robot" in out
+
+
+async def test_a_refused_line_says_where_as_the_controller_does_and_what_runs_instead(
+    capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    kuka = ["--model", "kuka_kr6_r900_sixx"]
+    async with controller(models=("kuka_kr6_r900_sixx",)) as (_emu, ports):
+        code, out = await client("move", "--joints", "0", "-1.2", "1.2", "0", "0.5", "0", *kuka, *ports)
+        assert code == 0, out
+        code, out = await client("move", "--pose", "0.5", "0", "0.3", "--linear", *kuka, *ports)
+        err = capsys.readouterr().err
+        assert code == cli.EXIT_FAILED, out
+        assert "the controller refused line 0: SINGULAR (it passes a singularity)" in err
+        # where and how close: the controller's own words, which only its log had
+        logged = next(r.getMessage() for r in caplog.records if "CARTESIAN_LINE 0 refused" in r.getMessage())
+        where = logged.split("singular: ", 1)[1]
+        assert where.startswith("line 0 passes a singularity at (0.6135, 0.0000, 0.6283) m (38% along")
+        assert f"by the client's check of the line on its model: {where}" in err
+        assert "instead: without --linear (the same straight line planned on the PC) it runs; or by joints" in err
+        suggested = err.split("robot-client move --joints ", 1)[1].split()[:6]
+        code, out = await client("move", "--pose", "0.5", "0", "0.3", *kuka, *ports)  # without --linear: it runs
+        assert code == 0, capsys.readouterr().err
+        code, out = await client("move", "--joints", "0", "-1.2", "1.2", "0", "0.5", "0", *kuka, *ports)
+        assert code == 0, out
+        code, out = await client("move", "--joints", *suggested, *kuka, *ports)  # the suggestion runs too
+        assert code == 0, capsys.readouterr().err
