@@ -129,8 +129,9 @@ _DESCRIPTIONS = {
     "pose along a straight line (--pose), and execute it; a progress line on a terminal, then a report. With "
     "--linear the controller runs the straight line itself (CARTESIAN_LINE, this project's extension) when it "
     "can, at --tcp-speed; otherwise it is planned on the PC as without --linear. Ctrl-C stops the robot.",
-    "run": "Execute a trajectory file (.csv or .json; a file that record wrote replays as it is), streamed or "
-    "downloaded (--mode). Ctrl-C stops the robot.",
+    "run": "Execute a trajectory file (.csv or .json; a file that record wrote replays at the times the controller "
+    "stamped its states with, where it says them), streamed or downloaded (--mode); --approach moves to its start "
+    "first. Ctrl-C stops the robot.",
     "stop": "Stop the robot now and wait for the controller to acknowledge it. A motion client: refused while "
     "another client moves the robot.",
     "record": "Record the joint states from the state port to a CSV file (the trajectory layout: run FILE "
@@ -250,6 +251,12 @@ def parser() -> argparse.ArgumentParser:
     run = command("run", "execute a trajectory file (.csv or .json)")
     run.add_argument("file", type=Path, metavar="FILE", help="the trajectory file (.csv or .json)")
     run.add_argument("--mode", choices=[m.value for m in Mode], help=_MODES)
+    run.add_argument(
+        "--approach",
+        action="store_true",
+        help=f"first move to the trajectory's start by joints, at {APPROACH_SPEED:.0%} of the joint limits, if the "
+        "robot is not there (without it, a trajectory that starts away from the robot is refused)",
+    )
     command("stop", "stop the robot now (a motion client: refused while another client moves the robot)")
     record = command("record", "record the joint states to a CSV file")
     record.add_argument(
@@ -405,6 +412,7 @@ async def _monitor(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -
 async def _record(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
     names = driver.model.joint_names if driver.model is not None else ()
     states: list[JointState] = []
+    driver.ask_feedback()  # the controller's own time of each sample, where it sends it
 
     async def body() -> None:
         async for state in driver.states():
@@ -419,6 +427,7 @@ async def _record(driver: RobotDriver, args: argparse.Namespace, out: TextIO) ->
                 [s.positions.tolist() for s in states],
                 [None if s.velocities is None else s.velocities.tolist() for s in states],
                 names,
+                [s.stamp for s in states],
             )
             recorded.save(args.file)
             print(f"{len(recorded)} joint states written to {args.file} (replay it with: run {args.file})", file=out)
@@ -550,8 +559,44 @@ async def _move_line(driver: RobotDriver, goal: LineGoal, args: argparse.Namespa
     print(f"done: a straight line in {time.monotonic() - start:.2f} s, {error * 1000:.3f} mm from the goal", file=out)
 
 
+#: ``run --approach``: the share of the joint limits the move to the trajectory's start takes
+APPROACH_SPEED = 0.2
+
+
 async def _run(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
-    await _execute(driver, args.trajectory, args.mode, out)  # read and checked before connecting
+    trajectory: Trajectory = args.trajectory  # read and checked before connecting
+    model = driver.model
+    assert model is not None
+    here = (await driver.wait_state()).positions[: model.dof]
+    start = trajectory.positions[0]
+    gap = float(np.max(np.abs(start - here)))
+    if gap > driver.goal_tolerance:
+        busy = driver.moving_elsewhere()
+        if busy is not None:
+            raise CommandError(busy)
+        if not args.approach:
+            raise CommandError(
+                f"{args.file} starts {gap:.4g} rad away from the robot's position (tolerance {driver.goal_tolerance}): "
+                f"add --approach to move there first (a joint move at {APPROACH_SPEED:.0%} of the joint limits)"
+            )
+        share = APPROACH_SPEED
+        planner = Planner(
+            model,
+            velocity_scale=share,
+            acceleration_scale=share,
+            jerk_scale=share,
+            joint_spacing=2 * math.pi,
+        )
+        approach = planner.joint_move(np.clip(here, model.lower, model.upper), start)
+        print(
+            f"approach: to the start of {args.file}, {gap:.4g} rad away, at {share:.0%} of the joint limits "
+            f"({approach.duration:.2f} s)",
+            file=out,
+            flush=True,
+        )
+        rest_to_rest = driver.dialect.point_type == MsgType.JOINT_TRAJ_PT
+        await _execute(driver, approach.sparse(rest_to_rest=rest_to_rest), args.mode, out)
+    await _execute(driver, trajectory, args.mode, out)
 
 
 async def _stop(driver: RobotDriver, _args: argparse.Namespace, out: TextIO) -> None:

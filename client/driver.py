@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import math
 import time
@@ -123,6 +124,8 @@ class JointState:
     velocities: Array | None
     status: Status | None
     received: float
+    #: the controller's time of the sample (s), where it says it (JOINT_FEEDBACK with a valid time)
+    stamp: float | None = None
 
 
 class RobotDriver:
@@ -210,6 +213,8 @@ class RobotDriver:
         self._tool_poses: dict[int, ToolPose] = {}
         self._tool_wanted = False
         self._tool_asked_on: Connection | None = None
+        self._feedback_wanted = False
+        self._feedback_asked_on: Connection | None = None
         #: supports_lines' answer and the motion connection it holds for (None: for the driver's life)
         self._lines: tuple[Connection | None, bool] | None = None
 
@@ -299,6 +304,8 @@ class RobotDriver:
         async for msg in subscription:
             if self._tool_wanted and self.state.connection is not self._tool_asked_on:
                 self._ask_tool_pose()  # a new state connection: the controller forgot who asked
+            if self._feedback_wanted and self.state.connection is not self._feedback_asked_on:
+                self.ask_feedback()
             if isinstance(msg, ToolPose):
                 self._tool_poses[msg.robot_id] = msg
                 self._wake_activity()
@@ -308,7 +315,7 @@ class RobotDriver:
                 self._status = msg
                 if self._latest is not None:
                     latest = self._latest
-                    self._latest = JointState(latest.positions, latest.velocities, msg, latest.received)
+                    self._latest = dataclasses.replace(latest, status=msg)
                 if not changed:
                     continue  # the same STATUS again: nothing new to wake anyone for
             if isinstance(msg, JointPosition):
@@ -318,7 +325,10 @@ class RobotDriver:
             elif isinstance(msg, JointFeedback) and msg.robot_id == 0:
                 feedback = True
                 velocities = self._positions(msg.velocities) if ValidFields.VELOCITY & msg.valid_fields else None
-                self._latest = JointState(self._positions(msg.positions), velocities, self._status, time.monotonic())
+                stamp = float(msg.time) if ValidFields.TIME & msg.valid_fields else None
+                self._latest = JointState(
+                    self._positions(msg.positions), velocities, self._status, time.monotonic(), stamp
+                )
             else:
                 continue
             self._changed.set()
@@ -389,6 +399,18 @@ class RobotDriver:
                 while self.tool_pose is None and (rounds is None or self._samples - start < rounds):
                     await self._activity.wait()
         return self.tool_pose
+
+    def ask_feedback(self) -> None:
+        """Ask the controller for JOINT_FEEDBACK on the state connection (the emulator's generic
+        profile sends it to a client that sent one, docs/protocol.md: positions, velocities and the
+        controller's time of each sample, :attr:`JointState.stamp`). A TOPIC: a controller that
+        does not know it ignores it. Asked again after a reconnection."""
+        self._feedback_wanted = True
+        connection = self.state.connection
+        if connection is None or connection.closed or self.state.state is not ConnectionState.CONNECTED:
+            return
+        if connection.send_nowait(JointFeedback()):
+            self._feedback_asked_on = connection
 
     def _ask_tool_pose(self) -> None:
         """Send the TOOL_POSE request on the state connection as it is now (if it is up)."""

@@ -260,10 +260,18 @@ def recording(
     positions: Sequence[Sequence[float]],
     velocities: Sequence[Sequence[float] | None] | None = None,
     joint_names: Sequence[str] = (),
+    stamps: Sequence[float | None] | None = None,
 ) -> Trajectory:
     """Joint states as received (``time.monotonic()`` stamps) of a controller that publishes them
     periodically (every ROS-Industrial controller does), as a :class:`Trajectory` in the one CSV
     layout, velocities kept when every state has them; ``robot-client run`` replays its file.
+
+    Where the controller says when each state was sampled (``stamps``, its own clock: the
+    emulator's JOINT_FEEDBACK time), those times are the trajectory's: a controller publishes at
+    its servo ticks nearest its state period (a 25 ms period on 4 ms ticks is 24, 24, 28... ms),
+    and positions put on an even grid instead read as accelerations that alternate in sign, beyond
+    the limits the robot was recorded within. A state stamped no later than the one before it
+    (the same sample sent again) is left out.
 
     Receipt times are not send times: a busy client reads a late state together with the next one,
     microseconds apart, which would make a segment no controller runs. So each state gets a slot of
@@ -272,6 +280,16 @@ def recording(
     (a state received more than a period late pushes the ones after it by a slot). Times from 0."""
     if not times:
         raise TrajectoryError("no joint state was recorded")
+    if stamps is not None and len(stamps) == len(times) and all(x is not None for x in stamps):
+        clock = [float(x) for x in stamps if x is not None]
+        keep = [0] + [k for k in range(1, len(clock)) if clock[k] > clock[k - 1]]
+        with_velocity = velocities is not None and all(velocities[k] is not None for k in keep)
+        return Trajectory(
+            np.array([clock[k] - clock[0] for k in keep], dtype=float),
+            np.array([positions[k] for k in keep], dtype=float),
+            np.array([velocities[k] for k in keep], dtype=float) if with_velocity and velocities is not None else None,
+            joint_names=tuple(joint_names),
+        )
     keep = list(range(len(times)))
     stamps = np.array(times, dtype=float)
     t = stamps - stamps[0]

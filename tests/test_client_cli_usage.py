@@ -15,6 +15,7 @@ import pytest
 from client import cli
 from client.driver import RobotDriver
 from client.trajectory import Trajectory
+from robot_server.emulator.generic import _WANTS_FEEDBACK
 from robot_server.loader import load_model
 from tests.stepped import poll
 from tests.test_client_cli_inprocess import client, controller
@@ -160,3 +161,34 @@ async def test_a_refused_line_says_where_as_the_controller_does_and_what_runs_in
         assert code == 0, out
         code, out = await client("move", "--joints", *suggested, *kuka, *ports)  # the suggestion runs too
         assert code == 0, capsys.readouterr().err
+
+
+async def test_a_recording_keeps_the_controllers_times_and_run_approach_goes_to_its_start(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    states = tmp_path / "states.csv"
+    async with controller(speedup=2.0) as (emu, ports):
+        recorder = asyncio.get_running_loop().create_task(
+            client("record", str(states), "--duration", "2", *ports, out=io.StringIO())
+        )
+        await poll(lambda: any(s.data.get(_WANTS_FEEDBACK) for s in emu.state_sessions()), 10.0)  # recording
+        code, out = await client(
+            "move", "--joints", "0.8", "0.4", "-0.4", "0.2", "0.4", "0.1", "--speed", "0.5", *ports
+        )
+        assert code == 0, out
+        code, out = await recorder
+        assert code == 0, out
+        recorded = Trajectory.load(states)
+        # the controller's own sample times (JOINT_FEEDBACK's): whole servo ticks, not an even grid
+        ticks = np.diff(recorded.times) / emu.cell.config.servo_period
+        assert np.allclose(ticks, np.round(ticks), atol=1e-3)
+        assert recorded.velocities is not None
+        code, _ = await client("run", str(states), *ports)  # the robot is at the recording's end
+        err = capsys.readouterr().err
+        assert code == cli.EXIT_FAILED
+        assert f"{states} starts " in err and "add --approach to move there first" in err
+        code, out = await client("run", str(states), "--approach", *ports)
+        assert code == 0, capsys.readouterr().err
+        assert f"approach: to the start of {states}, " in out
+        end = np.array(emu.cell.groups[0].command.command_position)
+        assert np.max(np.abs(end - recorded.positions[-1])) < 1e-3
