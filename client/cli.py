@@ -45,7 +45,7 @@ from simple_message.cliargs import (
     positive_int,
     preimport,
 )
-from simple_message.constants import MsgType
+from simple_message.constants import MsgType, TriState
 from simple_message.dialects import DIALECTS, GENERIC, dialect
 from simple_message.errors import SimpleMessageError
 from simple_message.jsonio import message_to_json, symbolic_names
@@ -54,7 +54,7 @@ from simple_message.wire import ByteOrder, WireFormat
 
 from .advice import instead, line_check
 from .demo import PAPER_POLICIES, DemoConfig, format_table, run_demo
-from .driver import DriverError, JointState, LineGoal, LineRefused, Mode, RobotDriver
+from .driver import STOP_SETTLE, DriverError, JointState, LineGoal, LineRefused, Mode, RobotDriver
 from .identity import check_model
 from .planner import Planner, PlanningError, pose
 from .trajectory import Trajectory, recording
@@ -626,8 +626,24 @@ async def _with_driver(args: argparse.Namespace, model: RobotModel, out: TextIO)
         await driver.connect(args.timeout, motion=args.command not in _WATCHING)
         try:
             await _COMMANDS[args.command](driver, args, out)
+        except asyncio.CancelledError:  # Ctrl-C, SIGTERM: a motion under way was stopped
+            _say_where_stopped(driver)
+            raise
         finally:
             await driver.close()
+
+
+def _say_where_stopped(driver: RobotDriver) -> None:
+    """After Ctrl-C stopped a motion: where the robot came to rest (or that it had not yet)."""
+    if driver.stopped_at is not None:
+        q = " ".join(f"{round(float(x), 4) + 0.0:.4f}" for x in driver.stopped_at.positions)
+        print(f"robot-client: stopped: the robot is at rest at [{q}]", file=sys.stderr, flush=True)
+    elif driver.joint_state is not None and driver.status is not None and driver.status.in_motion == TriState.TRUE:
+        print(
+            f"robot-client: STOP sent, but the robot was still moving after {STOP_SETTLE:g} s",
+            file=sys.stderr,
+            flush=True,
+        )
 
 
 def _capture(args: argparse.Namespace) -> contextlib.AbstractContextManager[CaptureWriter | None]:

@@ -110,6 +110,10 @@ log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
 
 
+#: how long (s) a cancelled motion waits for the robot to come to rest before the client goes on
+STOP_SETTLE = 10.0
+
+
 class Mode(StrEnum):
     STREAM = "stream"
     DOWNLOAD = "download"
@@ -215,6 +219,8 @@ class RobotDriver:
         self._tool_asked_on: Connection | None = None
         self._feedback_wanted = False
         self._feedback_asked_on: Connection | None = None
+        #: where the robot came to rest after a cancelled motion (:meth:`settle_after_stop`)
+        self.stopped_at: JointState | None = None
         #: supports_lines' answer and the motion connection it holds for (None: for the driver's life)
         self._lines: tuple[Connection | None, bool] | None = None
 
@@ -658,6 +664,7 @@ class RobotDriver:
             return await self._wait_goal(trajectory, confirmed)
         except asyncio.CancelledError:
             await self._stop_quietly()
+            await self.settle_after_stop()
             raise
         except ExecutionAborted:
             await self._stop_quietly()
@@ -710,6 +717,21 @@ class RobotDriver:
     def _why(self) -> str:
         """Why the controller may refuse motion, as its latest STATUS says (:func:`.reasons.status_why`)."""
         return status_why(self._status)
+
+    async def settle_after_stop(self, bound: float = STOP_SETTLE) -> JointState | None:
+        """After a stop sent because the caller cancelled (Ctrl-C): wait, at most ``bound`` s, for
+        the robot to be at rest (STATUS in_motion FALSE on a joint state), so the client does not
+        leave while it brakes (the controller would take that for a lost client); the state it
+        came to rest in is :attr:`stopped_at` (None if it did not within the bound). Returns it."""
+        self.stopped_at = None
+        with contextlib.suppress(DriverError, TimeoutError):
+            async with asyncio.timeout(bound):
+                while True:
+                    state = await self.wait_state()
+                    if state.status is not None and state.status.in_motion == TriState.FALSE:
+                        self.stopped_at = state
+                        break
+        return self.stopped_at
 
     async def _stop_quietly(self) -> None:
         """Stop after an abort; if the motion link is down, wait (bounded) for it to come back."""

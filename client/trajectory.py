@@ -291,8 +291,8 @@ def recording(
             joint_names=tuple(joint_names),
         )
     keep = list(range(len(times)))
-    stamps = np.array(times, dtype=float)
-    t = stamps - stamps[0]
+    arrived = np.array(times, dtype=float)
+    t = arrived - arrived[0]
     if len(t) > 1 and t[-1] > 0.0:
         period = float(t[-1]) / (len(t) - 1)
         slots = np.maximum(np.ceil(t / period - 1.0), 0.0)

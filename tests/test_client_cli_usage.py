@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import io
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -192,3 +193,18 @@ async def test_a_recording_keeps_the_controllers_times_and_run_approach_goes_to_
         assert f"approach: to the start of {states}, " in out
         end = np.array(emu.cell.groups[0].command.command_position)
         assert np.max(np.abs(end - recorded.positions[-1])) < 1e-3
+
+
+async def test_the_controller_log_says_a_straight_line_ended_not_the_trajectory_before_it(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    caplog.set_level(logging.INFO, logger="robot_server.emulator.cell")
+    async with controller() as (_emu, ports):
+        code, out = await client("move", "--joints", "0", "0.3", "-0.2", "0", "0.9", "0", *ports)
+        assert code == 0, out
+        code, out = await client("move", "--pose", "0.3", "0.05", "0.1", "--linear", *ports)
+        assert code == 0, out
+    done = [r.getMessage() for r in caplog.records if " done: " in r.getMessage()]
+    assert len(done) == 2, done
+    assert done[0].startswith("group 0: trajectory 1 done: 2 points, settled after "), done
+    assert done[1].startswith("group 0: straight lines done: 1 lines, settled after "), done

@@ -16,7 +16,7 @@ slow and stalled state subscribers      nobody else loses a state round; the sta
 e-stop, drives off, alarm (stdin)       STATUS says so, the robot stops at once, points are
                                         refused until ``reset``
 SIGTERM / SIGINT of robot-server        the robot decelerates to rest, the process exits 0
-SIGTERM / SIGINT of robot-client        exit 143 / 130 with one line; the robot comes to rest
+SIGTERM / SIGINT of robot-client        the robot comes to rest, a line says where, exit 143 / 130
 ======================================  =========================================================
 
 The in-process cells run the controller on a clock the test advances (tests/stepped.py), so what
@@ -674,9 +674,17 @@ async def test_robot_client_signalled_during_motion_stops_the_robot(
                 client.kill()
                 await client.wait()
         said = err.decode()
-        assert (client.returncode, said.splitlines()) == (code, [f"robot-client: {word}"]), said
+        lines = said.splitlines()
+        assert client.returncode == code, said
+        # the client waited for the robot to come to rest before it left, and says where that is
+        assert len(lines) == 2 and lines[1] == f"robot-client: {word}", said
+        assert lines[0].startswith("robot-client: stopped: the robot is at rest at ["), said
+        reported = [float(x) for x in lines[0].split("[", 1)[1].rstrip("]").split()]
         await watch.until(lambda: watch.state("in_motion") == 0, what="at rest")
         first, second = await watch.rounds_from_now(2)
         assert dist(first, second) < 1e-3 and dist(first, FAR) > 0.5, (first, second, proc.log.read_text()[-3000:])
+        assert dist(reported, first) < 2e-3, (reported, first)
+        assert "the motion client left with the robot busy" not in proc.log.read_text()  # not while it braked
+        assert "the queued motion runs on" not in proc.log.read_text()
         await watch.close()
         assert await proc.terminate() == 0

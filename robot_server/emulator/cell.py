@@ -73,8 +73,8 @@ class RobotCell:
         self._was_moving = [False] * len(self.groups)
         self._points = [0] * len(self.groups)
         self._started = [0.0] * len(self.groups)
-        #: the group's last motion was joint moves (submit_move), not a trajectory
-        self._moves = [False] * len(self.groups)
+        #: what the group last set off to run: a "trajectory" (points), "joint moves" or "straight lines"
+        self._kind = ["trajectory"] * len(self.groups)
         #: called with (group, point) for every joint point a controller accepted, in order (e.g. a
         #: display marking the waypoints); must not raise or block
         self.point_listeners: list[Callable[[int, Point], None]] = []
@@ -209,7 +209,7 @@ class RobotCell:
             raise PointRejected(Reason.MISSING_FIELDS, "a move needs a target position")
         from_rest = not controller.in_motion
         begin = controller.add_move(target.positions, speed=speed, blend=blend, acceleration=acceleration)
-        self._moves[group] = True
+        self._kind[group] = "joint moves"
         if from_rest:
             self._points[group] = 0
             self._started[group] = controller.time
@@ -233,14 +233,20 @@ class RobotCell:
             expected = "0" if last is None else f"0 or {last + 1}"
             raise PointRejected(Reason.SEQUENCE, f"line sequence {sequence}: expected {expected}")
         self.check_ready()
+        from_rest = not controller.in_motion
         controller.add_line(target._replace(sequence=sequence))
         self._line_sequence[group] = sequence
+        self._kind[group] = "straight lines"
+        if from_rest:
+            self._points[group] = 0
+            self._started[group] = controller.time
+        self._points[group] += 1
         if sequence == 0:
             log.info("group %d: straight lines started", group)
 
     def _count(self, group: int, trajectories_before: int) -> None:
         controller = self.groups[group]
-        self._moves[group] = False
+        self._kind[group] = "trajectory"
         if controller.trajectories != trajectories_before:
             self._points[group] = 0
             self._started[group] = controller.time
@@ -324,12 +330,14 @@ class RobotCell:
         for i, (now, before) in enumerate(zip(moving, self._was_moving, strict=True)):
             if before and not now:
                 g = self.groups[i]
-                what = "joint moves" if self._moves[i] else f"trajectory {g.trajectories}"
+                kind = self._kind[i]
+                what = f"trajectory {g.trajectories}" if kind == "trajectory" else kind
                 log.info(
-                    "group %d: %s done: %d points, settled after %.3f s",
+                    "group %d: %s done: %d %s, settled after %.3f s",
                     i,
                     what,
                     self._points[i],
+                    "lines" if kind == "straight lines" else "points",
                     g.time - self._started[i],
                 )
         self._was_moving = moving
