@@ -277,7 +277,9 @@ def recording(
     microseconds apart, which would make a segment no controller runs. So each state gets a slot of
     the publishing period P (the span over the count): a state received at t was sent in the last
     period before it, slot ``ceil(t / P - 1)``, and at least one slot after the state before it
-    (a state received more than a period late pushes the ones after it by a slot). Times from 0."""
+    (a state received more than a period late pushes the ones after it by a slot). Where every state
+    carries velocities (MotoROS's JOINT_FEEDBACK) the moving segments are then timed by them
+    (:func:`_timed_by_velocity`). Times from 0."""
     if not times:
         raise TrajectoryError("no joint state was recorded")
     if stamps is not None and len(stamps) == len(times) and all(x is not None for x in stamps):
@@ -303,9 +305,39 @@ def recording(
     elif len(t) > 1:  # every state at one instant: one state
         keep, t = [len(t) - 1], np.zeros(1)
     with_velocity = velocities is not None and all(velocities[k] is not None for k in keep)
-    return Trajectory(
-        t,
-        np.array([positions[k] for k in keep], dtype=float),
-        np.array([velocities[k] for k in keep], dtype=float) if with_velocity and velocities is not None else None,
-        joint_names=tuple(joint_names),
-    )
+    q = np.array([positions[k] for k in keep], dtype=float)
+    v = np.array([velocities[k] for k in keep], dtype=float) if with_velocity and velocities is not None else None
+    if v is not None and len(t) > 2:
+        t = _timed_by_velocity(t, q, v)
+    return Trajectory(t, q, v, joint_names=tuple(joint_names))
+
+
+#: a segment is re-timed from its velocities when its joint's mean speed is at least this share of
+#: the recording's top speed (slower, the ratio of two small numbers is noise) ...
+_RETIME_SPEED = 0.1
+#: ... and the time found is within these multiples of the publishing period (else: the slot's)
+_RETIME_RANGE = (0.5, 2.0)
+
+
+def _timed_by_velocity(t: Array, q: Array, v: Array) -> Array:
+    """Sample times made consistent with the velocities a controller sends with each state (MotoROS's
+    JOINT_FEEDBACK, without a time): a moving segment takes the distance its fastest joint covers
+    over that joint's mean speed at its two ends (exact at a constant acceleration), where receipt
+    times (even on a grid of the publishing period) jitter by a servo tick or more. Slow and
+    standing segments keep their slots."""
+    h = np.diff(t)
+    period = float(np.median(h))
+    dq = np.diff(q, axis=0)
+    joint = np.argmax(np.abs(dq), axis=1)
+    rows = np.arange(dq.shape[0])
+    covered = np.abs(dq[rows, joint])
+    mean = 0.5 * (v[:-1][rows, joint] + v[1:][rows, joint]) * np.sign(dq[rows, joint])
+    top = float(np.max(np.abs(v)))
+    if top <= 0.0:
+        return t
+    with np.errstate(divide="ignore", invalid="ignore"):
+        estimate = np.where(mean > 0.0, covered / mean, np.inf)
+    usable = (mean >= _RETIME_SPEED * top) & (estimate >= _RETIME_RANGE[0] * period)
+    usable &= estimate <= _RETIME_RANGE[1] * period
+    h = np.where(usable, estimate, h)
+    return np.concatenate([[0.0], np.cumsum(h)])

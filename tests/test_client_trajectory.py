@@ -99,3 +99,39 @@ def test_a_recording_puts_states_read_late_back_in_their_period() -> None:
     assert t.positions[:, 0].tolist() == [0.0, 0.1, 0.2, 0.3, 0.4]
     single = recording([5.0, 5.0], [[0.1], [0.2]])  # two states at one instant: the later one
     assert single.times.tolist() == [0.0] and single.positions[:, 0].tolist() == [0.2]
+
+
+def test_a_recording_takes_the_controllers_sample_times_where_it_sends_them() -> None:
+    from client.trajectory import recording
+
+    # a 25 ms state period on 4 ms servo ticks: samples 24 or 28 ms apart, received on a grid
+    true = np.cumsum([0.0, 0.024, 0.028, 0.024, 0.024, 0.028])
+    q = [[0.5 * 3.0 * x * x] for x in true]
+    received = [10.0 + 0.025 * k for k in range(6)]
+    t = recording(received, q, None, ("j",), [7.0 + x for x in true])
+    assert t.times.tolist() == pytest.approx(true.tolist(), abs=1e-9)
+    again = recording([*received, 10.2], [*q, q[-1]], None, ("j",), [7.0 + x for x in true] + [7.0 + true[-1]])
+    assert len(again) == 6  # the same sample sent twice is one state
+    # one state without a stamp: the receipt times (the slots), not a mix of two clocks
+    mixed = recording(received, q, None, ("j",), [None, *[7.0 + x for x in true[1:]]])
+    assert mixed.times.tolist() == pytest.approx([0.025 * k for k in range(6)])
+
+
+def test_a_recording_without_sample_times_is_timed_by_the_velocities_sent_with_it() -> None:
+    from client.trajectory import recording
+
+    # MotoROS sends positions and velocities, no time: a constant acceleration of 3 rad/s^2 sampled
+    # 24 or 28 ms apart, received on an even 25 ms grid (and one state read late, with the next)
+    true = np.cumsum([0.0, 0.024, 0.028, 0.024, 0.024, 0.028, 0.024, 0.028])
+    start = 0.5
+    q = [[start + 0.5 * (3.0 * x) * x + 0.4 * x] for x in true]
+    v = [[3.0 * x + 0.4] for x in true]
+    received = [10.0 + 0.025 * k for k in range(8)]
+    received[4] += 0.02
+    t = recording(received, q, v, ("j",))
+    # every moving segment timed by its distance over its mean speed: exact at a constant acceleration
+    assert t.times.tolist() == pytest.approx(true.tolist(), abs=1e-9)
+    assert t.velocities is not None
+    # standing still, the velocities say nothing: the slots stay
+    still = recording(received, [[0.0]] * 8, [[0.0]] * 8, ("j",))
+    assert still.times.tolist() == pytest.approx([0.025 * k for k in range(8)])
