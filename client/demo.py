@@ -70,6 +70,7 @@ from simple_message.connection import Tap
 from simple_message.wire import DEFAULT_FORMAT, WireFormat
 
 from .driver import DriverError, LineGoal, Mode, RobotDriver
+from .identity import ModelMismatch, check_model
 from .planner import Motion, Planner, PlanningError, pose
 from .trajectory import Trajectory, recording
 
@@ -553,6 +554,13 @@ async def run_demo(config: DemoConfig, progress: Callable[[str], None] = print) 
     if external is not None:
         result.external = f"{external.host}:{external.motion_port}"
         progress(f"a controller answers at {result.external}: running the rectangle there")
+        try:
+            check = await check_model(external, model)  # the rectangle is planned with config.model
+        except ModelMismatch:
+            await external.close()
+            raise
+        if check.agrees is None:
+            progress(f"note: {check.how}")
         ignored = embedded_only(config)
         if ignored:
             progress(

@@ -208,3 +208,12 @@ async def test_the_controller_log_says_a_straight_line_ended_not_the_trajectory_
     assert len(done) == 2, done
     assert done[0].startswith("group 0: trajectory 1 done: 2 points, settled after "), done
     assert done[1].startswith("group 0: straight lines done: 1 lines, settled after "), done
+
+
+async def test_the_demo_against_a_controller_with_another_robot_is_refused_naming_model(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    async with controller(models=("puma560",)) as (_emu, ports):
+        code, _ = await client("demo", *ports, "--short", "--no-plot", "--output", str(tmp_path))
+    assert code == cli.EXIT_FAILED
+    assert "robot-client: --model jibot_zxs is not the controller's robot: " in capsys.readouterr().err
