@@ -6,12 +6,17 @@ Supported joint types: ``revolute``, ``continuous``, ``prismatic`` and ``fixed``
 its ``<limit>``. Fixed joints fold into the neighbouring transforms: those before the first moving
 joint become the model's base, those after the last its tool.
 
+Other elements and attributes (``<link>`` geometry, ``<transmission>``, ``<gazebo>``, ``effort``...)
+are URDF's or its tools' and are left alone. Errors are :class:`~.model.ModelError` naming the file
+and the joint, with the value as the file writes it (metres, radians): ``arm.urdf: joint 'j2'
+limit.lower = 1.5 rad is not below limit.upper = -1.5 rad``.
+
 The chain runs from the root link (the one link that is nobody's child) to a tip link: the leaf
 with the most moving joints above it (ties go to the deeper leaf), or the ``tip`` you name. A link
 with two parent joints (a closed loop) or a cycle is an error. URDF has no acceleration or jerk
-limits; those take the emulator defaults of motion.md §5 (10 rad/s^2, 500 rad/s^3, and the same
-numbers in m/s^2, m/s^3 for prismatic joints). A ``continuous`` joint gets position limits of
-+-2 pi, so a controller can still unwind it.
+limits; those take the emulator's defaults (docs/kinematics.md, "Adding a model": 10 rad/s^2,
+500 rad/s^3, and the same numbers in m/s^2, m/s^3 for prismatic joints). A ``continuous`` joint
+gets position limits of +-2 pi, so a controller can still unwind it.
 """
 
 from __future__ import annotations
@@ -58,17 +63,27 @@ class _UrdfJoint:
         self.axis = np.array(axis) / (norm if norm else 1.0)
         self.lower, self.upper, self.velocity = -2 * math.pi, 2 * math.pi, math.pi
         limit = element.find("limit")
+        unit = "m" if self.kind == "prismatic" else "rad"  # URDF's units, always
         if self.kind in ("revolute", "prismatic"):
             if limit is None:
                 raise ModelError(f"{path}: {where} ({self.kind}) has no <limit> element")
             self.lower = _number(path, limit, "lower", where, "limit", default=0.0)
             self.upper = _number(path, limit, "upper", where, "limit", default=0.0)
             if self.lower >= self.upper:
-                raise ModelError(f"{path}: {where} limit lower={self.lower} must be below upper={self.upper}")
+                raise ModelError(
+                    f"{path}: {where} limit.lower = {_given(limit, 'lower')} {unit} is not below "
+                    f"limit.upper = {_given(limit, 'upper')} {unit}"
+                )
         if limit is not None:
             self.velocity = _number(path, limit, "velocity", where, "limit", default=math.pi)
             if self.velocity <= 0:
-                raise ModelError(f"{path}: {where} limit.velocity must be > 0, not {self.velocity}")
+                raise ModelError(f"{path}: {where} limit.velocity = {_given(limit, 'velocity')} {unit}/s must be > 0")
+
+
+def _given(element: ET.Element, key: str) -> str:
+    """An attribute as the file writes it, or URDF's default 0 when the file leaves it out."""
+    text = element.get(key)
+    return "0 (not given)" if text is None else text.strip()
 
 
 def _link_ref(path: Path, element: ET.Element, tag: str, where: str) -> str:

@@ -70,6 +70,8 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._strict import did_you_mean, show
+
 __all__ = [
     "Box",
     "Supervision",
@@ -393,9 +395,12 @@ def densify(positions: ArrayLike, step: float) -> Array:
 
 _KEYS = ("manual_speed", "auto_speed", "tolerance", "floor", "allowed", "forbidden")
 _BOX_KEYS = ("name", "lower", "upper")
+_UNIT_OF_SCALE = {1.0: "m", 1e-3: "mm"}
 
 
-def parse_supervision(table: Mapping[str, Any], *, length_scale: float, where: str) -> Supervision:
+def parse_supervision(
+    table: Mapping[str, Any], *, length_scale: float, where: str, unit: str | None = None
+) -> Supervision:
     """The settings of a TOML ``[supervision]`` table, given in the file's length unit
     (``length_scale`` converts it to metres; speeds are in that unit per second)::
 
@@ -407,64 +412,93 @@ def parse_supervision(table: Mapping[str, Any], *, length_scale: float, where: s
         allowed = { lower = [-800, -800, -400], upper = [800, 800, 1100] }
         forbidden = [{ name = "fixture", lower = [200, -550, -200], upper = [500, -300, 150] }]
 
-    Errors are :class:`~.model.ModelError` naming ``where`` (the file) and the field.
+    Read strictly: errors are :class:`~.model.ModelError` naming ``where`` (the file), the table and
+    the key, an unknown key with the closest known one (``cell.toml: [supervision] manual_sped:
+    unknown key; did you mean manual_speed?``), and a wrong value as the file writes it, in
+    ``unit``, the file's length unit (default: the name of ``length_scale``, ``m`` or ``mm``).
     """
     if not (_real(length_scale) and length_scale > 0):
         raise ValueError(f"length_scale must be a finite number > 0, not {length_scale!r}")
+    if unit is None:
+        unit = _UNIT_OF_SCALE.get(length_scale, f"x {length_scale:g} m")
     if not isinstance(table, Mapping):
-        raise _error(f"{where}: [supervision] must be a table, not {table!r}")
-    unknown = sorted(set(table) - set(_KEYS))
-    if unknown:
-        raise _error(f"{where}: [supervision] has unknown field(s) {unknown} (known: {list(_KEYS)})")
+        raise _error(f"{where}: [supervision]: must be a table, not {table!r}")
 
-    def number(key: str, scale: float) -> float | None:
+    def error(key: str, problem: str) -> Exception:
+        return _error(f"{where}: [supervision] {key}: {problem}")
+
+    def check_keys(mapping: Mapping[str, Any], known: Sequence[str], prefix: str) -> None:
+        for key in mapping:
+            if key not in known:
+                raise error(f"{prefix}{key}", "unknown key" + did_you_mean(key, known))
+
+    check_keys(table, _KEYS, "")
+
+    def number(key: str, unit_of_key: str, positive: bool = True) -> float | None:
         if key not in table:
             return None
         value = table[key]
         if not _real(value):
-            raise _error(f"{where}: field supervision.{key} must be a finite number, not {value!r}")
-        return float(value) * scale
+            raise error(key, f"must be a finite number, not {value!r}")
+        if positive and not value > 0:
+            raise error(key, f"{show(float(value))} {unit_of_key} must be > 0")
+        return float(value)
 
-    def box(value: object, what: str) -> Box:
+    def box(value: object, what: str) -> tuple[Vector3, Vector3, str]:
+        """A box's corners in the file's unit, and its name."""
         if not isinstance(value, Mapping):
-            raise _error(f"{where}: field {what} must be a table {{ lower = [x, y, z], upper = [x, y, z] }}")
-        extra = sorted(set(value) - set(_BOX_KEYS))
-        if extra:
-            raise _error(f"{where}: field {what} has unknown field(s) {extra} (known: {list(_BOX_KEYS)})")
+            raise error(what, f"must be a table {{ lower = [x, y, z], upper = [x, y, z] }}, not {value!r}")
+        check_keys(value, _BOX_KEYS, f"{what}.")
         name = value.get("name", "")
         if not isinstance(name, str):
-            raise _error(f"{where}: field {what}.name must be a string, not {name!r}")
+            raise error(f"{what}.name", f"must be a string, not {name!r}")
         corners = []
         for key in ("lower", "upper"):
             if key not in value:
-                raise _error(f"{where}: missing field {what}.{key}")
+                raise error(f"{what}.{key}", "missing")
             corner = value[key]
             if not isinstance(corner, list) or len(corner) != 3 or not all(_real(v) for v in corner):
-                raise _error(f"{where}: field {what}.{key} must be a list of 3 finite numbers, not {corner!r}")
-            corners.append(tuple(float(v) * length_scale for v in corner))
-        try:
-            return Box(corners[0], corners[1], name)  # type: ignore[arg-type]
-        except ValueError as exc:
-            raise _error(f"{where}: field {what}: {exc}") from None
+                raise error(f"{what}.{key}", f"must be a list of 3 finite numbers, not {corner!r}")
+            corners.append((float(corner[0]), float(corner[1]), float(corner[2])))
+        for axis, lo, hi in zip(_AXES, corners[0], corners[1], strict=True):
+            if not lo < hi:
+                raise error(what, f"lower {axis} = {show(lo)} {unit} is not below upper {axis} = {show(hi)} {unit}")
+        return corners[0], corners[1], name
 
-    allowed = box(table["allowed"], "supervision.allowed") if "allowed" in table else None
-    forbidden: list[Box] = []
+    def scaled(corners: tuple[Vector3, Vector3, str]) -> Box:
+        lower, upper, name = corners
+        return Box(
+            (lower[0] * length_scale, lower[1] * length_scale, lower[2] * length_scale),
+            (upper[0] * length_scale, upper[1] * length_scale, upper[2] * length_scale),
+            name,
+        )
+
+    allowed = box(table["allowed"], "allowed") if "allowed" in table else None
+    forbidden: list[tuple[Vector3, Vector3, str]] = []
     if "forbidden" in table:
         boxes = table["forbidden"]
         if not isinstance(boxes, list):
-            raise _error(f"{where}: field supervision.forbidden must be a list of tables, not {boxes!r}")
-        forbidden = [box(b, f"supervision.forbidden[{i}]") for i, b in enumerate(boxes)]
-    settings: dict[str, Any] = {
-        key: value
-        for key, value in (
-            ("manual_speed", number("manual_speed", length_scale)),
-            ("auto_speed", number("auto_speed", length_scale)),
-            ("tolerance", number("tolerance", length_scale)),
-            ("floor", number("floor", length_scale)),
-        )
-        if value is not None
+            raise error("forbidden", f"must be a list of tables, not {boxes!r}")
+        forbidden = [box(b, f"forbidden[{i}]") for i, b in enumerate(boxes)]
+    speeds = {
+        "manual_speed": number("manual_speed", f"{unit}/s"),
+        "auto_speed": number("auto_speed", f"{unit}/s"),
+        "tolerance": number("tolerance", unit),
+        "floor": number("floor", unit, positive=False),
     }
+    floor = speeds["floor"]
+    if floor is not None and allowed is not None and floor > allowed[1][2]:
+        raise error(
+            "floor",
+            f"{show(floor)} {unit} is above the top of the allowed box, z = {show(allowed[1][2])} {unit}: "
+            "no position would be allowed",
+        )
+    settings: dict[str, Any] = {key: value * length_scale for key, value in speeds.items() if value is not None}
     try:
-        return Supervision(allowed=allowed, forbidden=tuple(forbidden), **settings)
+        return Supervision(
+            allowed=None if allowed is None else scaled(allowed),
+            forbidden=tuple(scaled(b) for b in forbidden),
+            **settings,
+        )
     except ValueError as exc:
         raise _error(f"{where}: {exc}") from None

@@ -37,8 +37,8 @@ def test_fk_matches_every_reference_case(case: dict) -> None:  # type: ignore[ty
     assert np.allclose(T[:3, 3] - 0.095 * T[:3, 2], case["wrist_centre"], atol=1e-9)
 
 
-def test_home_pose_of_motion_md() -> None:
-    """q2 = +pi/2 gives the usual L pose with the flange at (0.345, 0, 0.659) m (motion.md §1.2)."""
+def test_home_pose_of_the_papers_robot() -> None:
+    """q2 = +pi/2 gives the usual L pose with the flange at (0.345, 0, 0.659) m (docs/kinematics.md)."""
     T = fk(load_model("jibot_zxs"), [0, math.pi / 2, 0, 0, 0, 0])
     assert T[:3, 3] == pytest.approx([0.345, 0.0, 0.659], abs=1e-12)
 
@@ -81,26 +81,26 @@ def test_standard_dh_equivalent_gives_the_same_flange(tmp_path: Path) -> None:
         ('[robot]\nname = "x"\n[units]\nlength = "m"\nangle = "rad"\n', "missing table [dh]"),
         (
             '[robot]\nname = "x"\n[units]\nlength = "in"\nangle = "rad"\n[dh]\nconvention = "standard"\njoints = []\n',
-            "units.length",
+            "[units] length",
         ),
         (
             '[robot]\nname = "x"\n[units]\nlength = "m"\nangle = "rad"\n[dh]\nconvention = "weird"\njoints = []\n',
-            "dh.convention",
+            "[dh] convention",
         ),
         (
             '[robot]\nname = "x"\n[units]\nlength = "m"\nangle = "rad"\n[dh]\nconvention = "standard"\n'
             'joints = [{ alpha = 0, a = "long", d = 0 }]\n',
-            "dh.joints[0].a",
+            "[dh] joints[0].a: must be a finite number",
         ),
         (
             '[robot]\nname = "x"\n[units]\nlength = "m"\nangle = "rad"\n[dh]\nconvention = "standard"\n'
             "joints = [{ alpha = 0, d = 0 }]\n",
-            "dh.joints[0].a",
+            "[dh] joints[0].a: missing",
         ),
         (
             '[robot]\nname = "x"\n[units]\nlength = "m"\nangle = "rad"\n[dh]\nconvention = "standard"\n'
             "joints = [{ alpha = 0, a = 0, d = 0 }]\n[limits]\nvelocity = [1, 2]\n",
-            "limits.velocity",
+            "[limits] velocity: 2 values for 1 joint",
         ),
     ],
 )

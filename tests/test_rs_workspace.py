@@ -315,19 +315,34 @@ def test_parse_in_mm_and_in_m() -> None:
 @pytest.mark.parametrize(
     ("table", "message"),
     [
-        ({"manual_sped": 250}, r"cell\.toml: \[supervision\] has unknown field\(s\) \['manual_sped'\]"),
-        ({"allowed": {"lower": [0, 0, 0], "upper": [1, 1, 1], "colour": 1}}, r"supervision\.allowed has unknown"),
-        ({"forbidden": [{"lower": [0, 0, 0], "uper": [1, 1, 1]}]}, r"supervision\.forbidden\[0\] has unknown"),
-        ({"manual_speed": "fast"}, r"cell\.toml: field supervision\.manual_speed must be a finite number"),
-        ({"floor": True}, r"field supervision\.floor must be a finite number"),
-        ({"manual_speed": -250}, r"cell\.toml: supervision manual_speed = -0\.25 must be a finite number > 0"),
-        ({"allowed": [0, 0, 0]}, r"field supervision\.allowed must be a table"),
-        ({"allowed": {"lower": [0, 0, 0]}}, r"missing field supervision\.allowed\.upper"),
-        ({"allowed": {"lower": [0, 0], "upper": [1, 1, 1]}}, r"supervision\.allowed\.lower must be a list of 3"),
-        ({"allowed": {"lower": [0, 0, 2], "upper": [1, 1, 1]}}, r"supervision\.allowed: box: lower z = 0\.002"),
-        ({"forbidden": {"lower": [0, 0, 0], "upper": [1, 1, 1]}}, r"supervision\.forbidden must be a list"),
-        ({"forbidden": [[0, 0, 0]]}, r"field supervision\.forbidden\[0\] must be a table"),
-        ({"forbidden": [{"name": 3, "lower": [0, 0, 0], "upper": [1, 1, 1]}]}, r"forbidden\[0\]\.name must be a str"),
+        ({"manual_sped": 250}, r"cell\.toml: \[supervision\] manual_sped: unknown key; did you mean manual_speed\?$"),
+        ({"ceiling": 250}, r"cell\.toml: \[supervision\] ceiling: unknown key \(known: manual_speed, auto_speed, "),
+        (
+            {"allowed": {"lower": [0, 0, 0], "upper": [1, 1, 1], "colour": 1}},
+            r"\[supervision\] allowed\.colour: unknown key \(known: name, lower, upper\)",
+        ),
+        (
+            {"forbidden": [{"lower": [0, 0, 0], "uper": [1, 1, 1]}]},
+            r"\[supervision\] forbidden\[0\]\.uper: unknown key; did you mean upper\?",
+        ),
+        ({"manual_speed": "fast"}, r"cell\.toml: \[supervision\] manual_speed: must be a finite number, not 'fast'"),
+        ({"floor": True}, r"\[supervision\] floor: must be a finite number, not True"),
+        ({"manual_speed": -250}, r"cell\.toml: \[supervision\] manual_speed: -250 mm/s must be > 0$"),  # file units
+        ({"tolerance": 0}, r"cell\.toml: \[supervision\] tolerance: 0 mm must be > 0$"),
+        ({"allowed": [0, 0, 0]}, r"\[supervision\] allowed: must be a table"),
+        ({"allowed": {"lower": [0, 0, 0]}}, r"\[supervision\] allowed\.upper: missing"),
+        ({"allowed": {"lower": [0, 0], "upper": [1, 1, 1]}}, r"\[supervision\] allowed\.lower: must be a list of 3"),
+        (
+            {"allowed": {"lower": [0, 0, 2], "upper": [1, 1, 1]}},
+            r"\[supervision\] allowed: lower z = 2 mm is not below upper z = 1 mm$",
+        ),
+        (
+            {"floor": 1500, "allowed": {"lower": [0, 0, 0], "upper": [1, 1, 1000.5]}},
+            r"\[supervision\] floor: 1500 mm is above the top of the allowed box, z = 1000\.5 mm",
+        ),
+        ({"forbidden": {"lower": [0, 0, 0], "upper": [1, 1, 1]}}, r"\[supervision\] forbidden: must be a list"),
+        ({"forbidden": [[0, 0, 0]]}, r"\[supervision\] forbidden\[0\]: must be a table"),
+        ({"forbidden": [{"name": 3, "lower": [0, 0, 0], "upper": [1, 1, 1]}]}, r"forbidden\[0\]\.name: must be a str"),
     ],
 )
 def test_parse_errors_name_the_file_and_the_field(table: dict[str, Any], message: str) -> None:
@@ -336,7 +351,7 @@ def test_parse_errors_name_the_file_and_the_field(table: dict[str, Any], message
 
 
 def test_parse_refuses_a_non_table() -> None:
-    with pytest.raises(ModelError, match=r"cell\.toml: \[supervision\] must be a table"):
+    with pytest.raises(ModelError, match=r"cell\.toml: \[supervision\]: must be a table"):
         parse_supervision([1, 2], length_scale=1.0, where="cell.toml")  # type: ignore[arg-type]
 
 
@@ -370,10 +385,10 @@ def test_a_toml_model_takes_its_supervision_table(tmp_path: Path) -> None:
     assert_same(model.supervision, EXPECTED)
     assert model.dof == 6 and len(model.motors) == 6  # the rest of the file as before
     path.write_text(text + "\n[supervision]\nceiling = 2000\n")
-    with pytest.raises(ModelError, match=r"arm\.toml: \[supervision\] has unknown field\(s\) \['ceiling'\]"):
+    with pytest.raises(ModelError, match=r"arm\.toml: \[supervision\] ceiling: unknown key"):
         load_model(path)
     path.write_text("supervision = 3\n" + text)
-    with pytest.raises(ModelError, match=r"arm\.toml: \[supervision\] must be a table"):
+    with pytest.raises(ModelError, match=r"arm\.toml: \[supervision\]: must be a table"):
         load_model(path)
 
 
@@ -388,7 +403,7 @@ def test_a_urdf_takes_its_supervision_from_the_sidecar_file(tmp_path: Path) -> N
     sidecar.write_text("[supervision]\nfloor = 0.5\n")  # metres by default
     assert load_model(tmp_path / "arm.urdf").supervision == Supervision(floor=0.5)
     sidecar.write_text("[supervision]\nfloor = 0.5\nroof = 2\n")
-    with pytest.raises(ModelError, match=r"arm\.frames\.toml: \[supervision\] has unknown field\(s\) \['roof'\]"):
+    with pytest.raises(ModelError, match=r"arm\.frames\.toml: \[supervision\] roof: unknown key"):
         load_model(tmp_path / "arm.urdf")
 
 
@@ -406,11 +421,17 @@ def test_a_cell_file_loads_in_its_length_unit(tmp_path: Path) -> None:
     [
         (None, r"missing\.toml: no such cell file, and not a shipped cell \(cell_example\)"),
         ("[supervision\n", r"bad\.toml: not valid TOML"),
-        ('[units]\nlength = "furlong"\n[supervision]\n', r"bad\.toml: field units\.length = 'furlong' is not one of"),
-        ('[units]\nangle = "grad"\n[supervision]\n', r"bad\.toml: field units\.angle = 'grad'"),
+        (
+            '[units]\nlength = "furlong"\n[supervision]\n',
+            r"bad\.toml: \[units\] length: 'furlong' is not one of 'm', 'mm'",
+        ),
+        ('[units]\nangle = "grad"\n[supervision]\n', r"bad\.toml: \[units\] angle: 'grad' is not one of"),
+        # other tables are the cell's own business, but not a misspelling of the two it reads
+        ('[unit]\nlength = "mm"\n[supervision]\n', r"bad\.toml: \[unit\]: unknown table; did you mean \[units\]\?"),
+        ('[units]\nlenght = "mm"\n[supervision]\n', r"bad\.toml: \[units\] lenght: unknown key; did you mean length\?"),
         ("[units]\n[robot]\n", r"bad\.toml: missing table \[supervision\]"),
-        ("[supervision]\nfloor = [1]\n", r"bad\.toml: field supervision\.floor must be a finite number"),
-        ("[supervision]\nforbidden = 1\n", r"bad\.toml: field supervision\.forbidden must be a list"),
+        ("[supervision]\nfloor = [1]\n", r"bad\.toml: \[supervision\] floor: must be a finite number"),
+        ("[supervision]\nforbidden = 1\n", r"bad\.toml: \[supervision\] forbidden: must be a list"),
     ],
 )
 def test_a_bad_cell_file_is_named(tmp_path: Path, text: str | None, message: str) -> None:
