@@ -14,13 +14,22 @@ it once per interpolation period, so it holds between them): ``tool.command_x``,
 cell frame), ``tool.command_qw``, ``_qx``, ``_qy``, ``_qz`` (orientation quaternion),
 ``tool.command_speed`` (m/s), the same for ``tool.actual_...``, and ``tool.time`` (the controller
 time of that instant).
+
+:meth:`Recorder.save` picks the format by the file's name: ``.csv`` (any other name too) the CSV,
+every value to :data:`CSV_DECIMALS` decimals of its SI unit (1 nrad, 1 nm, 1 ns) without trailing
+zeros and ``record.points`` as a whole number; ``.csv.gz`` (or ``.gz``) the same CSV compressed
+with gzip; ``.npz`` numpy's zip of one exact array per column (``numpy.load(path)["joint_1"]``),
+compressed. The CSV is formatted by numpy a block of rows at a time (3-digit groups looked up in
+tables), not by Python per value: more than ten times faster than ``repr`` with :mod:`csv`.
 """
 
 from __future__ import annotations
 
 import csv
+import gzip
 import io
-from collections.abc import Sequence
+import zipfile
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
@@ -32,7 +41,7 @@ from .tool import TOOL_FIELDS
 if TYPE_CHECKING:
     from .controller import Tick
 
-__all__ = ["Recorder", "QUANTITIES"]
+__all__ = ["CSV_DECIMALS", "QUANTITIES", "Recorder", "record_format"]
 
 _T = TypeVar("_T", bound=np.generic)
 
@@ -143,20 +152,175 @@ class Recorder:
         names = list(joint_names) if joint_names is not None else [f"j{i + 1}" for i in range(self.dof)]
         return ["time"] + [_COLUMN[q].format(name) for q in _ORDER for name in names] + _TAIL + _TOOL
 
-    def to_csv(self, target: str | Path | io.TextIOBase, joint_names: Sequence[str] | None = None) -> None:
-        """CSV with a header row (see the module doc)."""
-        if isinstance(target, str | Path):
-            with open(target, "w", newline="") as stream:
-                self._write(stream, joint_names)
+    def save(self, path: str | Path, joint_names: Sequence[str] | None = None) -> int:
+        """Write the record in the format the file's name asks for (:func:`record_format`: CSV,
+        gzip-compressed CSV or ``.npz``); returns the bytes written."""
+        path = Path(path)
+        if record_format(path) == "npz":
+            self.to_npz(path, joint_names)
         else:
-            self._write(target, joint_names)
+            self.to_csv(path, joint_names)
+        return path.stat().st_size
 
-    def _write(self, stream: io.TextIOBase | io.TextIOWrapper, joint_names: Sequence[str] | None) -> None:
-        writer = csv.writer(stream)
-        writer.writerow(self.header(joint_names))
+    def to_csv(self, target: str | Path | io.TextIOBase, joint_names: Sequence[str] | None = None) -> None:
+        """CSV with a header row (see the module doc); a path ending in ``.gz`` is compressed."""
+        if isinstance(target, str | Path):
+            if record_format(Path(target)) == "csv.gz":
+                # level 1: about a third of the CSV's size; level 6 saves another tenth of it for
+                # five times the time
+                with gzip.open(target, "wb", compresslevel=1) as packed:
+                    self._write_csv(packed.write, joint_names)
+            else:
+                with open(target, "wb") as plain:
+                    self._write_csv(plain.write, joint_names)
+        else:
+            self._write_csv(lambda chunk: target.write(chunk.decode("utf-8")), joint_names)
+
+    def to_npz(self, path: str | Path, joint_names: Sequence[str] | None = None) -> None:
+        """The record as ``.npz`` (what :func:`numpy.savez_compressed` writes, readable by
+        :func:`numpy.load`): one exact array per column of the CSV, under its name; ``record.points``
+        as int64."""
+        header = self.header(joint_names)
+        # numpy's own writer, but at deflate level 1 (savez_compressed's level 6 takes half as long
+        # again for a file 2 % smaller: doubles compress little)
+        with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as archive:
+            for name, column in zip(header, self._columns(), strict=True):
+                with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
+                    np.lib.format.write_array(member, column, allow_pickle=False)
+
+    def _columns(self) -> Iterator[NDArray[np.float64] | NDArray[np.int64]]:
+        """The record's columns in the header's order, oldest first, one at a time."""
         times = self.time()
-        start = float(times[0]) if times.size else 0.0
-        data = np.concatenate([self.get(q) for q in _ORDER], axis=1)
+        yield times - times[0] if times.size else times
+        for q in _ORDER:
+            block = self.get(q)
+            for joint in range(self.dof):
+                yield block[:, joint].copy()
+        yield times
+        yield self.points()
         tool = self.tool()
-        for t, row, n, tcp in zip(times.tolist(), data.tolist(), self.points().tolist(), tool.tolist(), strict=True):
-            writer.writerow([repr(t - start)] + [repr(x) for x in row] + [repr(t), n] + [repr(x) for x in tcp])
+        for k in range(tool.shape[1]):
+            yield tool[:, k].copy()
+
+    def _write_csv(self, write: Callable[[bytes], object], joint_names: Sequence[str] | None) -> None:
+        text = io.StringIO()
+        csv.writer(text, lineterminator="\n").writerow(self.header(joint_names))
+        write(text.getvalue().encode("utf-8"))
+        n = len(self)
+        if not n:
+            return
+        first = (self._count - n) % self.capacity  # the oldest row of the ring
+        start = self._time[first]
+        columns = 1 + len(_ORDER) * self.dof + len(_TAIL) + len(_TOOL)
+        whole = np.zeros(columns, dtype=bool)
+        whole[1 + len(_ORDER) * self.dof + 1] = True  # record.points
+        block = np.empty((_CSV_ROWS, columns))
+        scratch = np.empty((_CSV_ROWS, columns, 6), dtype=np.uint32)
+        for begin in range(0, n, _CSV_ROWS):
+            rows = (first + np.arange(begin, min(n, begin + _CSV_ROWS))) % self.capacity
+            out = block[: rows.size]
+            at = 1 + len(_ORDER) * self.dof
+            out[:, 0] = self._time[rows] - start
+            data = self._data[rows]  # (rows, quantity, joint)
+            for k, q in enumerate(_ORDER):
+                index = QUANTITIES.index(q)
+                out[:, 1 + k * self.dof : 1 + (k + 1) * self.dof] = data[:, index, :]
+            out[:, at] = self._time[rows]
+            out[:, at + 1] = self._points[rows]
+            out[:, at + 2 :] = self._tool[rows]
+            write(format_rows(out, whole, scratch))
+
+
+#: rows formatted at once: the work space (200 kB) stays in the processor's cache; blocks of 512 rows
+#: took a fifth longer, of 32 rows longer still (numpy's overhead per call)
+_CSV_ROWS = 128
+
+#: decimals of every non-integer value in a CSV record (SI units: 1 nrad, 1 nm, 1 ns)
+CSV_DECIMALS = 9
+_SCALE = 10**CSV_DECIMALS
+#: values this large or larger (none in practice) are written with 12 significant digits
+_HUGE = 1e9
+#: below this, ``value * _SCALE`` is a double exact to the unit: the vectorised path's limit (about
+#: 9e6; larger values are formatted one by one)
+_EXACT = 2.0**53 / _SCALE
+
+
+def record_format(path: Path) -> str:
+    """``"npz"``, ``"csv.gz"`` (a name ending in ``.gz``) or ``"csv"`` (any other name)."""
+    name = path.name.lower()
+    return "npz" if name.endswith(".npz") else "csv.gz" if name.endswith(".gz") else "csv"
+
+
+def _words(texts: Sequence[bytes]) -> NDArray[np.uint32]:
+    """Each text (at most 4 bytes), NUL-padded, as one native uint32."""
+    raw = b"".join(text.ljust(4, b"\0") for text in texts)
+    return np.frombuffer(raw, dtype=np.uint8).copy().view(np.uint32)
+
+
+# A value is six 4-byte words: sign and millions, thousands, units and the point, then three groups
+# of three decimals, the last one followed by the separator; each word is looked up by its 3-digit
+# group (plus 1000 x a case), and the NUL bytes that pad them are deleted at the end.
+_DIGITS = [f"{i:03d}".encode() for i in range(1000)]
+_LEAD = [d.lstrip(b"0") for d in _DIGITS]  # the leading group of a number (0: nothing) ...
+_LEAD1 = [d or b"0" for d in _LEAD]  # ... of a number < 1000 (0: "0")
+_TRAIL = [d.rstrip(b"0") for d in _DIGITS]  # the last group of decimals (0: nothing) ...
+_TRAIL1 = [d or b"0" for d in _TRAIL]  # ... the first one (0: "0", so 1.0, not "1.")
+_W_SIGN = _words(_LEAD + [b"-" + d for d in _LEAD])  # millions + 1000 x negative
+_W_THOUSANDS = _words(_LEAD + _DIGITS)  # + 1000 x (millions > 0)
+_W_UNITS = _words([d + b"." for d in _LEAD1] + [d + b"." for d in _DIGITS] + _LEAD1 + _DIGITS)  # + 2000 x integer
+_W_DECIMALS = _words(_TRAIL1 + _DIGITS + [b""] * 1000)  # + 1000 x (more decimals follow), 2000: integer
+_W_MICRO = _words(_TRAIL + _DIGITS)  # + 1000 x (more decimals follow)
+_W_NANO = _words([d + b"," for d in _TRAIL] + [d + b"\n" for d in _TRAIL])  # + 1000 x last column
+
+
+def format_rows(
+    values: NDArray[np.float64], whole: NDArray[np.bool_], scratch: NDArray[np.uint32] | None = None
+) -> bytes:
+    """CSV lines of ``values`` (rows, columns): each value rounded to :data:`CSV_DECIMALS` decimals
+    without trailing zeros (at least one: ``0.0``, ``-1.25``), or to a whole number in the columns
+    ``whole`` marks; ``nan``, ``inf``, ``-inf``; values of 1e9 or more with 12 significant digits.
+    The CSV's formatting, vectorised: :func:`format_value` is the same for one value. ``scratch``,
+    ``(rows or more, columns, 6)`` uint32, saves allocating the work space on every call."""
+    rows, columns = values.shape
+    special = ~np.isfinite(values) | (np.abs(values) >= _EXACT)
+    plain = np.where(special, 0.0, values) if special.any() else values
+    m = np.rint(plain * np.where(whole, 1.0, float(_SCALE))).astype(np.int64)
+    negative = m < 0
+    m = np.abs(m)
+    # (// and a product: np.divmod on int64 takes five times as long)
+    integer = np.where(whole, m, m // _SCALE)
+    decimals = m - integer * np.where(whole, 1, _SCALE)
+    high = integer // 1000
+    units = integer - high * 1000
+    millions = high // 1000
+    thousands = high - millions * 1000
+    upper = decimals // 1000
+    nano = decimals - upper * 1000
+    milli = upper // 1000
+    micro = upper - milli * 1000
+    words = np.empty((rows, columns, 6), dtype=np.uint32) if scratch is None else scratch[:rows]
+    words[..., 0] = _W_SIGN[millions + 1000 * negative]
+    words[..., 1] = _W_THOUSANDS[thousands + 1000 * (millions > 0)]
+    words[..., 2] = _W_UNITS[units + 1000 * (high > 0) + 2000 * whole]
+    words[..., 3] = _W_DECIMALS[milli + np.where(whole, 2000, 1000 * ((micro > 0) | (nano > 0)))]
+    words[..., 4] = _W_MICRO[micro + 1000 * (nano > 0)]
+    last = np.zeros(columns, dtype=np.int64)
+    last[-1] = 1000
+    words[..., 5] = _W_NANO[nano + last]  # the separator alone where the value is special (0 there)
+    for row, column in zip(*np.nonzero(special), strict=True):
+        text = format_value(float(values[row, column]), bool(whole[column])).encode().ljust(20, b"\0")
+        words[row, column, :5] = np.frombuffer(text, dtype=np.uint32)
+    return words.tobytes().translate(None, b"\0")
+
+
+def format_value(value: float, whole: bool = False) -> str:
+    """One value as :func:`format_rows` writes it."""
+    if not np.isfinite(value):
+        return "nan" if np.isnan(value) else "inf" if value > 0 else "-inf"
+    if abs(value) >= _HUGE:
+        return f"{value:.12g}"
+    if whole:  # (less than 1e9: 10 characters at most)
+        return str(round(value))
+    text = f"{value:.{CSV_DECIMALS}f}".rstrip("0")
+    text = text + "0" if text.endswith(".") else text
+    return "0.0" if text == "-0.0" else text
