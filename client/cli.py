@@ -57,7 +57,7 @@ from .demo import PAPER_POLICIES, DemoConfig, format_table, run_demo
 from .driver import STOP_SETTLE, DriverError, JointState, LineGoal, LineRefused, Mode, RobotDriver
 from .identity import check_model
 from .planner import Planner, PlanningError, pose
-from .trajectory import Trajectory, recording
+from .trajectory import Trajectory, TrajectoryError, recording
 
 __all__ = ["main", "parser"]
 
@@ -134,8 +134,8 @@ _DESCRIPTIONS = {
     "first. Ctrl-C stops the robot.",
     "stop": "Stop the robot now and wait for the controller to acknowledge it. A motion client: refused while "
     "another client moves the robot.",
-    "record": "Record the joint states from the state port to a CSV file (the trajectory layout: run FILE "
-    "replays it), for --duration seconds or until Ctrl-C. Only watches: connects the state port alone.",
+    "record": "Record the joint states from the state port to a trajectory file, CSV or JSON for a .json name (run "
+    "FILE replays it), for --duration seconds or until Ctrl-C. Only watches: connects the state port alone.",
     "demo": "The paper's experiment: the robot draws a rectangle under each interpolation policy, then as four "
     "straight lines run by the controller (the 'controller MOVL' row, unless --no-movl), and the "
     "command prints a table of the results and writes the CSV traces and (with matplotlib) a figure to "
@@ -254,11 +254,11 @@ def parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--approach",
         action="store_true",
-        help=f"first move to the trajectory's start by joints, at {APPROACH_SPEED:.0%} of the joint limits, if the "
-        "robot is not there (without it, a trajectory that starts away from the robot is refused)",
+        help=f"first move to the trajectory's start by joints, at {APPROACH_SPEED * 100:g} %% of the joint limits, if "
+        "the robot is not there (without it, a trajectory that starts away from the robot is refused)",
     )
     command("stop", "stop the robot now (a motion client: refused while another client moves the robot)")
-    record = command("record", "record the joint states to a CSV file")
+    record = command("record", "record the joint states to a trajectory file (CSV, or JSON for a .json name)")
     record.add_argument(
         "file",
         type=Path,
@@ -577,7 +577,7 @@ async def _run(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> No
         if not args.approach:
             raise CommandError(
                 f"{args.file} starts {gap:.4g} rad away from the robot's position (tolerance {driver.goal_tolerance}): "
-                f"add --approach to move there first (a joint move at {APPROACH_SPEED:.0%} of the joint limits)"
+                f"add --approach to move there first (a joint move at {APPROACH_SPEED * 100:g} % of the joint limits)"
             )
         share = APPROACH_SPEED
         planner = Planner(
@@ -589,7 +589,7 @@ async def _run(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> No
         )
         approach = planner.joint_move(np.clip(here, model.lower, model.upper), start)
         print(
-            f"approach: to the start of {args.file}, {gap:.4g} rad away, at {share:.0%} of the joint limits "
+            f"approach: to the start of {args.file}, {gap:.4g} rad away, at {share * 100:g} % of the joint limits "
             f"({approach.duration:.2f} s)",
             file=out,
             flush=True,
@@ -615,6 +615,9 @@ _COMMANDS = {
 }
 
 
+#: the commands that move the robot (Ctrl-C waits for it to come to rest)
+_MOVING = {"move", "run"}
+
 #: the commands that only watch: they connect the state port alone, so they never take the motion
 #: port from the client that moves the robot
 _WATCHING = {"status", "monitor", "record"}
@@ -626,8 +629,10 @@ async def _with_driver(args: argparse.Namespace, model: RobotModel, out: TextIO)
         await driver.connect(args.timeout, motion=args.command not in _WATCHING)
         try:
             await _COMMANDS[args.command](driver, args, out)
-        except asyncio.CancelledError:  # Ctrl-C, SIGTERM: a motion under way was stopped
-            _say_where_stopped(driver)
+        except asyncio.CancelledError:  # Ctrl-C, SIGTERM: a motion under way was stopped (STOP acknowledged)
+            if args.command in _MOVING:
+                await driver.settle_after_stop()  # not leaving while the robot brakes
+                _say_where_stopped(driver)
             raise
         finally:
             await driver.close()
@@ -705,7 +710,11 @@ def _check_arguments(args: argparse.Namespace, model: RobotModel) -> None:
             policy(name)  # ValueError naming the known ones
     if args.command == "run":
         # a TrajectoryError (a ValueError) names the file; columns are matched to the joints by name
-        args.trajectory = Trajectory.load(args.file).for_joints(model.joint_names)
+        loaded = Trajectory.load(args.file)
+        try:
+            args.trajectory = loaded.for_joints(model.joint_names)
+        except TrajectoryError as exc:
+            raise TrajectoryError(f"{args.file}: {exc}") from None
     if args.command == "record":
         _writable(args.file)
     if args.capture is not None:

@@ -253,16 +253,24 @@ class RobotDriver:
         await self.wait_state(timeout)
         return self
 
-    def _no_state(self) -> str:
-        """Why no joint state came: the connection's end if it ended, else the watchdog."""
+    def _no_state(self, waited: float | None = None) -> str:
+        """Why no joint state came within ``waited`` s (default: the watchdog period): the
+        connection's end if it ended, else the wait."""
         client = self.state
+        seconds = self.watchdog if waited is None else waited
         if client.state is not ConnectionState.CONNECTED:
             cause = client.last_error
+            full = (
+                ": a controller closes a state client it has no room for (MotoROS serves 4): close another client of "
+                "its state port"
+                if not cause and self._samples == 0
+                else ""
+            )
             return (
                 f"the controller closed the state connection ({client.name}"
-                f"{f': {cause}' if cause else ''}); no joint state for {self.watchdog} s"
+                f"{f': {cause}' if cause else ''}); no joint state for {seconds:g} s{full}"
             )
-        return f"no joint state for {self.watchdog} s (watchdog)"
+        return f"no joint state for {seconds:g} s" + (" (watchdog)" if waited is None else "")
 
     def _cannot_connect(self, exc: BaseException) -> str:
         """Why connecting failed, with the cause the connection attempts met."""
@@ -429,8 +437,9 @@ class RobotDriver:
 
     async def wait_state(self, timeout: float | None = None) -> JointState:
         """The next joint state (within ``timeout``, default the watchdog period)."""
+        waited = timeout if timeout is not None else self.watchdog
         try:
-            async with asyncio.timeout(timeout if timeout is not None else self.watchdog):
+            async with asyncio.timeout(waited):
                 while True:
                     await self._changed.wait()
                     if self._latest is not None and self._status is not None:
@@ -438,7 +447,7 @@ class RobotDriver:
         except TimeoutError:
             client = self.state
             if client.state is not ConnectionState.CONNECTED:
-                raise DriverError(self._no_state()) from None
+                raise DriverError(self._no_state(waited)) from None
             raise DriverError(f"no joint state and STATUS from {client.name}") from None
 
     async def states(self) -> AsyncIterator[JointState]:
@@ -664,7 +673,6 @@ class RobotDriver:
             return await self._wait_goal(trajectory, confirmed)
         except asyncio.CancelledError:
             await self._stop_quietly()
-            await self.settle_after_stop()
             raise
         except ExecutionAborted:
             await self._stop_quietly()
@@ -719,10 +727,11 @@ class RobotDriver:
         return status_why(self._status)
 
     async def settle_after_stop(self, bound: float = STOP_SETTLE) -> JointState | None:
-        """After a stop sent because the caller cancelled (Ctrl-C): wait, at most ``bound`` s, for
-        the robot to be at rest (STATUS in_motion FALSE on a joint state), so the client does not
-        leave while it brakes (the controller would take that for a lost client); the state it
-        came to rest in is :attr:`stopped_at` (None if it did not within the bound). Returns it."""
+        """After a cancelled motion (its STOP sent and acknowledged): wait, at most ``bound`` s,
+        for the robot to be at rest (STATUS in_motion FALSE on a joint state), so that a client
+        that then leaves does not leave while the robot brakes (the controller would take that for
+        a lost client; ``robot-client`` does this on Ctrl-C). The state it came to rest in is
+        :attr:`stopped_at` (None if it did not within the bound). Returns it."""
         self.stopped_at = None
         with contextlib.suppress(DriverError, TimeoutError):
             async with asyncio.timeout(bound):

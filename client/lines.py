@@ -191,12 +191,7 @@ class CartesianLines:
                     raise ExecutionAborted(f"line {k} answered with {reply.name}", confirmed, what="line")
                 confirmed = k
             return await self._wait(group, start, goals, speed, confirmed)
-        except asyncio.CancelledError:
-            if confirmed >= 0 or pending:
-                await self._stop_quietly(group)
-                await self.driver.settle_after_stop()
-            raise
-        except ExecutionAborted:
+        except (asyncio.CancelledError, ExecutionAborted):
             if confirmed >= 0 or pending:
                 await self._stop_quietly(group)
             raise

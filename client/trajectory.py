@@ -271,7 +271,8 @@ def recording(
     its servo ticks nearest its state period (a 25 ms period on 4 ms ticks is 24, 24, 28... ms),
     and positions put on an even grid instead read as accelerations that alternate in sign, beyond
     the limits the robot was recorded within. A state stamped no later than the one before it
-    (the same sample sent again) is left out.
+    (the same sample sent again) is left out, and so are unstamped states before the first stamped
+    one (sent before the controller took the request for stamps).
 
     Receipt times are not send times: a busy client reads a late state together with the next one,
     microseconds apart, which would make a segment no controller runs. So each state gets a slot of
@@ -282,12 +283,16 @@ def recording(
     (:func:`_timed_by_velocity`). Times from 0."""
     if not times:
         raise TrajectoryError("no joint state was recorded")
-    if stamps is not None and len(stamps) == len(times) and all(x is not None for x in stamps):
-        clock = [float(x) for x in stamps if x is not None]
-        keep = [0] + [k for k in range(1, len(clock)) if clock[k] > clock[k - 1]]
+    stamped = [k for k, x in enumerate(stamps or ()) if x is not None]
+    if stamps is not None and len(stamps) == len(times) and stamped and stamped == list(range(stamped[0], len(stamps))):
+        # the states before the first stamped one came before the controller took the request
+        # for stamps (a round or two): the recording starts at the first stamped state
+        clock = [float(x) if x is not None else float("nan") for x in stamps]
+        first = stamped[0]
+        keep = [first] + [k for k in range(first + 1, len(clock)) if clock[k] > clock[k - 1]]
         with_velocity = velocities is not None and all(velocities[k] is not None for k in keep)
         return Trajectory(
-            np.array([clock[k] - clock[0] for k in keep], dtype=float),
+            np.array([clock[k] - clock[first] for k in keep], dtype=float),
             np.array([positions[k] for k in keep], dtype=float),
             np.array([velocities[k] for k in keep], dtype=float) if with_velocity and velocities is not None else None,
             joint_names=tuple(joint_names),

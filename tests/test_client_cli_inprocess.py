@@ -233,7 +233,9 @@ async def test_a_recording_is_replayed_by_run_as_it_is(tmp_path: Path, capsys: p
         assert code == 0
         rows = record.read_text().splitlines()
         assert out == f"{len(rows) - 1} joint states written to {record} (replay it with: run {record})\n"
-        assert rows[0] == "time," + ",".join(f"joint_{j}" for j in range(1, 7))
+        # the emulator sends JOINT_FEEDBACK to a recorder (it asks): velocities too, and the sample times
+        names = [f"joint_{j}" for j in range(1, 7)]
+        assert rows[0] == ",".join(["time", *names, *(f"{n}.velocity" for n in names)])
         assert rows[1].startswith("0.0,")  # a trajectory's first time
         recorded = Trajectory.load(record)
         assert np.allclose(recorded.positions[-1], goal, atol=2e-3)
@@ -276,7 +278,9 @@ async def test_failures_exit_1_or_2_with_one_line(tmp_path: Path, capsys: pytest
         elsewhere = tmp_path / "elsewhere.csv"
         Trajectory(np.array([0.0, 1.0]), np.array([[0.5] * 6, [0.6] * 6])).save(elsewhere)
         assert (await client("run", str(elsewhere), *ports))[0] == 1
-        assert "starts 0.5 away" in one_line()
+        assert (
+            f"{elsewhere} starts 0.5 rad away from the robot's position (tolerance 0.01): add --approach" in one_line()
+        )
 
         emu.cell.estop()
         assert (await client("move", "--joints", "0.1", "0", "0", "0", "0", "0", *ports))[0] == 1

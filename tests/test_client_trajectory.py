@@ -112,8 +112,11 @@ def test_a_recording_takes_the_controllers_sample_times_where_it_sends_them() ->
     assert t.times.tolist() == pytest.approx(true.tolist(), abs=1e-9)
     again = recording([*received, 10.2], [*q, q[-1]], None, ("j",), [7.0 + x for x in true] + [7.0 + true[-1]])
     assert len(again) == 6  # the same sample sent twice is one state
-    # one state without a stamp: the receipt times (the slots), not a mix of two clocks
-    mixed = recording(received, q, None, ("j",), [None, *[7.0 + x for x in true[1:]]])
+    # the first state before the controller took the request for stamps: the recording starts after it
+    late = recording(received, q, None, ("j",), [None, *[7.0 + x for x in true[1:]]])
+    assert late.times.tolist() == pytest.approx((true[1:] - true[1]).tolist(), abs=1e-9)
+    # a state without a stamp in the middle: the receipt times (the slots), not a mix of two clocks
+    mixed = recording(received, q, None, ("j",), [7.0, None, *[7.0 + x for x in true[2:]]])
     assert mixed.times.tolist() == pytest.approx([0.025 * k for k in range(6)])
 
 
