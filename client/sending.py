@@ -18,6 +18,7 @@ Each returns the index of the last point the controller confirmed, or raises
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import time
 from typing import TYPE_CHECKING
@@ -186,6 +187,20 @@ class TrajectorySender:
                 raise ExecutionAborted(
                     f"the controller is not ready for motion: {moto_reason(ready.result, ready.subcode)}", -1
                 )
+            await self._alarm_cleared()
+
+    async def _alarm_cleared(self, rounds: int = 3) -> None:
+        """After START_TRAJ_MODE, which resets an alarm: wait (a few state rounds, at most the
+        watchdog period) for a STATUS without the alarm, so that one published before the reset, and
+        read after the reply on the other connection, is not taken for an alarm during the motion.
+        An alarm still there after that is the motion's to report."""
+        driver = self.driver
+        with contextlib.suppress(DriverError, TimeoutError):
+            async with asyncio.timeout(driver.watchdog):
+                for _ in range(rounds):
+                    state = await driver.wait_state()
+                    if state.status is None or state.status.in_error != TriState.TRUE:
+                        return
 
     async def motoros(self, trajectory: Trajectory) -> int:
         await self._motion_ready()
