@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from robot_server.control.cartesian import LineLimits, LineMotion, LineTarget
+from robot_server.control import ControllerConfig
+from robot_server.control.cartesian import LineMotion, LineTarget
 from robot_server.control.points import Limits, PointRejected
 from robot_server.kinematics import IKFailed, ik, rotation_to_quaternion
 from robot_server.model import RobotModel
@@ -26,16 +27,14 @@ __all__ = ["line_check", "instead"]
 
 Array = NDArray[np.float64]
 
-#: the emulator's interpolation period (s): the line check samples at it
-_PERIOD = 0.004
-
 
 def line_check(model: RobotModel, here: Array, target: Array, speed: float) -> str | None:
     """Why the controller's line check refuses the straight line from joints ``here`` to the 4x4
     pose ``target`` at ``speed`` (m/s), run on ``model``: the controller's words (where on the line,
     how close to the singularity), or None when the line passes (or the model has no closed-form
     inverse kinematics, which the check needs)."""
-    motion = LineMotion(model, Limits.from_model(model), LineLimits(), _PERIOD)
+    defaults = ControllerConfig()  # the emulator's own line limits and interpolation period
+    motion = LineMotion(model, Limits.from_model(model), defaults.line, defaults.interpolation_period)
     if not motion.available:
         return None
     w, x, y, z = (float(v) for v in rotation_to_quaternion(target[:3, :3]))

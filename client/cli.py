@@ -587,15 +587,15 @@ async def _run(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> No
             jerk_scale=share,
             joint_spacing=2 * math.pi,
         )
-        approach = planner.joint_move(np.clip(here, model.lower, model.upper), start)
+        rest_to_rest = driver.dialect.point_type == MsgType.JOINT_TRAJ_PT
+        approach = planner.joint_move(np.clip(here, model.lower, model.upper), start).sparse(rest_to_rest=rest_to_rest)
         print(
             f"approach: to the start of {args.file}, {gap:.4g} rad away, at {share * 100:g} % of the joint limits "
             f"({approach.duration:.2f} s)",
             file=out,
             flush=True,
         )
-        rest_to_rest = driver.dialect.point_type == MsgType.JOINT_TRAJ_PT
-        await _execute(driver, approach.sparse(rest_to_rest=rest_to_rest), args.mode, out)
+        await _execute(driver, approach, args.mode, out)
     await _execute(driver, trajectory, args.mode, out)
 
 

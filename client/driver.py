@@ -218,6 +218,8 @@ class RobotDriver:
         self._tool_wanted = False
         self._tool_asked_on: Connection | None = None
         self._feedback_wanted = False
+        #: the motion connection (its count) the controller last answered on: one is made by connect()
+        self._answered_on = 1
         self._feedback_asked_on: Connection | None = None
         #: where the robot came to rest after a cancelled motion (:meth:`settle_after_stop`)
         self.stopped_at: JointState | None = None
@@ -477,7 +479,9 @@ class RobotDriver:
 
     async def _request(self, msg: Message) -> Message:
         try:
-            return await self.motion.request(msg, self.reply_timeout)
+            reply = await self.motion.request(msg, self.reply_timeout)
+            self._answered_on = self.motion.connects
+            return reply
         except RequestTimeout:
             # simple_message replies carry no request id: a reply arriving later could be taken
             # for the next request's, so the link is reset (it reconnects by itself)
@@ -542,8 +546,11 @@ class RobotDriver:
         return moving_elsewhere(self._status, self._motion_closed())
 
     def _motion_closed(self) -> bool:
-        """The controller has closed this client's motion connection (it is down, or was re-established)."""
-        return self.serial is None and (self.motion.state is not ConnectionState.CONNECTED or self.motion.connects > 1)
+        """The controller has closed this client's motion connection since it last answered on it (it is
+        down, or was re-established since)."""
+        return self.serial is None and (
+            self.motion.state is not ConnectionState.CONNECTED or self.motion.connects > self._answered_on
+        )
 
     async def _motion_up(self) -> None:
         """Wait (bounded) for the motion link if it is being re-established, e.g. after a reset."""

@@ -289,7 +289,10 @@ def recording(
         # for stamps (a round or two): the recording starts at the first stamped state
         clock = [float(x) if x is not None else float("nan") for x in stamps]
         first = stamped[0]
-        keep = [first] + [k for k in range(first + 1, len(clock)) if clock[k] > clock[k - 1]]
+        keep = [first]
+        for k in range(first + 1, len(clock)):
+            if clock[k] > clock[keep[-1]]:
+                keep.append(k)
         with_velocity = velocities is not None and all(velocities[k] is not None for k in keep)
         return Trajectory(
             np.array([clock[k] - clock[first] for k in keep], dtype=float),

@@ -137,7 +137,7 @@ def options_after_command(
     (``--help``, ``--version``, an option ``common`` does not have) leaves ``argv`` as it is, for
     ``parser`` to answer or report."""
     args = list(argv)
-    probe = _Probe(add_help=False, parents=[common])
+    probe = _Probe(add_help=False, parents=[common], allow_abbrev=False)  # --mode is not --model
     probe.add_argument("rest", nargs=argparse.REMAINDER)
     try:
         known, extras = probe.parse_known_args(args)

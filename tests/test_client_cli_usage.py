@@ -36,6 +36,7 @@ async def test_the_common_options_may_come_before_the_command() -> None:
         (["--timeout", "-1", "status"], "argument --timeout: must be > 0"),
         (["--profile", "motorxs", "status"], "argument --profile: invalid choice: 'motorxs'"),
         (["--profile", "motoros", "stauts"], "argument COMMAND: invalid choice: 'stauts'"),
+        (["--mode", "download", "status"], "--mode is not an option of robot-client itself"),  # not --model
     ],
 )
 def test_a_mistake_before_the_command_is_named_as_it_is(

@@ -112,6 +112,9 @@ def test_a_recording_takes_the_controllers_sample_times_where_it_sends_them() ->
     assert t.times.tolist() == pytest.approx(true.tolist(), abs=1e-9)
     again = recording([*received, 10.2], [*q, q[-1]], None, ("j",), [7.0 + x for x in true] + [7.0 + true[-1]])
     assert len(again) == 6  # the same sample sent twice is one state
+    # the controller's clock went back (it restarted): the states until it passes the last one kept are left out
+    restarted = [7.0 + x for x in true[:3]] + [0.5, 0.6, 7.0 + true[5]]
+    assert recording(received, q, None, ("j",), restarted).times.tolist() == pytest.approx([0.0, *true[1:3], true[5]])
     # the first state before the controller took the request for stamps: the recording starts after it
     late = recording(received, q, None, ("j",), [None, *[7.0 + x for x in true[1:]]])
     assert late.times.tolist() == pytest.approx((true[1:] - true[1]).tolist(), abs=1e-9)
