@@ -96,7 +96,7 @@ from simple_message.messages import (
 from simple_message.wire import WireFormat
 
 from .errors import DriverError, ExecutionAborted, _InFlight, _NotSent
-from .limits import check_limits, path_deviation
+from .limits import capped_velocities, check_limits, path_deviation
 from .lines import CartesianLines, LineGoal, LineRefused
 from .reasons import moving_elsewhere, status_faults, status_why
 from .sending import TrajectorySender
@@ -660,6 +660,7 @@ class RobotDriver:
             )
         if self.model is not None and self.check_limits:
             check_limits(trajectory, self.model, speeds=self.dialect.timed)
+            trajectory = capped_velocities(trajectory, self.model)
         gap = float(np.max(np.abs(trajectory.positions[0] - state.positions[: trajectory.dof])))
         busy = self.moving_elsewhere()
         if busy is not None and (gap > self.goal_tolerance or self._motion_closed()):

@@ -4,6 +4,8 @@ joint path (while the robot follows it)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -12,7 +14,7 @@ from robot_server import RobotModel
 from .errors import DriverError
 from .trajectory import Trajectory
 
-__all__ = ["check_limits", "path_deviation"]
+__all__ = ["check_limits", "capped_velocities", "path_deviation", "MEASURED_OVERSHOOT"]
 
 Array = NDArray[np.float64]
 
@@ -57,3 +59,36 @@ def check_limits(trajectory: Trajectory, model: RobotModel, *, speeds: bool = Tr
                 f"average, beyond its maximum {vmax[j]:.4g} {units[j]}/s (give the segment at least "
                 f"{abs(q[k + 1, j] - q[k, j]) / vmax[j]:.3g} s)"
             )
+
+
+#: how far beyond a joint's maximum speed a waypoint's velocity is taken for a measurement's
+#: overshoot (a recorded state: the drive's actual speed passes the commanded one by a little as it
+#: settles) and sent at the maximum instead
+MEASURED_OVERSHOOT = 0.02
+
+
+def capped_velocities(trajectory: Trajectory, model: RobotModel) -> Trajectory:
+    """``trajectory`` with its waypoint velocities (when it has them) within the joints' maximum
+    speeds. A recording carries the speeds the joints were measured at, which pass the commanded
+    ones by a fraction of a percent as a drive settles (a motion at full speed: 3.1433 rad/s for a
+    3.1416 rad/s joint); MotoROS refuses a point whose velocity is beyond the maximum speed
+    (INVALID, DATA_SPEED: motoman_driver MotoPlus/MotionServer.c:1313), so such a velocity is sent
+    at the maximum. One beyond it by more than :data:`MEASURED_OVERSHOOT` is no measurement's: the
+    trajectory is refused before anything is sent, naming the point and the joint."""
+    v = trajectory.velocities
+    if v is None:
+        return trajectory
+    vmax = model.max_velocity
+    over = np.abs(v) > vmax * (1.0 + MEASURED_OVERSHOOT)
+    if over.any():
+        k, j = (int(i) for i in np.argwhere(over)[0])
+        unit = "m/s" if model.joints[j].type.value == "prismatic" else "rad/s"
+        raise DriverError(
+            f"point {k}: joint {j + 1} ({model.joint_names[j]}) has the velocity {v[k, j]:.4g} {unit}, beyond its "
+            f"maximum {vmax[j]:.4g} {unit}"
+        )
+    # a hair inside: the wire's float32 rounds the maximum itself up by up to 6e-8 of it
+    cap = vmax * (1.0 - 1e-6)
+    if not np.any(np.abs(v) > cap):
+        return trajectory
+    return dataclasses.replace(trajectory, velocities=np.clip(v, -cap, cap))

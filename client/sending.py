@@ -8,8 +8,9 @@ family takes points (:class:`~.driver.RobotDriver` chooses by its dialect and mo
 * ``download``: TOPICs with sequence -1, 1..n-2, -3 (a single point is sent twice, as the reference
   downloader does), then a PING that proves the controller read them all.
 * ``motoros``: CHECK_MOTION_READY (and START_TRAJ_MODE if needed), then JOINT_TRAJ_PT_FULL with time,
-  positions and velocities (central differences when the trajectory has none); BUSY is retried
-  with a growing back-off; anything else aborts.
+  positions and velocities (central differences when the trajectory has none), on MotoROS's
+  millisecond grid (:func:`_on_milliseconds`); BUSY is retried with a growing back-off; anything
+  else aborts.
 
 Each returns the index of the last point the controller confirmed, or raises
 :class:`~.driver.ExecutionAborted` (with that index).
@@ -20,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import time
 from typing import TYPE_CHECKING
 
@@ -205,12 +207,13 @@ class TrajectorySender:
     async def motoros(self, trajectory: Trajectory) -> int:
         await self._motion_ready()
         velocities = trajectory.velocities if trajectory.velocities is not None else _differences(trajectory)
+        times, positions, velocities = _on_milliseconds(trajectory.times, trajectory.positions, velocities)
+        if self.driver.model is not None:
+            _warn_cubics(times, positions, velocities, self.driver.model.max_acceleration)
         fields = ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY
         confirmed = -1
         for k in range(len(trajectory)):
-            point = JointTrajPtFull(
-                0, k, fields, float(trajectory.times[k]), tuple(trajectory.positions[k]), tuple(velocities[k])
-            )
+            point = JointTrajPtFull(0, k, fields, float(times[k]), tuple(positions[k]), tuple(velocities[k]))
             delay, waited = 0.005, 0.0
             while True:
                 try:
@@ -266,3 +269,67 @@ def _differences(trajectory: Trajectory) -> Array:
     if len(trajectory) > 2:
         v[1:-1] = (q[2:] - q[:-2]) / (t[2:] - t[:-2])[:, None]
     return v
+
+
+def _on_milliseconds(times: Array, positions: Array, velocities: Array) -> tuple[Array, Array, Array]:
+    """The waypoints moved onto whole milliseconds, where they are not already: MotoROS keeps a
+    point's time as whole milliseconds, truncated (``(int)(time * 1000)``, motoman_driver
+    MotoPlus/MotionServer.c:2094), and joins the points by cubics through their positions and
+    velocities. A point 0.4 ms off the grid (a recording's times are the controller's sample
+    instants, to the microsecond) would then be reached 0.4 ms early with the position and velocity
+    of its own time: at 2 rad/s over a 24 ms segment the cubic's acceleration is off by some
+    10 rad/s^2, and the controller must slow the whole trajectory down for it. So each point is
+    moved to its nearest millisecond (after the one before it), with the position and velocity the
+    trajectory's own cubics give there; the first keeps its state, and the last, reached at rest or
+    not, keeps its state at the millisecond after its time."""
+    ms = times * 1000.0
+    grid = np.round(ms)
+    if np.all(np.abs(ms - grid) <= 1e-6 * np.maximum(1.0, np.abs(ms))):
+        return grid / 1000.0, positions, velocities
+    n = times.size
+    new = grid / 1000.0
+    new[0] = times[0]
+    new[-1] = math.ceil(ms[-1] - 1e-6) / 1000.0
+    for k in range(1, n):
+        new[k] = max(new[k], new[k - 1] + 1e-3)
+    q, v = positions.copy(), velocities.copy()
+    for k in range(1, n - 1):
+        t = min(new[k], times[-1])
+        i = min(int(np.searchsorted(times, t, side="right")) - 1, n - 2)
+        h = float(times[i + 1] - times[i])
+        s = (t - times[i]) / h
+        h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+        d00, d10, d01, d11 = 6 * s**2 - 6 * s, 3 * s**2 - 4 * s + 1, -6 * s**2 + 6 * s, 3 * s**2 - 2 * s
+        p0, p1, v0, v1 = positions[i], positions[i + 1], velocities[i], velocities[i + 1]
+        q[k] = h00 * p0 + h10 * h * v0 + h01 * p1 + h11 * h * v1
+        v[k] = (d00 * p0 + d01 * p1) / h + d10 * v0 + d11 * v1
+    return new, q, v
+
+
+def _warn_cubics(times: Array, positions: Array, velocities: Array, limit: Array) -> None:
+    """Say so, once, before sending, when the cubics MotoROS runs through the points' positions and
+    velocities accelerate a joint beyond its limit: the emulator slows the rest of the trajectory
+    down for it (a real controller's servo lags). It happens where the velocities do not match the
+    positions' timing: a recording of a controller that publishes no sample time (MotoROS) has
+    times estimated from the velocities, and where the robot moved at its acceleration limit that
+    estimate is not close enough."""
+    if times.size < 2:
+        return
+    h = np.diff(times)[:, None]
+    d = np.diff(positions, axis=0)
+    v0, v1 = velocities[:-1], velocities[1:]
+    start = (6.0 * d / h - 4.0 * v0 - 2.0 * v1) / h
+    end = (-6.0 * d / h + 2.0 * v0 + 4.0 * v1) / h
+    ratio = np.maximum(np.abs(start), np.abs(end)) / limit
+    if not np.any(ratio > 1.0 + 1e-6):
+        return
+    k, j = (int(i) for i in np.unravel_index(int(np.argmax(ratio)), ratio.shape))
+    log.warning(
+        "the cubics through the points' positions and velocities accelerate joint %d up to %.3g x its limit "
+        "(segment %d->%d): the controller will slow the trajectory down (velocities that do not match the "
+        "times: a recording of a controller that publishes no sample time has estimated times)",
+        j + 1,
+        float(ratio[k, j]),
+        k,
+        k + 1,
+    )

@@ -27,7 +27,14 @@ from robot_server.control import (
     quintic_hermite,
     submit_together,
 )
-from robot_server.control.blend import OVERSHOOT, estimate, jerk_limited, shape_preserving, through_state
+from robot_server.control.blend import (
+    OVERSHOOT,
+    _jerk_limited,
+    estimate,
+    jerk_limited,
+    shape_preserving,
+    through_state,
+)
 from robot_server.loader import load_model
 from tests.streams import MONOTONE_JOINTS, Plan, full_points, measure, ros_points, stream
 
@@ -136,6 +143,23 @@ def test_the_end_acceleration_keeps_the_jerk_within_the_limit_when_it_can() -> N
     segment = quintic_hermite(start, (position, velocity, chosen), duration)
     lo, hi = segment.extremes(3)
     assert max(-lo[0], hi[0]) <= 500.0 * 1.02 and max(-lo[1], hi[1]) > 500.0
+
+
+def test_the_jerk_never_pushes_the_end_acceleration_past_the_acceleration_limit() -> None:
+    """Dense points after a start state a little off the data (a jerk-limited segment before it, a
+    kink in a recording): keeping the quintic's jerk would need an end acceleration of 10.9 where
+    the estimate is 9.5 and the limit 10; the chain of such choices grew past the limit where the
+    data never came near it (a recording at full speed replayed x1.084 slower). The acceleration
+    limit stands; the jerk is met locally (a jerk-limited segment) as decided for the jerk."""
+    start = (0.0, 0.5, 5.0)
+    free = _jerk_limited(start, 0.024, (0.014, 0.7), 9.5, (-1e9, 1e9), jerk=500.0)
+    capped = _jerk_limited(start, 0.024, (0.014, 0.7), 9.5, (-1e9, 1e9), jerk=500.0, acceleration=10.0)
+    assert free == pytest.approx(10.889, abs=1e-3) and capped == 10.0
+    # an estimate beyond the limit is not cut by it here (the whole trajectory slows down for it)
+    assert _jerk_limited(start, 0.024, (0.014, 0.7), 12.0, (-1e9, 1e9), jerk=500.0, acceleration=10.0) <= 12.0
+    # the cap applies on both sides
+    mirrored = _jerk_limited((0.0, -0.5, -5.0), 0.024, (-0.014, -0.7), -9.5, (-1e9, 1e9), jerk=500.0, acceleration=10.0)
+    assert mirrored == -10.0
 
 
 # -- streamed trajectories ----------------------------------------------------------------------

@@ -89,6 +89,7 @@ def through_state(
     before: Array,
     before_duration: float,
     jerk: Array | None = None,
+    acceleration: Array | None = None,
     lower: Array | None = None,
     upper: Array | None = None,
 ) -> State:
@@ -97,17 +98,18 @@ def through_state(
     (``before_duration`` is the full time of the segment from ``before``, which may have started
     earlier than ``start``), made shape-preserving (never beyond the position limits ``lower``,
     ``upper``), and with the jerk of the segment ending here within ``jerk`` where an acceleration
-    allowed by the shape can do it.
+    allowed by the shape and within ``acceleration`` can do it.
 
     Joint by joint on plain floats: for six joints that is several times faster than numpy on
     arrays of six (a point is planned while the controller runs)."""
     h1, t1, t2 = before_duration, duration, after_duration
     n = position.size
     jerks = jerk.tolist() if jerk is not None else [math.inf] * n
+    accelerations = acceleration.tolist() if acceleration is not None else [math.inf] * n
     lows = lower.tolist() if lower is not None else [-math.inf] * n
     highs = upper.tolist() if upper is not None else [math.inf] * n
     v_out, a_out = [], []
-    for p0, v0, a0, p, p2, pb, j, low_limit, high_limit in zip(
+    for p0, v0, a0, p, p2, pb, j, a_limit, low_limit, high_limit in zip(
         start.position.tolist(),
         start.velocity.tolist(),
         start.acceleration.tolist(),
@@ -115,6 +117,7 @@ def through_state(
         after.tolist(),
         before.tolist(),
         jerks,
+        accelerations,
         lows,
         highs,
         strict=True,
@@ -124,7 +127,7 @@ def through_state(
         v, low, high = _shape(first, t1, p, (p2, t2), v_est, a=a_est)
         if _harmless(first, t1, p, (p2, t2), (v_est, a_est), limits=(low_limit, high_limit)):
             v, low, high = v_est, -math.inf, math.inf
-        a = _jerk_limited(first, t1, (p, v), a_est, (low, high), jerk=j)
+        a = _jerk_limited(first, t1, (p, v), a_est, (low, high), jerk=j, acceleration=a_limit)
         v_out.append(v)
         a_out.append(a)
     return State(position, np.array(v_out), np.array(a_out))
@@ -237,12 +240,20 @@ def _jerk_limited(
     bounds: tuple[float, float],
     *,
     jerk: float,
+    acceleration: float = math.inf,
 ) -> float:
     """One joint: the end acceleration ``a`` clamped into ``[low, high]`` and, where some value
     there keeps the quintic's jerk within ``jerk`` (sampled at seven instants; the segment is
     checked exactly afterwards), into those values. Where none does (a start from rest that the
     plan wants faster than the jerk allows), the estimate stands: the segment is then replaced
-    by a jerk-limited one (motion.py) and should end in the state the data implies."""
+    by a jerk-limited one (motion.py) and should end in the state the data implies.
+
+    The jerk never moves the acceleration beyond ``acceleration`` (nor beyond the estimate, when
+    that is beyond it already): the jerk limit is met locally (a jerk-limited segment where the
+    quintic cannot), the acceleration limit by slowing the whole trajectory down. On dense points a
+    start state a little off the data (after a jerk-limited segment, a kink in a recording) asks
+    each next quintic for a larger end acceleration to keep its jerk, and the chain would grow past
+    the acceleration limit where the data never comes near it."""
     p0, v0, a0 = start
     p, v = end
     low, high = bounds
@@ -264,7 +275,10 @@ def _jerk_limited(
             lower, upper = max(lower, (jerk - j0) / g), min(upper, (-jerk - j0) / g)
         elif abs(j0) > jerk:
             return chosen
-    return min(max(chosen, lower), upper) if lower <= upper else chosen
+    if lower > upper:
+        return chosen
+    cap = max(acceleration, abs(chosen))
+    return min(max(min(max(chosen, lower), upper), -cap), cap)
 
 
 def shape_preserving(

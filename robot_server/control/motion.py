@@ -720,6 +720,7 @@ class MotionQueue:
             before=entry.before,
             before_duration=entry.before_duration,
             jerk=lim.jerk,
+            acceleration=lim.acceleration,
             lower=lim.lower,
             upper=lim.upper,
         )

@@ -1,0 +1,134 @@
+"""A recording replays as recorded (issue 36, item 4): ``robot-client record``'s files, run back
+through the client's driver on a clock the test advances, take their recorded time within 2 %;
+and what the driver does to a trajectory for MotoROS (its millisecond grid, measured speeds a
+hair over the limit)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from client.driver import RobotDriver
+from client.errors import DriverError
+from client.limits import MEASURED_OVERSHOOT, capped_velocities
+from client.sending import _on_milliseconds
+from client.trajectory import Trajectory
+from robot_server import load_model
+from robot_server.emulator.motoros import motoros_milliseconds
+from tests.stepped import advance_until, settle, stepped_emulator
+
+DATA = Path(__file__).parent / "data"
+PUMA = load_model("puma560")
+
+
+def moving_span(times: np.ndarray, positions: np.ndarray, still: float = 1e-4) -> float:
+    """From the last instant before the robot leaves its start to the first at its end (with the
+    samples either side of the motion, as a recording has them)."""
+    away = np.flatnonzero(np.abs(positions - positions[0]).max(axis=1) > still)
+    short = np.flatnonzero(np.abs(positions - positions[-1]).max(axis=1) > still)
+    return float(times[min(short[-1] + 1, times.size - 1)] - times[max(away[0] - 1, 0)])
+
+
+async def replay(path: Path, profile: str) -> tuple[float, float]:
+    """The recording's moving span and the replay's (the controller's commanded positions)."""
+    recorded = Trajectory.load(path)
+    async with contextlib.AsyncExitStack() as stack:
+        emu, clock = await stack.enter_async_context(
+            stepped_emulator(record=60.0, profile=profile, models=("puma560",), queue_capacity=400, state_rate=40.0)
+        )
+        driver = RobotDriver(
+            motion_port=emu.ports["motion"], state_port=emu.ports["state"], profile=profile, model=PUMA
+        )
+        await stack.enter_async_context(driver)
+        task = asyncio.create_task(driver.execute(recorded))
+        await advance_until(clock, task.done, limit=30.0, what="the replay")
+        await task
+        await settle(emu, clock)
+        record = emu.control.recorder
+        assert record is not None
+        times = np.array(record.time())
+        command = np.array(record.get("command_position"))
+    return moving_span(recorded.times, recorded.positions), moving_span(times, command)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("name", "profile"),
+    [
+        # two joint moves at --speed 1 (the controller's full acceleration), states stamped (JOINT_FEEDBACK time)
+        ("recording_generic_puma560.csv", "generic"),
+        # the same moves at --speed 0.5 from MotoROS: no sample time, velocity-timed (client.trajectory.recording)
+        ("recording_motoros_puma560.csv", "motoros"),
+    ],
+)
+async def test_a_recording_replays_in_its_recorded_time(
+    name: str, profile: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO, logger="robot_server.control.motion")
+    recorded, replayed = await replay(DATA / name, profile)
+    assert abs(replayed / recorded - 1.0) <= 0.02, (recorded, replayed)
+    assert not [r for r in caplog.records if "too fast" in r.getMessage()]
+
+
+def test_motoros_points_go_on_its_millisecond_grid_on_the_trajectorys_own_curve() -> None:
+    """MotoROS truncates a time to whole milliseconds (MotionServer.c:2094): points off the grid
+    move to their nearest millisecond, with the state the trajectory's cubics give there, so the
+    cubics MotoROS runs are the trajectory's own."""
+    t = np.array([0.0, 0.0241, 0.0483, 0.0767, 0.1004])
+    q = np.column_stack([np.sin(3 * t), t**3])
+    v = np.column_stack([3 * np.cos(3 * t), 3 * t**2])
+    times, positions, velocities = _on_milliseconds(t, q, v)
+    assert [motoros_milliseconds(float(np.float32(x))) for x in times] == [0, 24, 48, 77, 101]
+    assert times[0] == 0.0 and np.array_equal(positions[0], q[0]) and np.array_equal(positions[-1], q[-1])
+    np.testing.assert_allclose(positions[1:-1, 0], np.sin(3 * times[1:-1]), atol=2e-6)
+    np.testing.assert_allclose(positions[1:-1, 1], times[1:-1] ** 3, atol=1e-12)  # a cubic is kept exactly
+    np.testing.assert_allclose(velocities[1:-1, 1], 3 * times[1:-1] ** 2, atol=1e-9)
+    # already on the grid: unchanged
+    same = _on_milliseconds(times, positions, velocities)
+    assert np.array_equal(same[1], positions) and np.array_equal(same[2], velocities)
+
+
+def test_measured_speeds_a_hair_over_the_limit_are_sent_at_it_and_more_is_refused() -> None:
+    vmax = PUMA.max_velocity
+    q = np.zeros((3, 6))
+    v = np.zeros((3, 6))
+    v[1, 5] = -vmax[5] * (1 + 0.0006)  # a drive's overshoot, as the emulator's motor model measures it
+    capped = capped_velocities(Trajectory(np.array([0.0, 0.025, 0.05]), q, v), PUMA)
+    assert capped.velocities is not None
+    # within the limit once on the wire (float32)
+    assert abs(float(np.float32(capped.velocities[1, 5]))) <= vmax[5]
+    assert capped.velocities[1, 5] < 0.0 and np.array_equal(capped.velocities[0], v[0])
+    v[1, 5] = vmax[5] * (1 + 2 * MEASURED_OVERSHOOT)
+    with pytest.raises(
+        DriverError,
+        match=r"point 1: joint 6 \(joint_6\) has the velocity 3\.267 rad/s, beyond its maximum 3\.142 rad/s",
+    ):
+        capped_velocities(Trajectory(np.array([0.0, 0.025, 0.05]), q, v), PUMA)
+    plain = Trajectory(np.array([0.0, 0.025, 0.05]), q, np.zeros((3, 6)))
+    assert capped_velocities(plain, PUMA) is plain
+
+
+def test_the_driver_says_when_motoros_cubics_would_be_too_fast(caplog: pytest.LogCaptureFixture) -> None:
+    """A MotoROS recording of a move at the acceleration limit: its estimated times and measured
+    velocities make cubics beyond the limit, which the controller slows down for; the client says
+    so before sending (client.sending._warn_cubics)."""
+    from client.sending import _warn_cubics
+
+    t = np.array([0.0, 0.024, 0.048])
+    q = np.array([[0.0] * 6, [0.003] * 6, [0.012] * 6])
+    v = np.array([[0.0] * 6, [0.0] * 6, [0.5] * 6])  # velocities that do not match the positions
+    with caplog.at_level(logging.WARNING, logger="client.driver"):
+        _warn_cubics(t, q, v, PUMA.max_acceleration)
+    assert "accelerate joint 1 up to" in caplog.text and "segment 1->2" in caplog.text
+    caplog.clear()
+    s = np.linspace(0, 1, 11)
+    smooth_q = np.outer(10 * s**3 - 15 * s**4 + 6 * s**5, np.full(6, 0.2))
+    smooth_v = np.outer((30 * s**2 - 60 * s**3 + 30 * s**4) / 1.0, np.full(6, 0.2))
+    with caplog.at_level(logging.WARNING, logger="client.driver"):
+        _warn_cubics(s, smooth_q, smooth_v, PUMA.max_acceleration)
+    assert caplog.text == ""
