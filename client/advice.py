@@ -8,6 +8,12 @@ model is the controller's (``move --pose`` checks that first, :mod:`.identity`).
 could work instead: the same line planned on the PC (:class:`.planner.Planner`, joint points
 streamed: ``move --pose`` without ``--linear``) and a joint move to the target's inverse
 kinematics (``move --joints``), and names the ones that would run.
+
+Which of these applies depends on the controller's reason (:func:`after_refusal`): only a line the
+joints cannot run (``SINGULAR``, ``UNREACHABLE``, ``JOINT_LIMIT``) may run another way. A
+``TCP_SPEED`` refusal asks for a lower ``--tcp-speed``; a ``WORKSPACE`` refusal is the controller's
+workspace supervision (its cell's zones, which the client does not know): another target or path
+is the way, not the same path by joints, which the same zones would refuse.
 """
 
 from __future__ import annotations
@@ -20,10 +26,15 @@ from robot_server.control.cartesian import LineMotion, LineTarget
 from robot_server.control.points import Limits, PointRejected
 from robot_server.kinematics import IKFailed, ik, rotation_to_quaternion
 from robot_server.model import RobotModel
+from simple_message.constants import LineResult
 
 from .planner import Planner, PlanningError
 
-__all__ = ["line_check", "instead"]
+__all__ = ["PATH_REFUSALS", "after_refusal", "line_check", "instead"]
+
+#: the controller's refusals of a straight line that the joints cannot run: the same target may be
+#: reached another way (the line planned on the PC, a joint move)
+PATH_REFUSALS = frozenset({LineResult.SINGULAR, LineResult.UNREACHABLE, LineResult.JOINT_LIMIT})
 
 Array = NDArray[np.float64]
 
@@ -67,3 +78,36 @@ def instead(model: RobotModel, here: Array, target: Array, planner: Planner, *, 
         joints = " ".join(f"{round(float(v), 4) + 0.0:.4f}" for v in q)  # + 0.0: no -0.0000
         ways.append(f"by joints it reaches the pose: robot-client move --joints {joints}")
     return ways
+
+
+def after_refusal(
+    result: int, model: RobotModel, here: Array, target: Array, planner: Planner, *, speed: float
+) -> tuple[str | None, list[str]]:
+    """What to add to the controller's refusal (a CARTESIAN_LINE reply's ``result``, a
+    :class:`LineResult`) of the straight line from joints ``here`` to the 4x4 pose ``target`` at
+    ``speed`` (m/s): where the client's check places the fault (or None) and the next steps.
+
+    * ``SINGULAR``, ``UNREACHABLE``, ``JOINT_LIMIT`` (:data:`PATH_REFUSALS`): :func:`line_check`
+      and :func:`instead`, the ways that would run;
+    * ``TCP_SPEED``: a lower ``--tcp-speed`` (naming the AUTO limit of ``model``'s
+      ``[supervision]`` when it has one: the controller's own unless its cell sets another);
+    * ``WORKSPACE``: a target or a path outside the controller's zones (the client does not know
+      them, so it does not claim that any other way would run);
+    * any other reason (the robot not ready, a joint trajectory under way...): nothing."""
+    if result in PATH_REFUSALS:
+        return line_check(model, here, target, speed), instead(model, here, target, planner, linear=True)
+    if result == LineResult.TCP_SPEED:
+        limit = model.supervision.auto_speed
+        if limit is not None and limit < speed:
+            return None, [
+                f"a lower --tcp-speed than {speed:g} m/s: at most {limit:g} m/s, the AUTO limit of --model "
+                f"{model.name}'s [supervision] (the controller's, unless its cell file sets another)"
+            ]
+        return None, [f"a lower --tcp-speed than {speed:g} m/s (the controller's TCP speed limit is below it)"]
+    if result == LineResult.WORKSPACE:
+        return None, [
+            "a target, or a path through other poses, outside the cell's zones (the controller's workspace "
+            "supervision refused the line: it enters a forbidden zone, leaves the allowed zone or goes below the "
+            "floor; the client does not know the controller's zones, so the same target by joints may be refused too)"
+        ]
+    return None, []

@@ -52,7 +52,7 @@ from simple_message.jsonio import message_to_json, symbolic_names
 from simple_message.messages import Status, ToolPose
 from simple_message.wire import ByteOrder, WireFormat
 
-from .advice import instead, line_check
+from .advice import after_refusal, instead
 from .demo import PAPER_POLICIES, DemoConfig, format_table, run_demo
 from .driver import STOP_SETTLE, DriverError, JointState, LineGoal, LineRefused, Mode, RobotDriver
 from .identity import check_model
@@ -324,6 +324,11 @@ def _driver(args: argparse.Namespace, model: RobotModel, capture: CaptureWriter 
     )
 
 
+def _count(count: int, one: str, many: str | None = None) -> str:
+    """``1 point``, ``2 points``: a count and its noun, singular for one."""
+    return f"{count} {one if count == 1 else many or one + 's'}"
+
+
 def _status_dict(status: Status | None) -> dict[str, object] | None:
     """A STATUS as every command prints a message (``simple-message decode`` included): the
     numbers in ``body``, their symbolic names in ``names``."""
@@ -347,8 +352,8 @@ async def _ping(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> N
     for i, t in enumerate(times):
         print(f"PING {i + 1}: {t * 1000:.3f} ms", file=out)
     print(
-        f"{len(times)} replies, min/median/max {min(times) * 1000:.3f}/{np.median(times) * 1000:.3f}/"
-        f"{max(times) * 1000:.3f} ms",
+        f"{_count(len(times), 'reply', 'replies')}, min/median/max {min(times) * 1000:.3f}/"
+        f"{np.median(times) * 1000:.3f}/{max(times) * 1000:.3f} ms",
         file=out,
     )
 
@@ -430,7 +435,10 @@ async def _record(driver: RobotDriver, args: argparse.Namespace, out: TextIO) ->
                 [s.stamp for s in states],
             )
             recorded.save(args.file)
-            print(f"{len(recorded)} joint states written to {args.file} (replay it with: run {args.file})", file=out)
+            print(
+                f"{_count(len(recorded), 'joint state')} written to {args.file} (replay it with: run {args.file})",
+                file=out,
+            )
         else:
             print("no joint state received: nothing written", file=out)
 
@@ -468,7 +476,7 @@ async def _execute(driver: RobotDriver, trajectory: Trajectory, mode: str | None
         final = await driver.execute(trajectory, mode)
     error = float(np.max(np.abs(final.positions[: goal.size] - goal)))
     print(
-        f"done: {len(trajectory)} points in {time.monotonic() - start:.2f} s (planned {total:.2f} s), "
+        f"done: {_count(len(trajectory), 'point')} in {time.monotonic() - start:.2f} s (planned {total:.2f} s), "
         f"{error:.2e} rad from the goal",
         file=out,
     )
@@ -495,7 +503,7 @@ async def _move(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> N
         motion = planner.joint_move(here, args.joints)
     else:
         if not args.no_model_check:
-            check = await check_model(driver, model)
+            check = await check_model(driver, model, skip="--no-model-check")
             if check.agrees is None:
                 print(f"note: {check.how}", file=out, flush=True)
             else:
@@ -508,9 +516,8 @@ async def _move(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> N
                 print("the controller runs the straight line (CARTESIAN_LINE)", file=out, flush=True)
                 try:
                     await _move_line(driver, LineGoal.from_pose(target), args, out)
-                except LineRefused as exc:
-                    where = line_check(model, here, target, _tcp_speed(args))
-                    ways = instead(model, here, target, planner, linear=True)
+                except LineRefused as exc:  # the next step depends on the controller's reason
+                    where, ways = after_refusal(exc.result, model, here, target, planner, speed=_tcp_speed(args))
                     raise CommandError(_advised(str(exc), where, ways)) from None
                 return
             print("the controller has no straight-line motion: planned on the PC", file=out, flush=True)
@@ -631,24 +638,86 @@ async def _with_driver(args: argparse.Namespace, model: RobotModel, out: TextIO)
             await _COMMANDS[args.command](driver, args, out)
         except asyncio.CancelledError:  # Ctrl-C, SIGTERM: a motion under way was stopped (STOP acknowledged)
             if args.command in _MOVING:
-                await driver.settle_after_stop()  # not leaving while the robot brakes
-                _say_where_stopped(driver)
+                await _after_interrupt(driver)  # not leaving while the robot brakes
             raise
         finally:
             await driver.close()
 
 
-def _say_where_stopped(driver: RobotDriver) -> None:
-    """After Ctrl-C stopped a motion: where the robot came to rest (or that it had not yet)."""
-    if driver.stopped_at is not None:
-        q = " ".join(f"{round(float(x), 4) + 0.0:.4f}" for x in driver.stopped_at.positions)
+#: a joint slower than this (rad/s) is at rest, for where Ctrl-C left the robot
+REST_VELOCITY = 5e-3
+#: a robot that moved less than this (rad, every joint) from Ctrl-C until it was at rest was not moving
+NOT_MOVED = 1e-5
+
+
+async def _after_interrupt(driver: RobotDriver) -> None:
+    """After Ctrl-C (or SIGTERM) cancelled a command that moves the robot (a motion under way was
+    sent STOP, and the controller acknowledged it): wait, at most :data:`STOP_SETTLE` s, for the
+    robot to be at rest, so that the client does not leave while the robot brakes (the controller
+    would take that for a lost client), and say where it came to rest, or that it was not moving."""
+    before = driver.joint_state  # the latest state when the command was cancelled
+    if before is None:
+        return  # no joint state yet: nothing was sent to move the robot
+    rest = await _wait_for_rest(driver, STOP_SETTLE)
+    if rest is None:
+        if driver.status is not None and driver.status.in_motion == TriState.TRUE:
+            print(
+                f"robot-client: STOP sent, but the robot was still moving after {STOP_SETTLE:g} s",
+                file=sys.stderr,
+                flush=True,
+            )
+        return
+    q = " ".join(f"{round(float(x), 4) + 0.0:.4f}" for x in rest.positions)  # + 0.0: no -0.0000
+    moved = float(np.max(np.abs(rest.positions - before.positions)))
+    still = before.velocities is None or float(np.max(np.abs(before.velocities))) < REST_VELOCITY
+    if moved < NOT_MOVED and still:
+        print(f"robot-client: the robot was not moving: it is at rest at [{q}]", file=sys.stderr, flush=True)
+    else:
         print(f"robot-client: stopped: the robot is at rest at [{q}]", file=sys.stderr, flush=True)
-    elif driver.joint_state is not None and driver.status is not None and driver.status.in_motion == TriState.TRUE:
-        print(
-            f"robot-client: STOP sent, but the robot was still moving after {STOP_SETTLE:g} s",
-            file=sys.stderr,
-            flush=True,
-        )
+
+
+async def _wait_for_rest(driver: RobotDriver, bound: float) -> JointState | None:
+    """The first joint state sampled after STATUS said the robot is at rest (in_motion not TRUE)
+    with every joint slower than :data:`REST_VELOCITY` (the velocities the controller sends, else
+    the change from the sample before), within ``bound`` s. A state that arrived before that
+    STATUS is not taken: it may show the robot still braking. When ``bound`` passes with STATUS
+    saying at rest but the joints never that slow, the latest state sampled after that STATUS;
+    None when there was none."""
+    rest_after: float | None = None  # when the sample current as STATUS said at rest arrived
+    previous: JointState | None = None
+    latest: JointState | None = None  # the latest state sampled after STATUS said at rest
+    with contextlib.suppress(DriverError, TimeoutError):
+        async with asyncio.timeout(bound):
+            while True:
+                state = await driver.wait_state()
+                status = driver.status
+                if status is None or status.in_motion == TriState.TRUE:
+                    rest_after, latest = None, None
+                elif rest_after is None:
+                    rest_after = state.received
+                elif state.received > rest_after:
+                    if _slow(state, previous):
+                        return state
+                    latest = state
+                if previous is None or state.received != previous.received:
+                    previous = state
+    return latest
+
+
+def _slow(state: JointState, previous: JointState | None) -> bool:
+    """Every joint of ``state`` slower than :data:`REST_VELOCITY`: its velocities, or (the controller
+    sends none) the change from ``previous``, the sample before."""
+    if state.velocities is not None:
+        return float(np.max(np.abs(state.velocities))) < REST_VELOCITY
+    if previous is None:
+        return False
+    if state.stamp is not None and previous.stamp is not None and state.stamp > previous.stamp:
+        elapsed = state.stamp - previous.stamp
+    else:
+        elapsed = state.received - previous.received
+    if elapsed <= 0.0:
+        return False
+    return float(np.max(np.abs(state.positions - previous.positions))) < REST_VELOCITY * elapsed
 
 
 def _capture(args: argparse.Namespace) -> contextlib.AbstractContextManager[CaptureWriter | None]:
@@ -682,7 +751,9 @@ async def _run_demo(args: argparse.Namespace, out: TextIO, capture: CaptureWrite
     )
     if args.short:
         config = dataclasses.replace(config, width=0.06, height=0.04)
-    result = await run_demo(config, progress=lambda line: print(line, file=out, flush=True))
+    result = await run_demo(
+        config, progress=lambda line: print(line, file=out, flush=True), interrupted=_after_interrupt
+    )
     print(file=out)
     print(format_table(result.rows), file=out)
     print(file=out)
@@ -730,7 +801,7 @@ def _check_arguments(args: argparse.Namespace, model: RobotModel) -> None:
     if args.tcp_speed is not None and not (math.isfinite(args.tcp_speed) and args.tcp_speed > 0.0):
         raise ValueError(f"--tcp-speed must be > 0 (m/s), not {args.tcp_speed}")
     if args.joints is not None and len(args.joints) != model.dof:
-        raise ValueError(f"--joints needs {model.dof} values for {model.name}, not {len(args.joints)}")
+        raise ValueError(f"--joints needs {_count(model.dof, 'value')} for {model.name}, not {len(args.joints)}")
     if args.pose is not None and len(args.pose) not in (3, 6):
         raise ValueError("--pose takes X Y Z or X Y Z ROLL PITCH YAW")
     if not all(math.isfinite(x) for x in (args.joints or args.pose)):

@@ -54,7 +54,7 @@ import io
 import logging
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -70,7 +70,7 @@ from simple_message.connection import Tap
 from simple_message.wire import DEFAULT_FORMAT, WireFormat
 
 from .driver import DriverError, LineGoal, Mode, RobotDriver
-from .identity import ModelMismatch, check_model
+from .identity import check_model
 from .planner import Motion, Planner, PlanningError, pose
 from .trajectory import Trajectory, recording
 
@@ -536,8 +536,17 @@ def embedded_only(config: DemoConfig) -> list[str]:
     return given
 
 
-async def run_demo(config: DemoConfig, progress: Callable[[str], None] = print) -> DemoResult:
-    """Plan and run the experiment (see the module doc); writes CSV files (and a figure)."""
+async def run_demo(
+    config: DemoConfig,
+    progress: Callable[[str], None] = print,
+    *,
+    interrupted: Callable[[RobotDriver], Awaitable[None]] | None = None,
+) -> DemoResult:
+    """Plan and run the experiment (see the module doc); writes CSV files (and a figure).
+
+    Cancelled (Ctrl-C) while it drives a controller found on the ports, the motion under way is
+    stopped (the driver sends STOP), then ``interrupted`` is awaited with that controller's driver
+    before it is closed: ``robot-client`` waits there for the robot to come to rest and says where."""
     model = load_model(config.model)
     start, motion, corners = plan_rectangle(model, config)
     waypoints = motion.sparse()
@@ -556,18 +565,14 @@ async def run_demo(config: DemoConfig, progress: Callable[[str], None] = print) 
         progress(f"a controller answers at {result.external}: running the rectangle there")
         try:
             check = await check_model(external, model)  # the rectangle is planned with config.model
-        except ModelMismatch:
-            await external.close()
-            raise
-        if check.agrees is None:
-            progress(f"note: {check.how}")
-        ignored = embedded_only(config)
-        if ignored:
-            progress(
-                f"ignored here: {', '.join(ignored)} (they choose how the embedded emulator runs; a running controller "
-                "interpolates its own way, in real time): add --embedded to run them"
-            )
-        try:
+            if check.agrees is None:
+                progress(f"note: {check.how}")
+            ignored = embedded_only(config)
+            if ignored:
+                progress(
+                    f"ignored here: {', '.join(ignored)} (they choose how the embedded emulator runs; a running "
+                    "controller interpolates its own way, in real time): add --embedded to run them"
+                )
             row, t, q = await _external_run(external, config, plan)
             result.rows.append(row)
             trace = out / "demo_controller.csv"
@@ -583,6 +588,10 @@ async def run_demo(config: DemoConfig, progress: Callable[[str], None] = print) 
                     result.files.append(trace)
                 else:
                     progress(f"{MOVL}: skipped: the controller has no straight-line motion (no CARTESIAN_LINE)")
+        except asyncio.CancelledError:  # Ctrl-C: the motion under way was sent STOP
+            if interrupted is not None:
+                await interrupted(external)  # not closing while the robot brakes
+            raise
         finally:
             await external.close()
         return result

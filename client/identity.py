@@ -12,14 +12,18 @@ command the client compares its model with what the controller says about its ow
 * **GET_DH_PARAMETERS** (MotoROS, asked first, ``Ros_MotionServer_GetDhParameters``, motoman_driver
   MotoPlus/MotionServer.c:2157-2184: one ``DH_LINK {theta, d, a, alpha}`` per axis of each group,
   ParameterTypes.h:116-126): the controller's D-H table, compared with the model's (lengths
-  within 1 mm, angles within 1 mrad). MotoPlus does not document the table's units: a table whose
-  lengths are the model's in millimetres agrees too.
+  within 1 mm, angles within 1 mrad, modulo a turn: 2 pi apart is the same angle). MotoPlus does
+  not document the table's units: a table whose lengths are the model's in millimetres agrees too.
+  The table must have as many axes as the model has joints: a reply narrower than the model, or
+  one with axes beyond the model's joints (an axis is a row not all zero: a 7-axis arm against a
+  6-joint model), is a mismatch naming both counts.
 * Otherwise the controller says nothing about its model (ABB, Fanuc, Staubli, the C++ reference
   server, a MotoROS without GET_DH_PARAMETERS): the result rests on ``--model``, and
   :class:`ModelCheck` says so.
 
-A disagreement is :class:`ModelMismatch`, one line naming ``--model`` and by how much they
-differ; nothing is sent to move the robot.
+A disagreement is :class:`ModelMismatch`, one line naming ``--model``, by how much they differ
+and (``skip``: ``robot-client move``'s ``--no-model-check``) how to skip the check; nothing is
+sent to move the robot.
 """
 
 from __future__ import annotations
@@ -65,18 +69,21 @@ class ModelCheck:
     how: str
 
 
-async def check_model(driver: RobotDriver, model: RobotModel, *, option: str = "--model") -> ModelCheck:
+async def check_model(
+    driver: RobotDriver, model: RobotModel, *, option: str = "--model", skip: str | None = None
+) -> ModelCheck:
     """Compare ``model`` with what the controller of ``driver`` says of its own (module doc);
-    ``option`` is how the caller's user gives the model (named in the messages)."""
+    ``option`` is how the caller's user gives the model, ``skip`` how they skip this check (e.g.
+    ``--no-model-check``; None: they cannot), both named in a :class:`ModelMismatch`."""
     if driver.dialect.motion_control:
         table = await _dh_table(driver)
         if table is not None:
-            return _against_dh(model, table, option)
+            return _against_dh(model, table, option, skip)
     if driver.dialect.unknown_types:  # a TOPIC it may not know: ABB's, Fanuc's, Staubli's servers take none
         pose = await driver.subscribe_tool_pose(rounds=None)
         state = driver.joint_state
         if pose is not None and state is not None and pose.tool == 0:
-            return _against_tool_pose(model, state.positions[: model.dof], pose, option)
+            return _against_tool_pose(model, state.positions[: model.dof], pose, option, skip)
     return ModelCheck(
         None,
         f"the controller says nothing about its robot model (no TOOL_POSE, no D-H table): the Cartesian result rests "
@@ -84,7 +91,14 @@ async def check_model(driver: RobotDriver, model: RobotModel, *, option: str = "
     )
 
 
-def _against_tool_pose(model: RobotModel, q: np.ndarray, pose: ToolPose, option: str) -> ModelCheck:
+def _next_step(option: str, skip: str | None, which: str = "") -> str:
+    """The end of a :class:`ModelMismatch`: what to give instead (``which``: a hint where to find
+    it), and how to skip the check."""
+    text = f"give {option} the model the controller runs{which}"
+    return text + (f", or {skip} to skip this check" if skip else "")
+
+
+def _against_tool_pose(model: RobotModel, q: np.ndarray, pose: ToolPose, option: str, skip: str | None) -> ModelCheck:
     mine = fk(model, q)
     theirs = np.array([pose.x, pose.y, pose.z])
     apart = float(np.linalg.norm(mine[:3, 3] - theirs))
@@ -98,7 +112,7 @@ def _against_tool_pose(model: RobotModel, q: np.ndarray, pose: ToolPose, option:
         raise ModelMismatch(
             f"{option} {model.name} is not the controller's robot: at the robot's joints it puts the tool at ({here}) "
             f"m, the controller reports ({there}) m, {apart * 1000:.1f} mm and {math.degrees(turned):.1f} deg apart; "
-            f"give {option} the model the controller runs (the one robot-server was started with)"
+            f"{_next_step(option, skip, ' (the one robot-server was started with)')}"
         )
     return ModelCheck(True, f"{option} {model.name} agrees with the controller's TOOL_POSE ({apart * 1000:.3f} mm)")
 
@@ -116,7 +130,7 @@ async def _dh_table(driver: RobotDriver) -> GetDhParametersReply | None:
     return None
 
 
-def _against_dh(model: RobotModel, reply: GetDhParametersReply, option: str) -> ModelCheck:
+def _against_dh(model: RobotModel, reply: GetDhParametersReply, option: str, skip: str | None) -> ModelCheck:
     rows = [joint.dh for joint in model.joints]
     theirs = reply.groups[0]
     if not any(v != 0.0 for link in theirs for v in (link.theta, link.d, link.a, link.alpha)):
@@ -127,24 +141,60 @@ def _against_dh(model: RobotModel, reply: GetDhParametersReply, option: str) -> 
             f"the controller sends its D-H table, but {option} {model.name} has none to compare: the Cartesian "
             f"result rests on {option} {model.name} being the controller's robot",
         )
+    known = [row for row in rows if row is not None]
     who = f"{option} {model.name}"
-    worst = _dh_difference(rows, theirs, 1.0, "m", who)
-    if not worst or not _dh_difference(rows, theirs, 1000.0, "mm", who):  # MotoPlus does not say its units
-        return ModelCheck(True, f"{who} agrees with the controller's D-H table")
-    raise ModelMismatch(
-        f"{option} {model.name} is not the controller's robot: its D-H table differs from the controller's "
-        f"({worst}); give {option} the model the controller runs"
-    )
+    joints = _plural(len(known), "joint")
+    used = _axes(theirs)  # the table's axes: up to its last row that is not all zero
+    if reply.axes < len(known):
+        differ = f"the controller's D-H table has {_plural(reply.axes, 'axis', 'axes')} per group, {who} has {joints}"
+    elif used > len(known):
+        k = len(known) + _axes(theirs[len(known) :]) - 1  # the last axis beyond the model's joints
+        extra = theirs[k]
+        differ = (
+            f"the controller's D-H table has {_plural(used, 'axis', 'axes')} in group 0, {who} has {joints} (axis "
+            f"{k + 1}: theta {extra.theta:.4g}, d {extra.d:.4g}, a {extra.a:.4g}, alpha {extra.alpha:.4g})"
+        )
+    else:
+        worst = _dh_difference(known, theirs, 1.0, "m", who)
+        if not worst or not _dh_difference(known, theirs, 1000.0, "mm", who):  # MotoPlus does not say its units
+            return ModelCheck(True, f"{who} agrees with the controller's D-H table")
+        if used < len(known):
+            differ = (
+                f"the controller's D-H table has {_plural(used, 'axis', 'axes')} in group 0, {who} has {joints} "
+                f"({worst})"
+            )
+        else:
+            differ = f"its D-H table differs from the controller's ({worst})"
+    raise ModelMismatch(f"{who} is not the controller's robot: {differ}; {_next_step(option, skip)}")
+
+
+def _plural(count: int, one: str, many: str | None = None) -> str:
+    return f"{count} {one if count == 1 else many or one + 's'}"
+
+
+def _axes(links: tuple[DhLink, ...]) -> int:
+    """How many axes a D-H group describes: up to its last row that is not all zero (MotoROS pads
+    a group to 8 axes with zeros)."""
+    used = 0
+    for k, link in enumerate(links):
+        if any(v != 0.0 for v in (link.theta, link.d, link.a, link.alpha)):
+            used = k + 1
+    return used
+
+
+def _angle_apart(mine: float, other: float) -> float:
+    """How far apart two angles are (rad), modulo a turn: in [0, pi]."""
+    return abs(math.remainder(mine - other, 2 * math.pi))
 
 
 def _dh_difference(
-    rows: list[tuple[float, float, float, float] | None], theirs: tuple[DhLink, ...], scale: float, unit: str, who: str
+    rows: list[tuple[float, float, float, float]], theirs: tuple[DhLink, ...], scale: float, unit: str, who: str
 ) -> str:
     """The largest difference of the two D-H tables beyond the tolerances (lengths times
-    ``scale``, in ``unit``), in words, or "" when they agree."""
+    ``scale``, in ``unit``; angles modulo a turn), in words, or "" when they agree. ``theirs``
+    has a row for each of ``rows`` (at least)."""
     worst, text = 1.0, ""
     for j, row in enumerate(rows):
-        assert row is not None
         link = theirs[j]
         for name, mine, other, angle in (
             ("theta", row[0], link.theta, True),
@@ -152,7 +202,12 @@ def _dh_difference(
             ("a", row[2], link.a, False),
             ("alpha", row[3], link.alpha, True),
         ):
-            off = abs(mine - other) / _DH_ANGLE if angle else abs(mine * scale - other) / (POSITION_TOLERANCE * scale)
+            if not math.isfinite(other):
+                off = math.inf  # NaN would compare as agreeing
+            elif angle:
+                off = _angle_apart(mine, other) / _DH_ANGLE
+            else:
+                off = abs(mine * scale - other) / (POSITION_TOLERANCE * scale)
             if off > worst:
                 there = f"{other:.4g} rad" if angle else f"{other:.4g} {unit}"
                 here = f"{mine:.4g} rad" if angle else f"{mine * scale:.4g} {unit}"

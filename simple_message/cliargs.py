@@ -13,6 +13,7 @@ argument types refuse nonsense at parse time (a usage error): numbers that must 
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import math
 import re
@@ -133,9 +134,11 @@ def options_after_command(
     """``argv`` with the options of ``common`` (the parent parser every subcommand of ``parser``
     shares) that were given before the subcommand moved after it, where argparse looks for them:
     ``robot-client --profile motoros status`` is ``robot-client status --profile motoros``. A bad
-    value there is ``parser``'s usage error (exit status 2); anything else before the subcommand
-    (``--help``, ``--version``, an option ``common`` does not have) leaves ``argv`` as it is, for
-    ``parser`` to answer or report."""
+    value there is ``parser``'s usage error (exit status 2), and so are, before the subcommand, an
+    option of a subcommand (it goes after it), an option no subcommand has (with a close name,
+    when there is one), and options with no subcommand after them (the subcommands listed).
+    ``--help`` and ``--version`` are left for ``parser`` to answer, with no subcommand after them
+    whatever options came before."""
     args = list(argv)
     probe = _Probe(add_help=False, parents=[common], allow_abbrev=False)  # --mode is not --model
     probe.add_argument("rest", nargs=argparse.REMAINDER)
@@ -144,13 +147,47 @@ def options_after_command(
     except _Unparsed as exc:
         parser.error(str(exc))
     rest = list(known.rest)
-    stray = [a for a in extras if a.startswith("-") and a.split("=")[0] not in ("-h", "--help", "--version")]
-    if stray and rest:
-        parser.error(f"{stray[0]} is not an option of {parser.prog} itself: a command's own options go after it")
+    answered = ("-h", "--help", "--version")
+    stray = [a.split("=")[0] for a in extras if a.startswith("-") and a.split("=")[0] not in answered]
+    commands = _subcommands(parser)
+    if stray:
+        name = stray[0]
+        options = _options(parser, commands)
+        if name not in options:
+            close = difflib.get_close_matches(name, sorted(options), n=1, cutoff=0.75)  # not --pose for --bogus
+            hint = f" (did you mean {close[0]}?)" if close else ""
+            parser.error(f"{name} is not an option of any {parser.prog} command{hint}")
+        takers = [command for command, sub in commands.items() if name in sub._option_string_actions]
+        parser.error(
+            f"{name} is not an option of {parser.prog} itself: a command's own options go after it"
+            + (f" ({', '.join(takers)} {'takes' if len(takers) == 1 else 'take'} {name})" if takers else "")
+        )
+    asked = [a for a in extras if a.split("=")[0] in answered]
+    if asked and not rest:
+        return asked[:1]  # the help or the version, whatever options came before
+    if args and not rest and commands:
+        parser.error(
+            f"a command is missing: {' '.join(args)} must be followed by one of {', '.join(commands)} "
+            f"({parser.prog} [OPTIONS] COMMAND [OPTIONS])"
+        )
     if extras or not rest or len(rest) == len(args):
         return args
     before = len(args) - len(rest)
     return [rest[0], *args[:before], *rest[1:]]
+
+
+def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    """``parser``'s subcommands by name (none when it has none)."""
+    found: dict[str, argparse.ArgumentParser] = {}
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            found.update(action.choices)
+    return found
+
+
+def _options(parser: argparse.ArgumentParser, commands: dict[str, argparse.ArgumentParser]) -> set[str]:
+    """Every option string of ``parser`` and of its subcommands."""
+    return {option for p in (parser, *commands.values()) for action in p._actions for option in action.option_strings}
 
 
 # -- argument types ------------------------------------------------------------------------------------

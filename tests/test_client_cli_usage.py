@@ -122,6 +122,7 @@ async def test_a_pose_move_with_a_model_that_is_not_the_controllers_is_refused_n
         assert code == cli.EXIT_FAILED, out
         assert "robot-client: --model jibot_zxs is not the controller's robot: " in err
         assert "give --model the model the controller runs" in err
+        assert err.rstrip().endswith(", or --no-model-check to skip this check"), err  # and how to skip the check
         assert (compared == "TOOL_POSE") == ("mm and" in err)  # TOOL_POSE: how far apart the tools are
         assert np.array_equal(np.array(emu.cell.groups[0].command.command_position), before)  # nothing moved
         code, out = await client("move", "--pose", "0.5", "0.1", "0.3", "--model", "puma560", *ports)
@@ -208,7 +209,7 @@ async def test_the_controller_log_says_a_straight_line_ended_not_the_trajectory_
     done = [r.getMessage() for r in caplog.records if " done: " in r.getMessage()]
     assert len(done) == 2, done
     assert done[0].startswith("group 0: trajectory 1 done: 2 points, settled after "), done
-    assert done[1].startswith("group 0: straight lines done: 1 lines, settled after "), done
+    assert done[1].startswith("group 0: straight lines done: 1 line, settled after "), done
 
 
 async def test_the_demo_against_a_controller_with_another_robot_is_refused_naming_model(

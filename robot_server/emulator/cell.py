@@ -332,12 +332,14 @@ class RobotCell:
                 g = self.groups[i]
                 kind = self._kind[i]
                 what = f"trajectory {g.trajectories}" if kind == "trajectory" else kind
+                count = self._points[i]
+                noun = "line" if kind == "straight lines" else "point"
                 log.info(
                     "group %d: %s done: %d %s, settled after %.3f s",
                     i,
                     what,
-                    self._points[i],
-                    "lines" if kind == "straight lines" else "points",
+                    count,
+                    noun if count == 1 else noun + "s",
                     g.time - self._started[i],
                 )
         self._was_moving = moving
