@@ -58,6 +58,7 @@ from .driver import STOP_SETTLE, DriverError, JointState, LineGoal, LineRefused,
 from .identity import check_model
 from .planner import Planner, PlanningError, pose
 from .trajectory import Trajectory, TrajectoryError, recording
+from .waiting import joints_still
 
 __all__ = ["main", "parser"]
 
@@ -644,8 +645,6 @@ async def _with_driver(args: argparse.Namespace, model: RobotModel, out: TextIO)
             await driver.close()
 
 
-#: a joint slower than this (rad/s) is at rest, for where Ctrl-C left the robot
-REST_VELOCITY = 5e-3
 #: a robot that moved less than this (rad, every joint) from Ctrl-C until it was at rest was not moving
 NOT_MOVED = 1e-5
 
@@ -658,7 +657,7 @@ async def _after_interrupt(driver: RobotDriver) -> None:
     before = driver.joint_state  # the latest state when the command was cancelled
     if before is None:
         return  # no joint state yet: nothing was sent to move the robot
-    rest = await _wait_for_rest(driver, STOP_SETTLE)
+    rest = await driver.settle_after_stop(STOP_SETTLE)
     if rest is None:
         if driver.status is not None and driver.status.in_motion == TriState.TRUE:
             print(
@@ -669,55 +668,11 @@ async def _after_interrupt(driver: RobotDriver) -> None:
         return
     q = " ".join(f"{round(float(x), 4) + 0.0:.4f}" for x in rest.positions)  # + 0.0: no -0.0000
     moved = float(np.max(np.abs(rest.positions - before.positions)))
-    still = before.velocities is None or float(np.max(np.abs(before.velocities))) < REST_VELOCITY
+    still = before.velocities is None or joints_still(before.velocities, None, 0.0)
     if moved < NOT_MOVED and still:
         print(f"robot-client: the robot was not moving: it is at rest at [{q}]", file=sys.stderr, flush=True)
     else:
         print(f"robot-client: stopped: the robot is at rest at [{q}]", file=sys.stderr, flush=True)
-
-
-async def _wait_for_rest(driver: RobotDriver, bound: float) -> JointState | None:
-    """The first joint state sampled after STATUS said the robot is at rest (in_motion not TRUE)
-    with every joint slower than :data:`REST_VELOCITY` (the velocities the controller sends, else
-    the change from the sample before), within ``bound`` s. A state that arrived before that
-    STATUS is not taken: it may show the robot still braking. When ``bound`` passes with STATUS
-    saying at rest but the joints never that slow, the latest state sampled after that STATUS;
-    None when there was none."""
-    rest_after: float | None = None  # when the sample current as STATUS said at rest arrived
-    previous: JointState | None = None
-    latest: JointState | None = None  # the latest state sampled after STATUS said at rest
-    with contextlib.suppress(DriverError, TimeoutError):
-        async with asyncio.timeout(bound):
-            while True:
-                state = await driver.wait_state()
-                status = driver.status
-                if status is None or status.in_motion == TriState.TRUE:
-                    rest_after, latest = None, None
-                elif rest_after is None:
-                    rest_after = state.received
-                elif state.received > rest_after:
-                    if _slow(state, previous):
-                        return state
-                    latest = state
-                if previous is None or state.received != previous.received:
-                    previous = state
-    return latest
-
-
-def _slow(state: JointState, previous: JointState | None) -> bool:
-    """Every joint of ``state`` slower than :data:`REST_VELOCITY`: its velocities, or (the controller
-    sends none) the change from ``previous``, the sample before."""
-    if state.velocities is not None:
-        return float(np.max(np.abs(state.velocities))) < REST_VELOCITY
-    if previous is None:
-        return False
-    if state.stamp is not None and previous.stamp is not None and state.stamp > previous.stamp:
-        elapsed = state.stamp - previous.stamp
-    else:
-        elapsed = state.received - previous.received
-    if elapsed <= 0.0:
-        return False
-    return float(np.max(np.abs(state.positions - previous.positions))) < REST_VELOCITY * elapsed
 
 
 def _capture(args: argparse.Namespace) -> contextlib.AbstractContextManager[CaptureWriter | None]:

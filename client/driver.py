@@ -96,12 +96,12 @@ from simple_message.messages import (
 from simple_message.wire import WireFormat
 
 from .errors import DriverError, ExecutionAborted, _InFlight, _NotSent
-from .limits import capped_velocities, check_limits, path_deviation
+from .limits import check_limits, path_deviation, within_speeds
 from .lines import CartesianLines, LineGoal, LineRefused
 from .reasons import moving_elsewhere, status_faults, status_why
 from .sending import TrajectorySender
 from .trajectory import Trajectory
-from .waiting import Look, Stall, Wait
+from .waiting import Look, Stall, Wait, joints_still
 
 __all__ = ["RobotDriver", "DriverError", "ExecutionAborted", "LineRefused", "LineGoal", "JointState", "Mode"]
 
@@ -659,8 +659,9 @@ class RobotDriver:
                 f"the trajectory has {trajectory.dof} joints, the controller reports {state.positions.size}"
             )
         if self.model is not None and self.check_limits:
+            if self.dialect.timed:  # the others move at their own speed, whatever the points' timing
+                trajectory = within_speeds(trajectory, self.model, velocities=self.dialect.motion_control)
             check_limits(trajectory, self.model, speeds=self.dialect.timed)
-            trajectory = capped_velocities(trajectory, self.model)
         gap = float(np.max(np.abs(trajectory.positions[0] - state.positions[: trajectory.dof])))
         busy = self.moving_elsewhere()
         if busy is not None and (gap > self.goal_tolerance or self._motion_closed()):
@@ -736,19 +737,33 @@ class RobotDriver:
 
     async def settle_after_stop(self, bound: float = STOP_SETTLE) -> JointState | None:
         """After a cancelled motion (its STOP sent and acknowledged): wait, at most ``bound`` s,
-        for the robot to be at rest (STATUS in_motion FALSE on a joint state), so that a client
-        that then leaves does not leave while the robot brakes (the controller would take that for
-        a lost client; ``robot-client`` does this on Ctrl-C). The state it came to rest in is
-        :attr:`stopped_at` (None if it did not within the bound). Returns it."""
-        self.stopped_at = None
+        for the robot to be at rest, so that a client that then leaves does not leave while the
+        robot brakes (the controller would take that for a lost client; ``robot-client`` does this
+        on Ctrl-C). At rest is the first joint state sampled after STATUS said in_motion not TRUE
+        with every joint still (:func:`.waiting.joints_still`): a state that came before that STATUS
+        may show the robot still braking. When ``bound`` passes with STATUS saying at rest but the
+        joints never that slow, the latest state sampled after that STATUS; None when there was
+        none. It is also :attr:`stopped_at`."""
+        rest_after: float | None = None  # when the state current as STATUS said at rest arrived
+        previous: JointState | None = None
+        latest: JointState | None = None
         with contextlib.suppress(DriverError, TimeoutError):
             async with asyncio.timeout(bound):
                 while True:
                     state = await self.wait_state()
-                    if state.status is not None and state.status.in_motion == TriState.FALSE:
-                        self.stopped_at = state
-                        break
-        return self.stopped_at
+                    status = self._status
+                    if status is None or status.in_motion == TriState.TRUE:
+                        rest_after, latest = None, None
+                    elif rest_after is None:
+                        rest_after = state.received
+                    elif state.received > rest_after:
+                        latest = state
+                        if _still(state, previous):
+                            break
+                    if previous is None or state.received != previous.received:
+                        previous = state
+        self.stopped_at = latest
+        return latest
 
     async def _stop_quietly(self) -> None:
         """Stop after an abort; if the motion link is down, wait (bounded) for it to come back."""
@@ -788,3 +803,15 @@ class RobotDriver:
         duration = trajectory.duration if self.dialect.timed else math.inf
         wait = Wait("point", "the goal", "the trajectory", duration, moves, stops=False)
         return await self._wait_done(wait, look, confirmed)
+
+
+def _still(state: JointState, previous: JointState | None) -> bool:
+    """Every joint of ``state`` still (:func:`.waiting.joints_still`), by its velocities or by the
+    change since ``previous`` over the controller's sample times (else the receipt times)."""
+    if state.velocities is not None or previous is None:
+        return joints_still(state.velocities, None, 0.0)
+    if state.stamp is not None and previous.stamp is not None and state.stamp > previous.stamp:
+        elapsed = state.stamp - previous.stamp
+    else:
+        elapsed = state.received - previous.received
+    return joints_still(None, state.positions - previous.positions, elapsed)

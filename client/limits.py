@@ -14,7 +14,7 @@ from robot_server import RobotModel
 from .errors import DriverError
 from .trajectory import Trajectory
 
-__all__ = ["check_limits", "capped_velocities", "path_deviation", "MEASURED_OVERSHOOT"]
+__all__ = ["check_limits", "within_speeds", "path_deviation", "MEASURED_OVERSHOOT"]
 
 Array = NDArray[np.float64]
 
@@ -61,34 +61,46 @@ def check_limits(trajectory: Trajectory, model: RobotModel, *, speeds: bool = Tr
             )
 
 
-#: how far beyond a joint's maximum speed a waypoint's velocity is taken for a measurement's
-#: overshoot (a recorded state: the drive's actual speed passes the commanded one by a little as it
-#: settles) and sent at the maximum instead
+#: how far beyond a joint's maximum speed a waypoint's velocity, or a segment's mean speed, is taken
+#: for a measurement's overshoot (a recorded state: the drive's actual speed passes the commanded one
+#: by a little as it settles) and brought back to the maximum instead of refused
 MEASURED_OVERSHOOT = 0.02
 
 
-def capped_velocities(trajectory: Trajectory, model: RobotModel) -> Trajectory:
-    """``trajectory`` with its waypoint velocities (when it has them) within the joints' maximum
-    speeds. A recording carries the speeds the joints were measured at, which pass the commanded
-    ones by a fraction of a percent as a drive settles (a motion at full speed: 3.1433 rad/s for a
-    3.1416 rad/s joint); MotoROS refuses a point whose velocity is beyond the maximum speed
-    (INVALID, DATA_SPEED: motoman_driver MotoPlus/MotionServer.c:1313), so such a velocity is sent
-    at the maximum. One beyond it by more than :data:`MEASURED_OVERSHOOT` is no measurement's: the
-    trajectory is refused before anything is sent, naming the point and the joint."""
-    v = trajectory.velocities
-    if v is None:
-        return trajectory
+def within_speeds(trajectory: Trajectory, model: RobotModel, *, velocities: bool = True) -> Trajectory:
+    """``trajectory`` with its speeds within the joints' maximum where they pass it by no more than
+    :data:`MEASURED_OVERSHOOT`: a recording carries the speeds the joints were measured at, and a
+    joint that cruised at its maximum is measured a fraction of a percent above it (3.1433 rad/s for
+    a 3.1416 rad/s joint), and so is its mean speed over the segments its velocities time
+    (:func:`.trajectory.recording`). A waypoint velocity beyond the maximum is sent at it (MotoROS
+    refuses a point whose velocity is beyond it: INVALID, DATA_SPEED, motoman_driver
+    MotoPlus/MotionServer.c:1313); a segment whose mean speed is beyond it takes the time the maximum
+    needs (microseconds: 0.05 % of a 24 ms segment is 12 us), and the points after it move later by
+    as much. One beyond by more is no measurement's: a velocity is refused here, naming the point and
+    the joint, a segment by :func:`check_limits`. ``velocities``: the waypoint velocities are sent
+    (MotoROS); the other controllers get none, and the points' velocities are left as they are."""
     vmax = model.max_velocity
-    over = np.abs(v) > vmax * (1.0 + MEASURED_OVERSHOOT)
-    if over.any():
-        k, j = (int(i) for i in np.argwhere(over)[0])
-        unit = "m/s" if model.joints[j].type.value == "prismatic" else "rad/s"
-        raise DriverError(
-            f"point {k}: joint {j + 1} ({model.joint_names[j]}) has the velocity {v[k, j]:.4g} {unit}, beyond its "
-            f"maximum {vmax[j]:.4g} {unit}"
-        )
     # a hair inside: the wire's float32 rounds the maximum itself up by up to 6e-8 of it
     cap = vmax * (1.0 - 1e-6)
-    if not np.any(np.abs(v) > cap):
+    v = trajectory.velocities
+    if v is not None and velocities:
+        over = np.abs(v) > vmax * (1.0 + MEASURED_OVERSHOOT)
+        if over.any():
+            k, j = (int(i) for i in np.argwhere(over)[0])
+            unit = "m/s" if model.joints[j].type.value == "prismatic" else "rad/s"
+            raise DriverError(
+                f"point {k}: joint {j + 1} ({model.joint_names[j]}) has the velocity {v[k, j]:.4g} {unit}, beyond "
+                f"its maximum {vmax[j]:.4g} {unit}"
+            )
+        if np.any(np.abs(v) > cap):
+            trajectory = dataclasses.replace(trajectory, velocities=np.clip(v, -cap, cap))
+    dt = np.diff(trajectory.times)
+    if dt.size == 0:
         return trajectory
-    return dataclasses.replace(trajectory, velocities=np.clip(v, -cap, cap))
+    need = np.max(np.abs(np.diff(trajectory.positions, axis=0)) / cap, axis=1)
+    stretch = (need > dt) & (need <= dt * (1.0 + MEASURED_OVERSHOOT))
+    if not stretch.any():
+        return trajectory
+    dt = np.where(stretch, need, dt)
+    times = np.concatenate([trajectory.times[:1], trajectory.times[0] + np.cumsum(dt)])
+    return dataclasses.replace(trajectory, times=times)

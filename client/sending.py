@@ -280,8 +280,9 @@ def _on_milliseconds(times: Array, positions: Array, velocities: Array) -> tuple
     of its own time: at 2 rad/s over a 24 ms segment the cubic's acceleration is off by some
     10 rad/s^2, and the controller must slow the whole trajectory down for it. So each point is
     moved to its nearest millisecond (after the one before it), with the position and velocity the
-    trajectory's own cubics give there; the first keeps its state, and the last, reached at rest or
-    not, keeps its state at the millisecond after its time."""
+    trajectory's own cubics give there (the velocity kept between those of the two points around it);
+    the first keeps its state, and the last, reached at rest or not, keeps its state at the
+    millisecond after its time."""
     ms = times * 1000.0
     grid = np.round(ms)
     if np.all(np.abs(ms - grid) <= 1e-6 * np.maximum(1.0, np.abs(ms))):
@@ -302,7 +303,9 @@ def _on_milliseconds(times: Array, positions: Array, velocities: Array) -> tuple
         d00, d10, d01, d11 = 6 * s**2 - 6 * s, 3 * s**2 - 4 * s + 1, -6 * s**2 + 6 * s, 3 * s**2 - 2 * s
         p0, p1, v0, v1 = positions[i], positions[i + 1], velocities[i], velocities[i + 1]
         q[k] = h00 * p0 + h10 * h * v0 + h01 * p1 + h11 * h * v1
-        v[k] = (d00 * p0 + d01 * p1) / h + d10 * v0 + d11 * v1
+        # within its neighbours' velocities: the cubic may bulge past them, and past a speed limit
+        # that they are at (MotoROS refuses a velocity beyond it)
+        v[k] = np.clip((d00 * p0 + d01 * p1) / h + d10 * v0 + d11 * v1, np.minimum(v0, v1), np.maximum(v0, v1))
     return new, q, v
 
 

@@ -321,31 +321,42 @@ def recording(
 
 
 #: a segment is re-timed from its velocities when its joint's mean speed is at least this share of
-#: the recording's top speed (slower, the ratio of two small numbers is noise) ...
-_RETIME_SPEED = 0.1
-#: ... and the time found is within these multiples of the publishing period (else: the slot's)
-_RETIME_RANGE = (0.5, 2.0)
+#: the recording's top speed (slower, the ratio of two small numbers is noise; positions are float32,
+#: 6e-8 rad apart near 1 rad, and 1 % of a 3 rad/s joint covers 7.5e-4 rad in 25 ms) ...
+_RETIME_SPEED = 0.01
+#: ... and the time found is within these multiples of the publishing period (else: the slot's). A
+#: controller that samples on its servo ticks and publishes on a timer has intervals of 12 to 36 ms
+#: for a 25 ms period (measured on the emulator: a round that came late is followed by one 12 ms
+#: after it); the ends of a motion, slow but braking hardest, are where a slot's time costs most
+_RETIME_RANGE = (0.2, 4.0)
 
 
 def _timed_by_velocity(t: Array, q: Array, v: Array) -> Array:
     """Sample times made consistent with the velocities a controller sends with each state (MotoROS's
-    JOINT_FEEDBACK, without a time): a moving segment takes the distance its fastest joint covers
-    over that joint's mean speed at its two ends (exact at a constant acceleration), where receipt
-    times (even on a grid of the publishing period) jitter by a servo tick or more. Slow and
+    JOINT_FEEDBACK, without a time): a moving segment takes the distance a joint covers over that
+    joint's mean speed at its two ends, where receipt times (even on a grid of the publishing period)
+    jitter by a servo tick or more. That is exact at a constant acceleration, but a drive's measured
+    speed is a difference over its last servo period, half a period late: for a joint speeding up or
+    slowing down the quotient is off by that lag times its change of speed over its mean speed (a
+    joint braking at 10 rad/s^2 from 1.3 rad/s: 1 ms of 28). So the segment is timed by the joint whose
+    speed changes least for its mean speed, among those moving (one cruising is exact). Slow and
     standing segments keep their slots."""
     h = np.diff(t)
     period = float(np.median(h))
     dq = np.diff(q, axis=0)
-    joint = np.argmax(np.abs(dq), axis=1)
-    rows = np.arange(dq.shape[0])
-    covered = np.abs(dq[rows, joint])
-    mean = 0.5 * (v[:-1][rows, joint] + v[1:][rows, joint]) * np.sign(dq[rows, joint])
     top = float(np.max(np.abs(v)))
     if top <= 0.0:
         return t
+    mean = 0.5 * (v[:-1] + v[1:]) * np.sign(dq)  # > 0: moving the way it went
+    moving = mean >= _RETIME_SPEED * top
     with np.errstate(divide="ignore", invalid="ignore"):
-        estimate = np.where(mean > 0.0, covered / mean, np.inf)
-    usable = (mean >= _RETIME_SPEED * top) & (estimate >= _RETIME_RANGE[0] * period)
+        change = np.where(moving, np.abs(np.diff(v, axis=0)) / mean, np.inf)
+    joint = np.argmin(change, axis=1)
+    rows = np.arange(dq.shape[0])
+    chosen = mean[rows, joint]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        estimate = np.where(moving[rows, joint], np.abs(dq[rows, joint]) / chosen, np.inf)
+    usable = moving[rows, joint] & (estimate >= _RETIME_RANGE[0] * period)
     usable &= estimate <= _RETIME_RANGE[1] * period
     h = np.where(usable, estimate, h)
     return np.concatenate([[0.0], np.cumsum(h)])

@@ -3,7 +3,9 @@
 :meth:`~.driver.RobotDriver._wait_done` watches the joint states until the controller has done what
 was sent (a trajectory, straight lines): each state is looked at (:class:`Look`: at the goal, moved
 from the start, how far off), against what the wait is for (:class:`Wait`), and a robot standing
-still short of its goal for too long (:class:`Stall`) ends the wait.
+still short of its goal for too long (:class:`Stall`) ends the wait. After a STOP,
+:meth:`~.driver.RobotDriver.settle_after_stop` waits for a state whose joints are all slower than
+:data:`REST_VELOCITY` (:func:`joints_still`).
 """
 
 from __future__ import annotations
@@ -12,7 +14,23 @@ import time
 from dataclasses import dataclass
 from typing import NamedTuple
 
-__all__ = ["Look", "Stall", "Wait"]
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["Look", "REST_VELOCITY", "Stall", "Wait", "joints_still"]
+
+#: a joint slower than this (rad/s or m/s) is at rest
+REST_VELOCITY = 5e-3
+
+
+def joints_still(velocities: NDArray[np.float64] | None, moved: NDArray[np.float64] | None, elapsed: float) -> bool:
+    """Every joint slower than :data:`REST_VELOCITY`: by the ``velocities`` the controller sends, or
+    (it sends none) by how far each ``moved`` since the sample ``elapsed`` s before (False without one)."""
+    if velocities is not None:
+        return float(np.max(np.abs(velocities))) < REST_VELOCITY
+    if moved is None or elapsed <= 0.0:
+        return False
+    return float(np.max(np.abs(moved))) < REST_VELOCITY * elapsed
 
 
 class Look(NamedTuple):

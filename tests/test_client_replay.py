@@ -15,9 +15,9 @@ import pytest
 
 from client.driver import RobotDriver
 from client.errors import DriverError
-from client.limits import MEASURED_OVERSHOOT, capped_velocities
+from client.limits import MEASURED_OVERSHOOT, within_speeds
 from client.sending import _on_milliseconds
-from client.trajectory import Trajectory
+from client.trajectory import Trajectory, recording
 from robot_server import load_model
 from robot_server.emulator.motoros import motoros_milliseconds
 from tests.stepped import advance_until, settle, stepped_emulator
@@ -75,6 +75,24 @@ async def test_a_recording_replays_in_its_recorded_time(
     assert not [r for r in caplog.records if "too fast" in r.getMessage()]
 
 
+@pytest.mark.slow
+async def test_motoros_states_as_received_replay_in_their_time(tmp_path: Path) -> None:
+    """The states a client received from a MotoROS emulator (positions and velocities, no time; a
+    separate process moved the robot at its full speed), made a recording as ``robot-client record``
+    makes it, replay within 2 % (timed by the fastest joint, they replayed x1.15 slower)."""
+    data = np.load(DATA / "motoros_states_puma560.npz")
+    states = recording(
+        data["received"].tolist(),
+        data["positions"].astype(float).tolist(),
+        data["velocities"].astype(float).tolist(),
+        PUMA.joint_names,
+    )
+    path = tmp_path / "states.csv"
+    states.save(path)
+    recorded, replayed = await replay(path, "motoros")
+    assert abs(replayed / recorded - 1.0) <= 0.02, (recorded, replayed)
+
+
 def test_motoros_points_go_on_its_millisecond_grid_on_the_trajectorys_own_curve() -> None:
     """MotoROS truncates a time to whole milliseconds (MotionServer.c:2094): points off the grid
     move to their nearest millisecond, with the state the trajectory's cubics give there, so the
@@ -98,7 +116,7 @@ def test_measured_speeds_a_hair_over_the_limit_are_sent_at_it_and_more_is_refuse
     q = np.zeros((3, 6))
     v = np.zeros((3, 6))
     v[1, 5] = -vmax[5] * (1 + 0.0006)  # a drive's overshoot, as the emulator's motor model measures it
-    capped = capped_velocities(Trajectory(np.array([0.0, 0.025, 0.05]), q, v), PUMA)
+    capped = within_speeds(Trajectory(np.array([0.0, 0.025, 0.05]), q, v), PUMA)
     assert capped.velocities is not None
     # within the limit once on the wire (float32)
     assert abs(float(np.float32(capped.velocities[1, 5]))) <= vmax[5]
@@ -108,9 +126,30 @@ def test_measured_speeds_a_hair_over_the_limit_are_sent_at_it_and_more_is_refuse
         DriverError,
         match=r"point 1: joint 6 \(joint_6\) has the velocity 3\.267 rad/s, beyond its maximum 3\.142 rad/s",
     ):
-        capped_velocities(Trajectory(np.array([0.0, 0.025, 0.05]), q, v), PUMA)
+        within_speeds(Trajectory(np.array([0.0, 0.025, 0.05]), q, v), PUMA)
     plain = Trajectory(np.array([0.0, 0.025, 0.05]), q, np.zeros((3, 6)))
-    assert capped_velocities(plain, PUMA) is plain
+    assert within_speeds(plain, PUMA) is plain
+
+
+def test_a_segment_a_hair_faster_than_a_joint_takes_the_time_its_maximum_needs() -> None:
+    """A joint that cruised at its maximum speed is measured a hair above it, and so is its mean speed
+    over the segments its velocities time: such a segment takes the time the maximum needs (the
+    points after it move later by as much); one beyond by more is still refused."""
+    from client.limits import check_limits
+
+    vmax = float(PUMA.max_velocity[5])
+    times = np.array([0.0, 0.025, 0.05, 0.075])
+    q = np.zeros((4, 6))
+    q[:, 5] = [0.0, 0.01, 0.01 + 0.025 * vmax * 1.0005, 0.02 + 0.025 * vmax * 1.0005]
+    fixed = within_speeds(Trajectory(times, q), PUMA)
+    need = 0.025 * 1.0005 / (1.0 - 1e-6)
+    assert fixed.times.tolist() == pytest.approx([0.0, 0.025, 0.025 + need, 0.05 + need], abs=1e-12)
+    check_limits(fixed, PUMA)  # within now
+    q[2:, 5] += 0.025 * vmax * 0.05
+    too_fast = within_speeds(Trajectory(times, q), PUMA)
+    assert too_fast.times.tolist() == times.tolist()
+    with pytest.raises(DriverError, match=r"segment 1->2: joint 6 \(joint_6\) would move at"):
+        check_limits(too_fast, PUMA)
 
 
 def test_the_driver_says_when_motoros_cubics_would_be_too_fast(caplog: pytest.LogCaptureFixture) -> None:

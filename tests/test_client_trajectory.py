@@ -141,3 +141,20 @@ def test_a_recording_without_sample_times_is_timed_by_the_velocities_sent_with_i
     # standing still, the velocities say nothing: the slots stay
     still = recording(received, [[0.0]] * 8, [[0.0]] * 8, ("j",))
     assert still.times.tolist() == pytest.approx([0.025 * k for k in range(8)])
+
+
+def test_a_recording_is_timed_by_the_joint_whose_measured_speed_changes_least() -> None:
+    """A drive's measured speed is a difference over its last servo period, half a period late: a
+    joint braking hard gives a time off by that lag, a cruising one the exact time. The segment is
+    timed by the cruising joint, and a state 12 ms after the one before (a round that came late,
+    then one on time) keeps that time instead of the slot's."""
+    from client.trajectory import recording
+
+    true = np.cumsum([0.0, 0.024, 0.028, 0.012, 0.036, 0.024])
+    lag = 0.0005
+    # joint 1 brakes at 10 rad/s^2 from 2 rad/s (measured half a millisecond late), joint 2 cruises at 0.7
+    q = [[2.0 * x - 5.0 * x * x, 0.7 * x] for x in true]
+    v = [[2.0 - 10.0 * (x - lag), 0.7] for x in true]
+    received = [3.0 + 0.025 * k for k in range(6)]
+    t = recording(received, q, v, ("a", "b"))
+    assert t.times.tolist() == pytest.approx(true.tolist(), abs=1e-9)
