@@ -324,6 +324,10 @@ def _warn_cubics(times: Array, positions: Array, velocities: Array, limit: Array
     start = (6.0 * d / h - 4.0 * v0 - 2.0 * v1) / h
     end = (-6.0 * d / h + 2.0 * v0 + 4.0 * v1) / h
     ratio = np.maximum(np.abs(start), np.abs(end)) / limit
+    # a segment from or to rest is the controller's to shape (the emulator starts a motion from rest
+    # jerk-limited); the velocities the points give matter between moving points
+    moving = np.any(velocities != 0.0, axis=1)
+    ratio[~(moving[:-1] & moving[1:])] = 0.0
     if not np.any(ratio > 1.0 + 1e-6):
         return
     k, j = (int(i) for i in np.unravel_index(int(np.argmax(ratio)), ratio.shape))

@@ -159,8 +159,8 @@ def test_the_driver_says_when_motoros_cubics_would_be_too_fast(caplog: pytest.Lo
     from client.sending import _warn_cubics
 
     t = np.array([0.0, 0.024, 0.048])
-    q = np.array([[0.0] * 6, [0.003] * 6, [0.012] * 6])
-    v = np.array([[0.0] * 6, [0.0] * 6, [0.5] * 6])  # velocities that do not match the positions
+    q = np.array([[0.0] * 6, [0.0024] * 6, [0.012] * 6])
+    v = np.array([[0.1] * 6, [0.1] * 6, [0.5] * 6])  # the second segment's do not match its positions
     with caplog.at_level(logging.WARNING, logger="client.driver"):
         _warn_cubics(t, q, v, PUMA.max_acceleration)
     assert "accelerate joint 1 up to" in caplog.text and "segment 1->2" in caplog.text
@@ -170,4 +170,6 @@ def test_the_driver_says_when_motoros_cubics_would_be_too_fast(caplog: pytest.Lo
     smooth_v = np.outer((30 * s**2 - 60 * s**3 + 30 * s**4) / 1.0, np.full(6, 0.2))
     with caplog.at_level(logging.WARNING, logger="client.driver"):
         _warn_cubics(s, smooth_q, smooth_v, PUMA.max_acceleration)
+        # from rest to rest in one segment: the controller's to shape (a jerk-limited start), no warning
+        _warn_cubics(np.array([0.0, 0.3]), np.array([[0.0] * 6, [0.5] * 6]), np.zeros((2, 6)), PUMA.max_acceleration)
     assert caplog.text == ""
