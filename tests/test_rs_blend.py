@@ -162,6 +162,33 @@ def test_the_jerk_never_pushes_the_end_acceleration_past_the_acceleration_limit(
     assert mirrored == -10.0
 
 
+def test_after_a_kink_the_through_state_keeps_the_segment_within_the_acceleration_limit() -> None:
+    """A wrist joint breaking away from rest in a recording (the motor model's friction): 1.4 mrad in
+    20 ms from nearly at rest. The three-point estimate's quintic peaks at 11 rad/s^2 between the
+    points, though the points ask for far less; a slightly faster velocity at the point (the data's
+    own speed rises faster than the estimate) keeps it within the 10 rad/s^2 limit, and the
+    trajectory need not slow down for it. Without a limit given, the estimate stands."""
+    start = State(np.array([0.0]), np.array([0.0038]), np.array([0.7536]))
+
+    def through(acceleration: np.ndarray | None) -> State:
+        return through_state(
+            start,
+            0.02,
+            np.array([0.0014]),
+            after=np.array([0.0063]),
+            after_duration=0.0348,
+            before=np.array([0.0]),
+            before_duration=0.02,
+            jerk=np.array([500.0]),
+            acceleration=acceleration,
+        )
+
+    plain, kept = through(None), through(np.array([10.0]))
+    peak = [max(-lo[0], hi[0]) for lo, hi in (quintic_hermite(start, s, 0.02).extremes(2) for s in (plain, kept))]
+    assert peak[0] > 11.0 and peak[1] <= 10.0
+    assert plain.velocity[0] == pytest.approx(0.0958, abs=1e-4) and 0.1 < kept.velocity[0] < 0.13
+
+
 # -- streamed trajectories ----------------------------------------------------------------------
 
 

@@ -128,6 +128,19 @@ def through_state(
         if _harmless(first, t1, p, (p2, t2), (v_est, a_est), limits=(low_limit, high_limit)):
             v, low, high = v_est, -math.inf, math.inf
         a = _jerk_limited(first, t1, (p, v), a_est, (low, high), jerk=j, acceleration=a_limit)
+        if _within(a_est, a0, a_limit) and _peak(first, t1, (p, v), a) > a_limit:
+            # the points are within the limit here, the segment to them is not (after a kink in
+            # the data): an end acceleration that keeps it within, at the nearest velocity the
+            # shape allows that has one (the jerk then kept within what is left, where it can be)
+            interval = _acceleration_interval(first, t1, (p, v), (low, high), a_limit)
+            for factor in _VELOCITY_FACTORS if interval is None else ():
+                v_c, low_c, high_c = _shape(first, t1, p, (p2, t2), v_est * factor, a=a_est)
+                interval = _acceleration_interval(first, t1, (p, v_c), (low_c, high_c), a_limit)
+                if interval is not None:
+                    v = v_c
+                    break
+            if interval is not None:
+                a = _jerk_limited(first, t1, (p, v), a_est, interval, jerk=j, acceleration=a_limit)
         v_out.append(v)
         a_out.append(a)
     return State(position, np.array(v_out), np.array(a_out))
@@ -230,6 +243,16 @@ def _harmless(
 #: the end acceleration's weight in the jerk there: j(s) = j0(s) + a1 (3 - 24 s + 30 s^2) / T
 _JERK_SAMPLES = [k / 6.0 for k in range(7)]
 _JERK_WEIGHTS = [3.0 - 24.0 * s + 30.0 * s * s for s in _JERK_SAMPLES]
+#: where the acceleration is sampled (not at the start, which is given; at the end, which is the
+#: choice), and the end acceleration's weight in it there: a(s) = a0(s) + a1 (3 s - 12 s^2 + 10 s^3)
+_ACCELERATION_SAMPLES = [k / 8.0 for k in range(1, 9)]
+_ACCELERATION_WEIGHTS = [3.0 * s - 12.0 * s * s + 10.0 * s * s * s for s in _ACCELERATION_SAMPLES]
+#: the share of the acceleration limit the samples are kept within
+_ACCELERATION_MARGIN = 0.96
+#: the velocities tried, as multiples of the estimate, when no end acceleration keeps a segment
+#: within the acceleration limit at the estimate: nearest first, faster before slower (after a
+#: joint breaks away from rest the data's velocity rises faster than the three-point estimate)
+_VELOCITY_FACTORS = (1.1, 0.9, 1.2, 0.8, 1.35, 1.5, 0.65)
 
 
 def _jerk_limited(
@@ -258,12 +281,12 @@ def _jerk_limited(
     p, v = end
     low, high = bounds
     chosen = min(max(a, low), high)
-    if math.isinf(jerk):
-        return chosen
     delta = p - p0
     c3 = (20.0 * delta - (8.0 * v + 12.0 * v0) * t - 3.0 * a0 * t * t) / 2.0
     c4 = (-30.0 * delta + (14.0 * v + 16.0 * v0) * t + 3.0 * a0 * t * t) / 2.0
     c5 = (12.0 * delta - 6.0 * (v + v0) * t - a0 * t * t) / 2.0
+    if math.isinf(jerk):
+        return chosen
     t3 = t * t * t
     lower, upper = low, high
     for s, g in zip(_JERK_SAMPLES, _JERK_WEIGHTS, strict=True):
@@ -279,6 +302,57 @@ def _jerk_limited(
         return chosen
     cap = max(acceleration, abs(chosen))
     return min(max(min(max(chosen, lower), upper), -cap), cap)
+
+
+def _within(estimate: float, start: float, acceleration: float) -> bool:
+    """The points are not too fast here: the estimated acceleration and the segment's start are
+    within the limit (else the whole trajectory slows down for it, as before)."""
+    return math.isfinite(acceleration) and abs(estimate) <= acceleration and abs(start) <= acceleration
+
+
+def _peak(start: tuple[float, float, float], t: float, end: tuple[float, float], a: float) -> float:
+    """One joint: the largest acceleration of the quintic from ``start`` to ``end`` (position,
+    velocity) and the end acceleration ``a`` over ``t``, at the eight instants sampled."""
+    p0, v0, a0 = start
+    p, v = end
+    delta = p - p0
+    c3 = (20.0 * delta - (8.0 * v + 12.0 * v0) * t - 3.0 * a0 * t * t) / 2.0
+    c4 = (-30.0 * delta + (14.0 * v + 16.0 * v0) * t + 3.0 * a0 * t * t) / 2.0
+    c5 = (12.0 * delta - 6.0 * (v + v0) * t - a0 * t * t) / 2.0
+    t2 = t * t
+    return max(
+        abs(a0 + (6.0 * c3 * s + 12.0 * c4 * s * s + 20.0 * c5 * s * s * s) / t2 + a * g)
+        for s, g in zip(_ACCELERATION_SAMPLES, _ACCELERATION_WEIGHTS, strict=True)
+    )
+
+
+def _acceleration_interval(
+    start: tuple[float, float, float],
+    t: float,
+    end: tuple[float, float],
+    bounds: tuple[float, float],
+    acceleration: float,
+) -> tuple[float, float] | None:
+    """One joint: the end accelerations within ``bounds`` for which the quintic from ``start`` to
+    ``end`` (position, velocity) over ``t`` keeps its acceleration within :data:`_ACCELERATION_MARGIN`
+    of ``acceleration`` at eight instants (the acceleration is linear in the end acceleration); None
+    when there is none."""
+    p0, v0, a0 = start
+    p, v = end
+    delta = p - p0
+    c3 = (20.0 * delta - (8.0 * v + 12.0 * v0) * t - 3.0 * a0 * t * t) / 2.0
+    c4 = (-30.0 * delta + (14.0 * v + 16.0 * v0) * t + 3.0 * a0 * t * t) / 2.0
+    c5 = (12.0 * delta - 6.0 * (v + v0) * t - a0 * t * t) / 2.0
+    lower, upper = bounds
+    t2 = t * t
+    bound = _ACCELERATION_MARGIN * acceleration  # the peak between two samples is a little higher
+    for s, g in zip(_ACCELERATION_SAMPLES, _ACCELERATION_WEIGHTS, strict=True):
+        a_s = a0 + (6.0 * c3 * s + 12.0 * c4 * s * s + 20.0 * c5 * s * s * s) / t2
+        if g > 0.0:
+            lower, upper = max(lower, (-bound - a_s) / g), min(upper, (bound - a_s) / g)
+        elif g < 0.0:
+            lower, upper = max(lower, (bound - a_s) / g), min(upper, (-bound - a_s) / g)
+    return (lower, upper) if lower <= upper else None
 
 
 def shape_preserving(

@@ -720,7 +720,7 @@ class MotionQueue:
             before=entry.before,
             before_duration=entry.before_duration,
             jerk=lim.jerk,
-            acceleration=lim.acceleration,
+            acceleration=None if entry.transient else lim.acceleration,  # a transient is met locally anyway
             lower=lim.lower,
             upper=lim.upper,
         )
