@@ -55,7 +55,9 @@ from simple_message.wire import ByteOrder, WireFormat
 from .advice import after_refusal, instead
 from .demo import PAPER_POLICIES, DemoConfig, format_table, run_demo
 from .driver import STOP_SETTLE, DriverError, JointState, LineGoal, LineRefused, Mode, RobotDriver
+from .errors import ExecutionAborted
 from .identity import check_model
+from .limits import check_limits, within_speeds
 from .planner import Planner, PlanningError, pose
 from .trajectory import Trajectory, TrajectoryError, recording
 from .waiting import joints_still
@@ -418,7 +420,8 @@ async def _monitor(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -
 async def _record(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
     names = driver.model.joint_names if driver.model is not None else ()
     states: list[JointState] = []
-    driver.ask_feedback()  # the controller's own time of each sample, where it sends it
+    if driver.dialect.unknown_types:  # a TOPIC it may not know: ABB's, Fanuc's, Staubli's servers take none
+        driver.ask_feedback()  # the controller's own time of each sample, where it sends it
 
     async def body() -> None:
         async for state in driver.states():
@@ -440,6 +443,16 @@ async def _record(driver: RobotDriver, args: argparse.Namespace, out: TextIO) ->
                 f"{_count(len(recorded), 'joint state')} written to {args.file} (replay it with: run {args.file})",
                 file=out,
             )
+            last = recorded.positions[-2:]
+            moving = (recorded.velocities is not None and not joints_still(recorded.velocities[-1], None, 0.0)) or (
+                len(recorded) > 1 and not joints_still(None, last[1] - last[0], float(np.diff(recorded.times[-2:])[0]))
+            )
+            if moving:
+                print(
+                    "note: the robot was still moving when the recording ended: run brings it to rest at the last "
+                    "state, later than it passed it here",
+                    file=out,
+                )
         else:
             print("no joint state received: nothing written", file=out)
 
@@ -569,6 +582,8 @@ async def _move_line(driver: RobotDriver, goal: LineGoal, args: argparse.Namespa
 
 #: ``run --approach``: the share of the joint limits the move to the trajectory's start takes
 APPROACH_SPEED = 0.2
+#: ``run --approach`` moves to the start when it is farther than this (rad or m, any joint)
+APPROACH_MIN = 1e-5
 
 
 async def _run(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> None:
@@ -578,7 +593,17 @@ async def _run(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> No
     here = (await driver.wait_state()).positions[: model.dof]
     start = trajectory.positions[0]
     gap = float(np.max(np.abs(start - here)))
-    if gap > driver.goal_tolerance:
+    if driver.check_limits and trajectory.dof == model.dof:
+        # the file's own limits before the robot moves to its start (execute checks them again)
+        timed = driver.dialect.timed
+        check_limits(
+            within_speeds(trajectory, model, velocities=driver.dialect.motion_control) if timed else trajectory,
+            model,
+            speeds=timed,
+        )
+    # --approach also closes a gap within the client's tolerance that a controller may not take
+    # (MotoROS refuses a start 0.5 mrad off: INVALID, DATA_START_POS)
+    if gap > driver.goal_tolerance or (args.approach and gap > APPROACH_MIN):
         busy = driver.moving_elsewhere()
         if busy is not None:
             raise CommandError(busy)
@@ -604,7 +629,15 @@ async def _run(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> No
             flush=True,
         )
         await _execute(driver, approach, args.mode, out)
-    await _execute(driver, trajectory, args.mode, out)
+    try:
+        await _execute(driver, trajectory, args.mode, out)
+    except ExecutionAborted as exc:
+        if exc.confirmed < 0 and "DATA_START_POS" in str(exc) and not args.approach:
+            raise CommandError(
+                f"{exc}: the robot is {gap:.4g} rad from the start of {args.file}, more than the controller takes; "
+                "add --approach to move there first"
+            ) from None
+        raise
 
 
 async def _stop(driver: RobotDriver, _args: argparse.Namespace, out: TextIO) -> None:

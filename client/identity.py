@@ -158,13 +158,8 @@ def _against_dh(model: RobotModel, reply: GetDhParametersReply, option: str, ski
         worst = _dh_difference(known, theirs, 1.0, "m", who)
         if not worst or not _dh_difference(known, theirs, 1000.0, "mm", who):  # MotoPlus does not say its units
             return ModelCheck(True, f"{who} agrees with the controller's D-H table")
-        if used < len(known):
-            differ = (
-                f"the controller's D-H table has {_plural(used, 'axis', 'axes')} in group 0, {who} has {joints} "
-                f"({worst})"
-            )
-        else:
-            differ = f"its D-H table differs from the controller's ({worst})"
+        # (a table whose last rows are all zero may still have those axes: PUMA 560's last row is)
+        differ = f"its D-H table differs from the controller's ({worst})"
     raise ModelMismatch(f"{who} is not the controller's robot: {differ}; {_next_step(option, skip)}")
 
 

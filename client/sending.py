@@ -208,6 +208,12 @@ class TrajectorySender:
         await self._motion_ready()
         velocities = trajectory.velocities if trajectory.velocities is not None else _differences(trajectory)
         times, positions, velocities = _on_milliseconds(trajectory.times, trajectory.positions, velocities)
+        if np.any(velocities[-1] != 0.0):
+            # the goal is where the robot stops: a last point still moving (a recording cut off mid-motion)
+            # would leave the controller without a next point to go on to, braking past it
+            log.info("the last point's velocities are sent as 0: the robot comes to rest at the goal")
+            velocities = velocities.copy()
+            velocities[-1] = 0.0
         if self.driver.model is not None:
             _warn_cubics(times, positions, velocities, self.driver.model.max_acceleration)
         fields = ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY

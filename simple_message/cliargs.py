@@ -154,7 +154,12 @@ def options_after_command(
         name = stray[0]
         options = _options(parser, commands)
         if name not in options:
-            close = difflib.get_close_matches(name, sorted(options), n=1, cutoff=0.75)  # not --pose for --bogus
+            # the options that may come here first (--modle, --mod: --model, not move's --mode)
+            shared = sorted(o for o in common._option_string_actions if o.startswith("--"))
+            prefixed = [o for o in shared if o.startswith(name)]
+            close = prefixed if len(prefixed) == 1 else difflib.get_close_matches(name, shared, n=1, cutoff=0.75)
+            if not close:
+                close = difflib.get_close_matches(name, sorted(options), n=1, cutoff=0.75)  # not --pose for --bogus
             hint = f" (did you mean {close[0]}?)" if close else ""
             parser.error(f"{name} is not an option of any {parser.prog} command{hint}")
         takers = [command for command, sub in commands.items() if name in sub._option_string_actions]

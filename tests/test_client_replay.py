@@ -109,6 +109,34 @@ async def test_motoros_states_as_received_replay_in_their_time(tmp_path: Path) -
     assert abs(replayed / recorded - 1.0) <= 0.02, (recorded, replayed)
 
 
+@pytest.mark.parametrize("profile", ["generic", "motoros"])
+async def test_a_recording_cut_off_mid_motion_runs_to_rest_at_its_last_state(profile: str, tmp_path: Path) -> None:
+    """``record --duration`` (or Ctrl-C) while the robot moves: the last state is moving. The robot
+    comes to rest there (MotoROS gets the last point's velocity as 0: with a velocity it would run
+    dry and brake past it), and the run succeeds."""
+    whole = Trajectory.load(DATA / f"recording_{profile}_puma560.csv")
+    keep = 40  # well inside the first move
+    assert whole.velocities is not None and float(np.max(np.abs(whole.velocities[keep - 1]))) > 0.5
+    cut = Trajectory(whole.times[:keep], whole.positions[:keep], whole.velocities[:keep], joint_names=whole.joint_names)
+    path = tmp_path / "cut.csv"
+    cut.save(path)
+    async with contextlib.AsyncExitStack() as stack:
+        emu, clock = await stack.enter_async_context(
+            stepped_emulator(profile=profile, models=("puma560",), queue_capacity=400, state_rate=40.0)
+        )
+        driver = RobotDriver(
+            motion_port=emu.ports["motion"], state_port=emu.ports["state"], profile=profile, model=PUMA
+        )
+        await stack.enter_async_context(driver)
+        task = asyncio.create_task(driver.execute(cut))
+        await advance_until(clock, task.done, limit=30.0, what="the replay")
+        final = await task
+        await settle(emu, clock)
+        end = np.array(emu.cell.groups[0].command.command_position)
+    assert np.max(np.abs(end - cut.positions[-1])) < 1e-6
+    assert np.max(np.abs(final.positions - cut.positions[-1])) <= driver.goal_tolerance
+
+
 def test_motoros_points_go_on_its_millisecond_grid_on_the_trajectorys_own_curve() -> None:
     """MotoROS truncates a time to whole milliseconds (MotionServer.c:2094): points off the grid
     move to their nearest millisecond, with the state the trajectory's cubics give there, so the

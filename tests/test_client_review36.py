@@ -228,6 +228,12 @@ COMMANDS = "ping, status, monitor, move, run, stop, record, demo"
             "--motoin-port is not an option of any robot-client command (did you mean --motion-port?)",
         ),
         (["--cout", "3", "ping"], "--cout is not an option of any robot-client command (did you mean --count?)"),
+        # the options that may come before the command are offered first: --model, not move's --mode
+        (
+            ["--modle", "puma560", "status"],
+            "--modle is not an option of any robot-client command (did you mean --model?)",
+        ),
+        (["--mod", "puma560", "status"], "--mod is not an option of any robot-client command (did you mean --model?)"),
         (["--mode", "download", "status"], "a command's own options go after it (move, run take --mode)"),
         (["--count", "3"], "--count is not an option of robot-client itself: a command's own options go after it"),
     ],
@@ -292,14 +298,22 @@ async def test_a_d_h_table_with_fewer_axes_than_the_model_is_a_mismatch_naming_t
     )
 
 
-async def test_a_d_h_table_that_ends_before_the_models_joints_is_a_mismatch_naming_the_counts() -> None:
+async def test_a_d_h_table_that_ends_before_the_models_joints_is_a_mismatch_naming_the_row() -> None:
     model = load_model("jibot_zxs")
     said = await _check(GetDhParametersReply([_links(model)[:5]]), model)  # 8 axes on the wire, 5 used
     assert said.startswith(
-        "mismatch: --model jibot_zxs is not the controller's robot: the controller's D-H table has 5 axes in group 0, "
-        "--model jibot_zxs has 6 joints (joint 6 "
+        "mismatch: --model jibot_zxs is not the controller's robot: its D-H table differs from the controller's "
+        "(joint 6 "
     ), said
     assert said.endswith(", or --no-model-check to skip this check")
+
+
+async def test_a_last_d_h_row_of_zeros_is_an_axis_all_the_same() -> None:
+    """PUMA 560's last D-H row is all zero: the table still has 6 axes, and it agrees."""
+    model = load_model("puma560")
+    assert not any(model.joints[5].dh or (1.0,))  # the shipped model's last row is all zero
+    said = await _check(GetDhParametersReply([_links(model)]), model)
+    assert said.startswith("True:"), said
 
 
 async def test_an_axis_beyond_the_models_joints_is_a_mismatch() -> None:
@@ -386,3 +400,47 @@ async def test_a_motoros_controller_with_a_seventh_axis_is_not_a_six_joint_model
             "; give --model the model the controller runs, or --no-model-check to skip this check"
         )
         assert np.array_equal(np.array(emu.cell.groups[0].command.command_position), before)  # nothing moved
+
+
+async def test_run_approach_checks_the_file_before_it_moves_the_robot(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A file whose third point is beyond a joint's limit: refused before the approach moves the
+    robot (docs/trajectories.md: "refused before anything is sent")."""
+    beyond = tmp_path / "beyond.csv"
+    Trajectory(
+        np.array([0.0, 1.0, 2.0]),
+        np.array([[0.3, 0.0, 0.0, 0.0, 0.0, 0.0], [0.4, 0.0, 0.0, 0.0, 0.0, 0.0], [9.0, 0.0, 0.0, 0.0, 0.0, 0.0]]),
+    ).save(beyond)
+    async with controller() as (emu, ports):
+        here = np.array(emu.cell.groups[0].command.command_position)
+        code, out = await client("run", str(beyond), "--approach", *ports)
+        err = capsys.readouterr().err
+        assert code == cli.EXIT_FAILED, out
+        assert "point 2: joint 1 (joint_1) at 9 is beyond its upper limit" in err, err
+        assert "approach:" not in out
+        assert emu.cell.groups[0].trajectories == 0
+        assert np.array_equal(np.array(emu.cell.groups[0].command.command_position), here)
+
+
+async def test_run_approach_closes_a_gap_motoros_would_refuse(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """MotoROS refuses a start 0.5 mrad off (DATA_START_POS), well inside the client's 0.01 rad
+    tolerance: without --approach the refusal says to add it; with it the robot goes there first."""
+    path = tmp_path / "line.csv"
+    Trajectory(
+        np.array([0.0, 0.5, 1.0]),
+        np.array([[0.003, 0.0, 0.0, 0.0, 0.0, 0.0], [0.1, 0.0, 0.0, 0.0, 0.0, 0.0], [0.2, 0.0, 0.0, 0.0, 0.0, 0.0]]),
+        np.array([[0.0] * 6, [0.2, 0, 0, 0, 0, 0], [0.0] * 6]),
+    ).save(path)
+    async with controller(profile="motoros") as (emu, ports):
+        code, out = await client("run", str(path), *ports)
+        err = capsys.readouterr().err
+        assert code == cli.EXIT_FAILED, out
+        assert "DATA_START_POS" in err and "add --approach to move there first" in err, err
+        code, out = await client("run", str(path), "--approach", *ports)
+        assert code == 0, capsys.readouterr().err
+        assert f"approach: to the start of {path}, 0.003 rad away" in out
+        end = np.array(emu.cell.groups[0].command.command_position)
+        assert abs(end[0] - 0.2) < 1e-4
