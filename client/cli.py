@@ -516,12 +516,15 @@ async def _move(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> N
     if args.joints is not None:
         motion = planner.joint_move(here, args.joints)
     else:
+        confirmed = False  # the controller confirmed --model: the client's advice below rests on it
         if not args.no_model_check:
             check = await check_model(driver, model, skip="--no-model-check")
+            confirmed = bool(check.agrees)
             if check.agrees is None:
                 print(f"note: {check.how}", file=out, flush=True)
             else:
                 log.info("%s", check.how)
+        model_said = None if confirmed else f"--model {model.name}, which the controller did not confirm"
         values = args.pose
         rotation = fk(model, here)[:3, :3] if len(values) == 3 else rpy_matrix(*values[3:])
         target = pose(values[:3], rotation)
@@ -532,25 +535,30 @@ async def _move(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> N
                     await _move_line(driver, LineGoal.from_pose(target), args, out)
                 except LineRefused as exc:  # the next step depends on the controller's reason
                     where, ways = after_refusal(exc.result, model, here, target, planner, speed=_tcp_speed(args))
-                    raise CommandError(_advised(str(exc), where, ways)) from None
+                    raise CommandError(_advised(str(exc), where, ways, model_said)) from None
                 return
             print("the controller has no straight-line motion: planned on the PC", file=out, flush=True)
         try:
             motion = planner.linear_moves(here, [target])
         except PlanningError as exc:
-            raise PlanningError(_advised(str(exc), None, instead(model, here, target, planner, linear=False))) from None
+            ways = instead(model, here, target, planner, linear=False)
+            raise PlanningError(_advised(str(exc), None, ways, model_said)) from None
     # JOINT_TRAJ_PT points are joined at rest by the controllers that take them
     rest_to_rest = driver.dialect.point_type == MsgType.JOINT_TRAJ_PT
     await _execute(driver, motion.sparse(rest_to_rest=rest_to_rest), args.mode, out)
 
 
-def _advised(refusal: str, where: str | None, ways: list[str]) -> str:
-    """A refusal with where the client's check places it and what would run instead."""
+def _advised(refusal: str, where: str | None, ways: list[str], unconfirmed: str | None = None) -> str:
+    """A refusal with where the client's check places it and what would run instead; both are
+    worked out on the client's model, and when the controller did not confirm it (``unconfirmed``:
+    which model, in words) they say so."""
     text = refusal
     if where is not None:
         text += f"; by the client's check of the line on its model: {where}"
     if ways:
         text += "; instead: " + "; or ".join(ways)
+    if unconfirmed is not None and (where is not None or ways):
+        text += f" (worked out on {unconfirmed})"
     return text
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import io
+import logging
 import math
 import signal
 import sys
@@ -444,3 +445,49 @@ async def test_run_approach_closes_a_gap_motoros_would_refuse(
         assert f"approach: to the start of {path}, 0.003 rad away" in out
         end = np.array(emu.cell.groups[0].command.command_position)
         assert abs(end[0] - 0.2) < 1e-4
+
+
+async def test_the_controller_log_says_a_stopped_trajectory_stopped(caplog: pytest.LogCaptureFixture) -> None:
+    """A trajectory cut short by STOP is logged as stopped with the points received, not as done."""
+    import contextlib
+
+    from client.driver import RobotDriver
+    from tests.stepped import advance_until
+
+    caplog.set_level(logging.INFO, logger="robot_server.emulator.cell")
+    model = load_model("jibot_zxs")
+    async with contextlib.AsyncExitStack() as stack:
+        emu, clock = await stack.enter_async_context(stepped_emulator(state_rate=100.0))
+        driver = RobotDriver(motion_port=emu.ports["motion"], state_port=emu.ports["state"], model=model)
+        await stack.enter_async_context(driver)
+        here = driver.joint_state.positions if driver.joint_state is not None else np.zeros(6)
+        motion = Planner(model, velocity_scale=0.3, acceleration_scale=0.3, jerk_scale=0.3).joint_move(
+            here, [0.6, 0.3, -0.3, 0.5, 0.4, 0.6]
+        )
+        sent = motion.sparse(rest_to_rest=True)
+        task = asyncio.create_task(driver.execute(sent))
+        ctl = emu.cell.groups[0]
+        await advance_until(clock, lambda: ctl.command.actual_position[0] > 0.05, what="moving")
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            async with asyncio.timeout(10.0):
+                await task
+        await settle(emu, clock)
+    ended = [r.getMessage() for r in caplog.records if "trajectory 1 " in r.getMessage() and "after" in r.getMessage()]
+    said = f"group 0: trajectory 1 stopped: {len(sent)} points received, at rest after "
+    assert len(ended) == 1 and ended[0].startswith(said), ended
+
+
+async def test_advice_on_a_model_the_controller_did_not_confirm_says_so(capsys: pytest.CaptureFixture[str]) -> None:
+    """With --no-model-check the client's line check and the joints it suggests rest on --model alone."""
+    kuka = ["--model", "kuka_kr6_r900_sixx"]
+    async with controller(models=("kuka_kr6_r900_sixx",)) as (_emu, ports):
+        code, out = await client("move", "--joints", "0", "-1.2", "1.2", "0", "0.5", "0", *kuka, *ports)
+        assert code == 0, out
+        code, out = await client("move", "--pose", "0.5", "0", "0.3", "--linear", "--no-model-check", *kuka, *ports)
+        err = capsys.readouterr().err
+        assert code == cli.EXIT_FAILED, out
+        assert "the controller refused line 0: SINGULAR" in err and "; instead: " in err
+        assert err.rstrip().endswith(
+            "(worked out on --model kuka_kr6_r900_sixx, which the controller did not confirm)"
+        ), err

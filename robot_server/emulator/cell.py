@@ -73,6 +73,8 @@ class RobotCell:
         self._was_moving = [False] * len(self.groups)
         self._points = [0] * len(self.groups)
         self._started = [0.0] * len(self.groups)
+        #: a stop or a fault came while the group moved: its motion ends stopped, not done
+        self._stopped = [False] * len(self.groups)
         #: what the group last set off to run: a "trajectory" (points), "joint moves" or "straight lines"
         self._kind = ["trajectory"] * len(self.groups)
         #: called with (group, point) for every joint point a controller accepted, in order (e.g. a
@@ -213,6 +215,7 @@ class RobotCell:
         if from_rest:
             self._points[group] = 0
             self._started[group] = controller.time
+            self._stopped[group] = False
             log.info("group %d: joint moves started", group)
         self._points[group] += 1
         for listener in self.point_listeners:
@@ -240,6 +243,7 @@ class RobotCell:
         if from_rest:
             self._points[group] = 0
             self._started[group] = controller.time
+            self._stopped[group] = False
         self._points[group] += 1
         if sequence == 0:
             log.info("group %d: straight lines started", group)
@@ -250,6 +254,7 @@ class RobotCell:
         if controller.trajectories != trajectories_before:
             self._points[group] = 0
             self._started[group] = controller.time
+            self._stopped[group] = False
             log.info("group %d: trajectory %d started", group, controller.trajectories)
         self._points[group] += 1
 
@@ -319,6 +324,9 @@ class RobotCell:
 
     def _interrupted(self) -> None:
         self.interruptions += 1
+        for i, g in enumerate(self.groups):
+            if g.in_motion:
+                self._stopped[i] = True
         self._line_sequence = [None] * len(self.groups)  # the next line starts a series (0)
         self.notify()
 
@@ -335,13 +343,16 @@ class RobotCell:
                 count = self._points[i]
                 noun = "line" if kind == "straight lines" else "point"
                 log.info(
-                    "group %d: %s done: %d %s, settled after %.3f s",
+                    "group %d: %s %s: %d %s, %s after %.3f s",
                     i,
                     what,
+                    "stopped" if self._stopped[i] else "done",
                     count,
-                    noun if count == 1 else noun + "s",
+                    (noun if count == 1 else noun + "s") + (" received" if self._stopped[i] else ""),
+                    "at rest" if self._stopped[i] else "settled",
                     g.time - self._started[i],
                 )
+                self._stopped[i] = False
         self._was_moving = moving
         self._wakeup.wake()
 
