@@ -292,6 +292,12 @@ def parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("--no-plot", action="store_true", help="no figure even if matplotlib is installed")
     demo.add_argument(
+        "--no-model-check",
+        action="store_true",
+        help="against a running controller: do not compare --model with the robot it says it drives (its "
+        "TOOL_POSE, or MotoROS's D-H table); the demo is refused when they differ by more than 1 mm",
+    )
+    demo.add_argument(
         "--no-movl",
         action="store_true",
         help="no 'controller MOVL' row (the rectangle as four straight lines run by the controller)",
@@ -744,6 +750,7 @@ async def _run_demo(args: argparse.Namespace, out: TextIO, capture: CaptureWrite
         plot=not args.no_plot,
         movl=not args.no_movl,
         tap=capture,
+        model_check=not args.no_model_check,
     )
     if args.short:
         config = dataclasses.replace(config, width=0.06, height=0.04)

@@ -131,6 +131,9 @@ class DemoConfig:
     movl: bool = True
     #: sees every connection's traffic (robot-client demo --capture: a CaptureWriter)
     tap: Tap | None = None
+    #: compare the model with the one a running controller says it drives (robot-client demo
+    #: --no-model-check turns it off)
+    model_check: bool = True
 
 
 @dataclass(frozen=True)
@@ -564,9 +567,10 @@ async def run_demo(
         result.external = f"{external.host}:{external.motion_port}"
         progress(f"a controller answers at {result.external}: running the rectangle there")
         try:
-            check = await check_model(external, model)  # the rectangle is planned with config.model
-            if check.agrees is None:
-                progress(f"note: {check.how}")
+            if config.model_check:  # the rectangle is planned with config.model
+                check = await check_model(external, model, skip="--no-model-check")
+                if check.agrees is None:
+                    progress(f"note: {check.how}")
             ignored = embedded_only(config)
             if ignored:
                 progress(

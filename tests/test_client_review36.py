@@ -491,3 +491,14 @@ async def test_advice_on_a_model_the_controller_did_not_confirm_says_so(capsys: 
         assert err.rstrip().endswith(
             "(worked out on --model kuka_kr6_r900_sixx, which the controller did not confirm)"
         ), err
+
+
+async def test_the_demos_model_refusal_names_its_way_to_skip_the_check(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    async with controller(models=("puma560",)) as (_emu, ports):
+        code, _ = await client("demo", *ports, "--short", "--no-plot", "--output", str(tmp_path))
+    assert code == cli.EXIT_FAILED
+    assert capsys.readouterr().err.rstrip().endswith(", or --no-model-check to skip this check")
+    args = cli.parser().parse_args(["demo", "--no-model-check"])
+    assert args.no_model_check is True
