@@ -277,16 +277,11 @@ def _jerk_limited(
     start state a little off the data (after a jerk-limited segment, a kink in a recording) asks
     each next quintic for a larger end acceleration to keep its jerk, and the chain would grow past
     the acceleration limit where the data never comes near it."""
-    p0, v0, a0 = start
-    p, v = end
     low, high = bounds
     chosen = min(max(a, low), high)
-    delta = p - p0
-    c3 = (20.0 * delta - (8.0 * v + 12.0 * v0) * t - 3.0 * a0 * t * t) / 2.0
-    c4 = (-30.0 * delta + (14.0 * v + 16.0 * v0) * t + 3.0 * a0 * t * t) / 2.0
-    c5 = (12.0 * delta - 6.0 * (v + v0) * t - a0 * t * t) / 2.0
     if math.isinf(jerk):
         return chosen
+    c3, c4, c5 = _free(start, t, end)
     t3 = t * t * t
     lower, upper = low, high
     for s, g in zip(_JERK_SAMPLES, _JERK_WEIGHTS, strict=True):
@@ -310,15 +305,24 @@ def _within(estimate: float, start: float, acceleration: float) -> bool:
     return math.isfinite(acceleration) and abs(estimate) <= acceleration and abs(start) <= acceleration
 
 
-def _peak(start: tuple[float, float, float], t: float, end: tuple[float, float], a: float) -> float:
-    """One joint: the largest acceleration of the quintic from ``start`` to ``end`` (position,
-    velocity) and the end acceleration ``a`` over ``t``, at the eight instants sampled."""
+def _free(start: tuple[float, float, float], t: float, end: tuple[float, float]) -> tuple[float, float, float]:
+    """One joint: the quintic from ``start`` (position, velocity, acceleration) to ``end`` (position,
+    velocity, acceleration 0) over ``t``, as ``p0 + v0 t s + a0 t^2 s^2 / 2 + c3 s^3 + c4 s^4 + c5 s^5``
+    in normalised time ``s``: (c3, c4, c5). An end acceleration ``a1`` adds ``a1 t^2 (s^3/2 - s^4 + s^5/2)``."""
     p0, v0, a0 = start
     p, v = end
     delta = p - p0
     c3 = (20.0 * delta - (8.0 * v + 12.0 * v0) * t - 3.0 * a0 * t * t) / 2.0
     c4 = (-30.0 * delta + (14.0 * v + 16.0 * v0) * t + 3.0 * a0 * t * t) / 2.0
     c5 = (12.0 * delta - 6.0 * (v + v0) * t - a0 * t * t) / 2.0
+    return c3, c4, c5
+
+
+def _peak(start: tuple[float, float, float], t: float, end: tuple[float, float], a: float) -> float:
+    """One joint: the largest acceleration of the quintic from ``start`` to ``end`` (position,
+    velocity) and the end acceleration ``a`` over ``t``, at the eight instants sampled."""
+    a0 = start[2]
+    c3, c4, c5 = _free(start, t, end)
     t2 = t * t
     return max(
         abs(a0 + (6.0 * c3 * s + 12.0 * c4 * s * s + 20.0 * c5 * s * s * s) / t2 + a * g)
@@ -337,12 +341,8 @@ def _acceleration_interval(
     ``end`` (position, velocity) over ``t`` keeps its acceleration within :data:`_ACCELERATION_MARGIN`
     of ``acceleration`` at eight instants (the acceleration is linear in the end acceleration); None
     when there is none."""
-    p0, v0, a0 = start
-    p, v = end
-    delta = p - p0
-    c3 = (20.0 * delta - (8.0 * v + 12.0 * v0) * t - 3.0 * a0 * t * t) / 2.0
-    c4 = (-30.0 * delta + (14.0 * v + 16.0 * v0) * t + 3.0 * a0 * t * t) / 2.0
-    c5 = (12.0 * delta - 6.0 * (v + v0) * t - a0 * t * t) / 2.0
+    a0 = start[2]
+    c3, c4, c5 = _free(start, t, end)
     lower, upper = bounds
     t2 = t * t
     bound = _ACCELERATION_MARGIN * acceleration  # the peak between two samples is a little higher
