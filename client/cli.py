@@ -449,11 +449,7 @@ async def _record(driver: RobotDriver, args: argparse.Namespace, out: TextIO) ->
                 f"{_count(len(recorded), 'joint state')} written to {args.file} (replay it with: run {args.file})",
                 file=out,
             )
-            last = recorded.positions[-2:]
-            moving = (recorded.velocities is not None and not joints_still(recorded.velocities[-1], None, 0.0)) or (
-                len(recorded) > 1 and not joints_still(None, last[1] - last[0], float(np.diff(recorded.times[-2:])[0]))
-            )
-            if moving:
+            if _ends_moving(recorded):
                 print(
                     "note: the robot was still moving when the recording ended: run brings it to rest at the last "
                     "state, later than it passed it here",
@@ -461,6 +457,17 @@ async def _record(driver: RobotDriver, args: argparse.Namespace, out: TextIO) ->
                 )
         else:
             print("no joint state received: nothing written", file=out)
+
+
+def _ends_moving(recorded: Trajectory) -> bool:
+    """The robot was still moving at a recording's last state: by its velocities, or (none recorded)
+    by the change from the state before."""
+    if recorded.velocities is not None:
+        return not joints_still(recorded.velocities[-1], None, 0.0)
+    if len(recorded) < 2:
+        return False
+    moved = recorded.positions[-1] - recorded.positions[-2]
+    return not joints_still(None, moved, float(recorded.times[-1] - recorded.times[-2]))
 
 
 @contextlib.asynccontextmanager

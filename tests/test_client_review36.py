@@ -502,3 +502,13 @@ async def test_the_demos_model_refusal_names_its_way_to_skip_the_check(
     assert capsys.readouterr().err.rstrip().endswith(", or --no-model-check to skip this check")
     args = cli.parser().parse_args(["demo", "--no-model-check"])
     assert args.no_model_check is True
+
+
+def test_a_recording_that_ends_moving_is_told_apart() -> None:
+    t = np.array([0.0, 0.025, 0.05])
+    q = np.array([[0.0] * 6, [0.0] * 6, [0.01, 0, 0, 0, 0, 0]])
+    assert cli._ends_moving(Trajectory(t, q))  # 0.4 rad/s from the state before
+    assert not cli._ends_moving(Trajectory(t, np.zeros((3, 6))))
+    assert not cli._ends_moving(Trajectory(t, q, np.zeros((3, 6))))  # velocities recorded: they say at rest
+    assert cli._ends_moving(Trajectory(t, np.zeros((3, 6)), np.array([[0.0] * 6, [0.0] * 6, [0.3] + [0.0] * 5])))
+    assert not cli._ends_moving(Trajectory(t[:1], q[:1]))
