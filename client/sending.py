@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from robot_server.control import QUINTIC_PEAK_VELOCITY
+from robot_server.control.segments import cubic_hermite
 from simple_message.connection import ConnectionState
 from simple_message.constants import CommType, MotoCommand, MotoResult, SpecialSeq, TriState, ValidFields
 from simple_message.errors import ConnectionClosed, RequestFailed
@@ -303,15 +304,12 @@ def _on_milliseconds(times: Array, positions: Array, velocities: Array) -> tuple
     for k in range(1, n - 1):
         t = min(new[k], times[-1])
         i = min(int(np.searchsorted(times, t, side="right")) - 1, n - 2)
-        h = float(times[i + 1] - times[i])
-        s = (t - times[i]) / h
-        h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
-        d00, d10, d01, d11 = 6 * s**2 - 6 * s, 3 * s**2 - 4 * s + 1, -6 * s**2 + 6 * s, 3 * s**2 - 2 * s
-        p0, p1, v0, v1 = positions[i], positions[i + 1], velocities[i], velocities[i + 1]
-        q[k] = h00 * p0 + h10 * h * v0 + h01 * p1 + h11 * h * v1
+        v0, v1 = velocities[i], velocities[i + 1]
+        at = cubic_hermite(positions[i], v0, positions[i + 1], v1, float(times[i + 1] - times[i])).sample(t - times[i])
+        q[k] = at.position
         # within its neighbours' velocities: the cubic may bulge past them, and past a speed limit
         # that they are at (MotoROS refuses a velocity beyond it)
-        v[k] = np.clip((d00 * p0 + d01 * p1) / h + d10 * v0 + d11 * v1, np.minimum(v0, v1), np.maximum(v0, v1))
+        v[k] = np.clip(at.velocity, np.minimum(v0, v1), np.maximum(v0, v1))
     return new, q, v
 
 

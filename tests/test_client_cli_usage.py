@@ -218,7 +218,10 @@ async def test_the_demo_against_a_controller_with_another_robot_is_refused_namin
     async with controller(models=("puma560",)) as (_emu, ports):
         code, _ = await client("demo", *ports, "--short", "--no-plot", "--output", str(tmp_path))
     assert code == cli.EXIT_FAILED
-    assert "robot-client: --model jibot_zxs is not the controller's robot: " in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "robot-client: --model jibot_zxs is not the controller's robot: " in err
+    assert err.rstrip().endswith(", or --no-model-check to skip this check")  # demo takes it too
+    assert cli.parser().parse_args(["demo", "--no-model-check"]).no_model_check is True
 
 
 @pytest.mark.parametrize("attempt", range(4))

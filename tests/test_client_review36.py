@@ -493,17 +493,6 @@ async def test_advice_on_a_model_the_controller_did_not_confirm_says_so(capsys: 
         ), err
 
 
-async def test_the_demos_model_refusal_names_its_way_to_skip_the_check(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    async with controller(models=("puma560",)) as (_emu, ports):
-        code, _ = await client("demo", *ports, "--short", "--no-plot", "--output", str(tmp_path))
-    assert code == cli.EXIT_FAILED
-    assert capsys.readouterr().err.rstrip().endswith(", or --no-model-check to skip this check")
-    args = cli.parser().parse_args(["demo", "--no-model-check"])
-    assert args.no_model_check is True
-
-
 def test_a_recording_that_ends_moving_is_told_apart() -> None:
     t = np.array([0.0, 0.025, 0.05])
     q = np.array([[0.0] * 6, [0.0] * 6, [0.01, 0, 0, 0, 0, 0]])

@@ -318,16 +318,21 @@ def _free(start: tuple[float, float, float], t: float, end: tuple[float, float])
     return c3, c4, c5
 
 
-def _peak(start: tuple[float, float, float], t: float, end: tuple[float, float], a: float) -> float:
-    """One joint: the largest acceleration of the quintic from ``start`` to ``end`` (position,
-    velocity) and the end acceleration ``a`` over ``t``, at the eight instants sampled."""
+def _rest_accelerations(start: tuple[float, float, float], t: float, end: tuple[float, float]) -> list[float]:
+    """One joint: the acceleration of the quintic from ``start`` to ``end`` (position, velocity) with
+    end acceleration 0 over ``t``, at :data:`_ACCELERATION_SAMPLES`; an end acceleration ``a1`` adds
+    ``a1`` times :data:`_ACCELERATION_WEIGHTS`."""
     a0 = start[2]
     c3, c4, c5 = _free(start, t, end)
     t2 = t * t
-    return max(
-        abs(a0 + (6.0 * c3 * s + 12.0 * c4 * s * s + 20.0 * c5 * s * s * s) / t2 + a * g)
-        for s, g in zip(_ACCELERATION_SAMPLES, _ACCELERATION_WEIGHTS, strict=True)
-    )
+    return [a0 + (6.0 * c3 * s + 12.0 * c4 * s * s + 20.0 * c5 * s * s * s) / t2 for s in _ACCELERATION_SAMPLES]
+
+
+def _peak(start: tuple[float, float, float], t: float, end: tuple[float, float], a: float) -> float:
+    """One joint: the largest acceleration of the quintic from ``start`` to ``end`` (position,
+    velocity) and the end acceleration ``a`` over ``t``, at the eight instants sampled."""
+    rest = _rest_accelerations(start, t, end)
+    return max(abs(a_s + a * g) for a_s, g in zip(rest, _ACCELERATION_WEIGHTS, strict=True))
 
 
 def _acceleration_interval(
@@ -341,13 +346,9 @@ def _acceleration_interval(
     ``end`` (position, velocity) over ``t`` keeps its acceleration within :data:`_ACCELERATION_MARGIN`
     of ``acceleration`` at eight instants (the acceleration is linear in the end acceleration); None
     when there is none."""
-    a0 = start[2]
-    c3, c4, c5 = _free(start, t, end)
     lower, upper = bounds
-    t2 = t * t
     bound = _ACCELERATION_MARGIN * acceleration  # the peak between two samples is a little higher
-    for s, g in zip(_ACCELERATION_SAMPLES, _ACCELERATION_WEIGHTS, strict=True):
-        a_s = a0 + (6.0 * c3 * s + 12.0 * c4 * s * s + 20.0 * c5 * s * s * s) / t2
+    for a_s, g in zip(_rest_accelerations(start, t, end), _ACCELERATION_WEIGHTS, strict=True):
         if g > 0.0:
             lower, upper = max(lower, (-bound - a_s) / g), min(upper, (bound - a_s) / g)
         elif g < 0.0:
