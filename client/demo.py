@@ -61,7 +61,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from robot_server import Emulator, EmulatorConfig, Recorder
+from robot_server import Recorder
 from robot_server.control import DEFAULT_POLICY
 from robot_server.kinematics import closed_form, fk, fk_batch, rotation_to_quaternion
 from robot_server.loader import load_model
@@ -387,6 +387,8 @@ class _Plan:
 async def _embedded_run(config: DemoConfig, plan: _Plan, policy: str | None) -> tuple[DemoRow, Recorder, int]:
     """One row on an embedded emulator: the waypoints under ``policy``, or (None) the rectangle as
     the controller's straight lines (its default policy)."""
+    from robot_server import Emulator, EmulatorConfig  # the emulator is loaded when a demo needs it
+
     model, waypoints = plan.model, plan.waypoints
     emulator_config = EmulatorConfig(
         models=(config.model,),

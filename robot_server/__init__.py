@@ -4,6 +4,10 @@ Robot models and kinematics (:mod:`.model`, :mod:`.loader`, :mod:`.kinematics`),
 motor models and the control loop (:mod:`.control`), and the emulator process (:mod:`.emulator`).
 It may import :mod:`simple_message`, numpy and ruckig, never :mod:`client`.
 
+The names below are imported from their modules on first use: the robot library (the model, its
+loader, URDF, the workspace, the kinematics) loads no emulator, control loop or web view, and
+``tests/test_imports.py`` keeps it so.
+
 To embed an emulator in a program (what ``robot-client demo`` does)::
 
     from robot_server import Emulator, EmulatorConfig
@@ -16,9 +20,36 @@ To embed an emulator in a program (what ``robot-client demo`` does)::
     record.to_csv("run.csv", emu.cell.groups[0].model.joint_names)
 """
 
-from .control import Recorder
-from .emulator import Emulator, EmulatorConfig
-from .loader import load_model, shipped_models
-from .model import ModelError, RobotModel
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from simple_message._lazy import LazyExports
+
+if TYPE_CHECKING:
+    from .control import Recorder
+    from .emulator import Emulator, EmulatorConfig
+    from .loader import load_model, shipped_models
+    from .model import ModelError, RobotModel
 
 __all__ = ["Emulator", "EmulatorConfig", "ModelError", "Recorder", "RobotModel", "load_model", "shipped_models"]
+
+#: where each public name lives; its module is imported when the name is first used
+_EXPORTS = LazyExports(
+    __name__,
+    globals(),
+    {
+        ".control": ("Recorder",),
+        ".emulator": ("Emulator", "EmulatorConfig"),
+        ".loader": ("load_model", "shipped_models"),
+        ".model": ("ModelError", "RobotModel"),
+    },
+)
+
+
+def __getattr__(name: str) -> object:
+    return _EXPORTS.attribute(name)
+
+
+def __dir__() -> list[str]:
+    return _EXPORTS.names()
