@@ -1,50 +1,34 @@
-"""bench/fuzz.py, short: its safety model, the decoder fuzz, and a server run per profile.
+"""bench/fuzz, short: its safety model, the decoder fuzz, and a server run per profile.
 
-The tool's core is imported from the file (``bench`` is not a package). The server runs start a
-``robot-server`` child process on free loopback ports; every wait in them is bounded, and nothing
-here asserts wall-clock time.
+The tool is the package ``bench.fuzz``, importable because the repository's root is on ``sys.path``
+under pytest (as for ``tests.rawpeer``). The server runs start a ``robot-server`` child process on
+free loopback ports; every wait in them is bounded, and nothing here asserts wall-clock time.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import importlib.util
 import math
 import random
 import struct
-import sys
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import pytest
 
+from bench import fuzz
 from simple_message import BE32, BE64, LE32, LE64, decode
 from simple_message.errors import MalformedMessage
 from simple_message.messages import JointTraj, JointTrajPt, JointTrajPtFull, JointTrajPtFullEx, MotoMotionCtrl, Ping
 from tests.rawpeer import RawPeer, joint_traj_pt, vectors
-
-FUZZ_PATH = Path(__file__).resolve().parents[1] / "bench" / "fuzz.py"
-
-
-def _load() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("bench_fuzz", FUZZ_PATH)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["bench_fuzz"] = module  # dataclasses look their module up by name
-    spec.loader.exec_module(module)
-    return module
-
-
-fuzz = _load()
 
 #: small runs: what the tool is for at scale, in a few seconds
 SERVER_FRAMES = 20_000
 DECODER_FRAMES = 20_000
 #: RSS growth of a short run: the server's warm-up (allocator arenas, caches) is included, a leak
 #: of the order of a frame's size per frame (20,000 x ~100 bytes = 2 MB) on top would still fit: this
-#: bound catches runaway growth; the 5 MB target is for long runs (bench/fuzz.py)
+#: bound catches runaway growth; the 5 MB target is for long runs (python -m bench.fuzz)
 MAX_RSS_GROWTH_MB = 30.0
 
 
