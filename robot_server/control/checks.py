@@ -1,0 +1,171 @@
+"""The motion queue's limit checks: by how much a segment, or a state, is beyond the joints' limits.
+
+Pure functions of the queue's :class:`.entries.Settings` and one entry or state. A segment keeps
+its results (``Segment.memo``, per settings object): a re-scale asks again for every pending
+segment, and most have not changed. Uniform time scaling divides the k-th derivative by
+factor^k, so every excess here is the factor by which time must grow.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .blend import OVERSHOOT
+from .entries import Entry, Settings
+from .points import SLACK, Array, Limits, PointRejected, Reason, State, within
+
+#: what a rest-to-rest segment beyond a limit is refused as, per derivative order
+REFUSALS = {
+    0: (Reason.POSITION_LIMIT, "the segment's position"),
+    1: (Reason.VELOCITY_LIMIT, "the segment's velocity"),
+    2: (Reason.ACCELERATION_LIMIT, "the segment's acceleration"),
+    3: (Reason.TIMING, "the segment's jerk"),
+}
+
+
+def limit_of(limits: Limits, order: int) -> Array:
+    """The limit of the ``order``-th derivative (1 velocity, 2 acceleration, 3 jerk)."""
+    return {1: limits.velocity, 2: limits.acceleration, 3: limits.jerk}[order]
+
+
+def check_duration(settings: Settings, duration: float, what: str) -> None:
+    """Refuse a segment longer than the queue's maximum segment time."""
+    if duration > settings.max_duration:
+        raise PointRejected(
+            Reason.TIMING,
+            f"{what} would be {duration:g} s, beyond the maximum segment time ({settings.max_duration:g} s)",
+        )
+
+
+def excess(settings: Settings, entry: Entry) -> tuple[float, float]:
+    """By how much the segment's time must grow for its velocity and acceleration, and for its
+    jerk, to be within the limits (1: they are)."""
+    segment = entry.segment
+    assert segment is not None
+    cached = segment.memo.get(settings)
+    if cached is not None:
+        return cached  # type: ignore[return-value]
+    lim = settings.limits
+    needed = [1.0, 1.0, 1.0, 1.0]
+    for order in range(1, min(segment.bounded_order, 3) + 1):
+        limit = limit_of(lim, order)
+        lo, hi = segment.bounds(order)
+        if np.all(np.maximum(-lo, hi) <= limit):
+            continue
+        lo, hi = segment.extremes(order)
+        over = float(np.max(np.maximum(-lo, hi) / limit))
+        if over > 1.0 + SLACK:
+            needed[order] = over ** (1.0 / order)
+    result = max(needed[1], needed[2]), needed[3]
+    segment.memo[settings] = result
+    return result
+
+
+def swings(settings: Settings, entry: Entry) -> bool:
+    """The segment goes beyond its two points by more than OVERSHOOT plus what the robot needs
+    to brake from its start (its Bezier hull says so: cheap, and exact enough to flag a fast
+    start over a long segment, which a quintic turns into a long excursion)."""
+    segment = entry.segment
+    assert segment is not None and entry.end is not None
+    lo, hi = segment.bounds(0)
+    lim = settings.limits
+    v0, a0 = np.abs(entry.start.velocity), np.abs(entry.start.acceleration)
+    ramp = (a0 + lim.acceleration) / lim.jerk  # time to turn the acceleration round
+    fastest = v0 + a0 * ramp
+    braking = fastest * ramp + fastest * fastest / (2.0 * lim.acceleration) + OVERSHOOT
+    p0, p1 = entry.start.position, entry.end.position
+    return bool(np.any(lo < np.minimum(p0, p1) - braking) or np.any(hi > np.maximum(p0, p1) + braking))
+
+
+def uniform_need(settings: Settings, entry: Entry) -> float:
+    """By how much the whole trajectory must slow down for this segment: its velocity and
+    acceleration excess; for a transient first its end state's (the start is the robot being
+    late, met locally; an end state beyond the limits is a plan too fast from there on), then,
+    if the local fix failed, its own."""
+    if not entry.transient:
+        return max(excess(settings, entry)[0], end_need(settings, entry) if entry.end is not None else 1.0)
+    needed = end_need(settings, entry)
+    if needed > 1.0:
+        return needed
+    # an end state within the limits that the local fix could still not reach (it would have
+    # to go faster than the limits to get there in time): the segment's own excess
+    return excess(settings, entry)[0]
+
+
+def end_need(settings: Settings, entry: Entry) -> float:
+    """By how much the trajectory must slow down for the segment's end state to be within the
+    velocity and acceleration limits (1: it is), :func:`state_need`; kept with the segment
+    built to that state (a re-scale asks again for every pending segment)."""
+    end, segment = entry.end, entry.segment
+    assert end is not None
+    if segment is None:
+        return state_need(end, settings.limits)
+    key = ("end need", settings)
+    cached = segment.memo.get(key)
+    if cached is None:
+        cached = segment.memo[key] = state_need(end, settings.limits)
+    return cached  # type: ignore[return-value]
+
+
+def within_positions(settings: Settings, entry: Entry) -> bool:
+    """The segment stays within the position limits (up to SLACK)."""
+    segment = entry.segment
+    assert segment is not None
+    lim = settings.limits
+    lo, hi = segment.bounds(0)
+    if np.all(lo >= lim.lower) and np.all(hi <= lim.upper):
+        return True
+    lo, hi = segment.extremes(0)
+    slack = SLACK * np.maximum(1.0, np.abs(lim.upper))
+    return bool(np.all(lo >= lim.lower - slack) and np.all(hi <= lim.upper + slack))
+
+
+def check_position(settings: Settings, entry: Entry) -> None:
+    """Refuse a segment that leaves the position limits (a given velocity can swing it out)."""
+    if not within_positions(settings, entry):
+        assert entry.segment is not None
+        lo, hi = entry.segment.extremes(0)
+        lim = settings.limits
+        within(lo, lim.lower, lim.upper, Reason.POSITION_LIMIT, "the segment's position")
+        within(hi, lim.lower, lim.upper, Reason.POSITION_LIMIT, "the segment's position")
+
+
+def state_need(state: State, limits: Limits) -> float:
+    """By how much a trajectory must slow down (velocities / k, accelerations / k^2) for one of its
+    states to be within the velocity and acceleration limits (1: it is), counting the speed a joint
+    still gains while its acceleration is brought to 0 at the jerk limit (a^2 / 2 J, when the
+    acceleration speeds it up): from a state beyond that, every motion leaves the velocity limit,
+    the controller's stop included."""
+    speed = np.abs(state.velocity)
+    direction = np.sign(state.velocity)
+    push = state.acceleration * direction
+    gain = np.where(push > 0.0, push * push / (2.0 * limits.jerk), 0.0)  # at k = 1; / k^4 when scaled
+    needed = max(1.0, float(np.max(speed / limits.velocity)))
+    needed = max(needed, math.sqrt(float(np.max(np.abs(state.acceleration) / limits.acceleration))))
+    # room to brake before the position limit the joint heads for
+    room = np.where(direction > 0.0, limits.upper - state.position, state.position - limits.lower)
+
+    def fits(k: float) -> bool:
+        v, a = speed / k, np.maximum(push, 0.0) / (k * k)
+        if not np.all(v + gain / k**4 <= limits.velocity * (1.0 + SLACK)):
+            return False
+        ramp = (a + limits.acceleration) / limits.jerk  # to turn the acceleration round
+        fastest = v + a * ramp
+        braking = fastest * ramp + fastest * fastest / (2.0 * limits.acceleration)
+        return bool(np.all(braking <= room + SLACK))
+
+    if not fits(needed):
+        # both terms fall with k: at ``high`` each is at most half the limit
+        low, high = needed, max(needed, float(np.max(2.0 * speed / limits.velocity)))
+        high = max(high, float(np.max(2.0 * gain / limits.velocity) ** 0.25))
+        while not fits(high):  # braking room: the braking distance falls as 1 / k (at least)
+            if high > 1e6:
+                return high  # no room at all (a joint at its limit, moving on): slowing cannot help
+            high *= 2.0
+        for _ in range(48):
+            middle = 0.5 * (low + high)
+            low, high = (low, middle) if fits(middle) else (middle, high)
+        needed = high
+    return needed if needed > 1.0 + SLACK else 1.0
