@@ -44,35 +44,28 @@ docs/protocol.md). :meth:`RobotDriver.supports_lines` asks the controller once p
 run them and the actual TCP is at the last one; a refused line raises :class:`LineRefused`, which
 names the controller's :class:`~simple_message.constants.LineResult`. :meth:`RobotDriver.subscribe_tool_pose`
 asks for TOOL_POSE on the state connection; :attr:`RobotDriver.tool_pose` is the latest one.
-The lines are :mod:`.lines`; the trajectories' sending :mod:`.sending`; the wait for the goal,
-for both, :meth:`RobotDriver._wait_done` with :mod:`.waiting`.
+
+:class:`RobotDriver` is the facade over the pieces that do this, one idea each: the state
+connection read into the latest joint state and STATUS, and the wait for more (:mod:`.monitor`);
+the trajectory's senders, one per way a controller family takes points (:mod:`.sending`); the
+straight lines (:mod:`.lines`); the wait for the goal after either (:mod:`.waiting`). Itself it
+keeps the connections and the requests on the motion connection.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import dataclasses
 import logging
-import math
 import time
-from collections.abc import AsyncIterator, Callable, Sequence
-from dataclasses import dataclass
-from enum import StrEnum
+from collections.abc import AsyncIterator, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from robot_server import RobotModel
-from simple_message.connection import Connection, ConnectionState, Subscription, Tap
-from simple_message.constants import (
-    MotoCommand,
-    MotoResult,
-    MsgType,
-    SpecialSeq,
-    TriState,
-    ValidFields,
-)
+from simple_message.connection import ConnectionState, Tap
+from simple_message.constants import MotoCommand, MotoResult, MsgType, SpecialSeq
 from simple_message.dialects import GENERIC, Dialect, dialect
 from simple_message.endpoints import Client, ReconnectPolicy
 from simple_message.errors import (
@@ -83,8 +76,6 @@ from simple_message.errors import (
     SimpleMessageError,
 )
 from simple_message.messages import (
-    JointFeedback,
-    JointPosition,
     JointTrajPt,
     Message,
     MotoMotionCtrl,
@@ -96,12 +87,13 @@ from simple_message.messages import (
 from simple_message.wire import WireFormat
 
 from .errors import DriverError, ExecutionAborted, _InFlight, _NotSent
-from .limits import check_limits, path_deviation, within_speeds
+from .limits import check_limits, within_speeds
 from .lines import CartesianLines, LineGoal, LineRefused
-from .reasons import moving_elsewhere, status_faults, status_why
-from .sending import TrajectorySender
+from .monitor import JointState, StateMonitor
+from .reasons import moving_elsewhere
+from .sending import Mode, sender_for
 from .trajectory import Trajectory
-from .waiting import Look, Stall, Wait, joints_still
+from .waiting import GoalSupervisor
 
 __all__ = ["RobotDriver", "DriverError", "ExecutionAborted", "LineRefused", "LineGoal", "JointState", "Mode"]
 
@@ -112,24 +104,6 @@ Array = NDArray[np.float64]
 
 #: how long (s) a cancelled motion waits for the robot to come to rest before the client goes on
 STOP_SETTLE = 10.0
-
-
-class Mode(StrEnum):
-    STREAM = "stream"
-    DOWNLOAD = "download"
-
-
-@dataclass(frozen=True)
-class JointState:
-    """The robot's latest state: positions (and velocities if the controller sends them) of
-    motion group 0, the latest STATUS, and when it arrived (``time.monotonic()``)."""
-
-    positions: Array
-    velocities: Array | None
-    status: Status | None
-    received: float
-    #: the controller's time of the sample (s), where it says it (JOINT_FEEDBACK with a valid time)
-    stamp: float | None = None
 
 
 class RobotDriver:
@@ -207,24 +181,16 @@ class RobotDriver:
             self.state = Client.tcp(
                 host, self.state_port, wire, reconnect=policy, name=f"state {host}:{self.state_port}", tap=tap
             )
-        self._latest: JointState | None = None
-        self._status: Status | None = None
-        self._changed = asyncio.Event()
-        self._reader: asyncio.Task[None] | None = None
-        #: every joint-state sample and TOOL_POSE sets it (waits for "this, or so many rounds")
-        self._activity = asyncio.Event()
-        self._samples = 0
-        self._tool_poses: dict[int, ToolPose] = {}
-        self._tool_wanted = False
-        self._tool_asked_on: Connection | None = None
-        self._feedback_wanted = False
+        #: the state connection read into the latest joint state, STATUS and TOOL_POSEs
+        self._monitor = StateMonitor(self)
+        #: the wait for the goal of what was sent, and for rest after a stop
+        self._supervisor = GoalSupervisor(self)
+        #: straight lines run by the controller, and whether it runs them
+        self._lines = CartesianLines(self)
         #: the motion connection (its count) the controller last answered on: one is made by connect()
         self._answered_on = 1
-        self._feedback_asked_on: Connection | None = None
         #: where the robot came to rest after a cancelled motion (:meth:`settle_after_stop`)
         self.stopped_at: JointState | None = None
-        #: supports_lines' answer and the motion connection it holds for (None: for the driver's life)
-        self._lines: tuple[Connection | None, bool] | None = None
 
     # -- lifecycle ---------------------------------------------------------------------------------
 
@@ -251,28 +217,9 @@ class RobotDriver:
         except (TimeoutError, ConnectionClosed, OSError) as exc:
             await self.close()
             raise DriverError(self._cannot_connect(exc)) from None
-        self._reader = asyncio.get_running_loop().create_task(self._read_state(subscription), name="driver state")
+        self._monitor.start(subscription)
         await self.wait_state(timeout)
         return self
-
-    def _no_state(self, waited: float | None = None) -> str:
-        """Why no joint state came within ``waited`` s (default: the watchdog period): the
-        connection's end if it ended, else the wait."""
-        client = self.state
-        seconds = self.watchdog if waited is None else waited
-        if client.state is not ConnectionState.CONNECTED:
-            cause = client.last_error
-            full = (
-                ": a controller closes a state client it has no room for (MotoROS serves 4): close another client of "
-                "its state port"
-                if not cause and self._samples == 0
-                else ""
-            )
-            return (
-                f"the controller closed the state connection ({client.name}"
-                f"{f': {cause}' if cause else ''}); no joint state for {seconds:g} s{full}"
-            )
-        return f"no joint state for {seconds:g} s" + (" (watchdog)" if waited is None else "")
 
     def _cannot_connect(self, exc: BaseException) -> str:
         """Why connecting failed, with the cause the connection attempts met."""
@@ -288,10 +235,7 @@ class RobotDriver:
         return f"cannot connect to {self.address}: {str(exc) or 'timed out'}"
 
     async def close(self) -> None:
-        if self._reader is not None:
-            self._reader.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._reader
+        await self._monitor.stop()
         await self.motion.close()
         if self.state is not self.motion:
             await self.state.close()
@@ -308,57 +252,7 @@ class RobotDriver:
     async def __aexit__(self, *exc: object) -> None:
         await self.close()
 
-    # -- state -------------------------------------------------------------------------------------
-
-    async def _read_state(self, subscription: Subscription) -> None:
-        """One joint-state sample per state round: from JOINT_FEEDBACK once the controller has sent
-        one (it carries velocities too), else from JOINT_POSITION; the other joint topic of the
-        same round is ignored. A STATUS updates the latest sample's status, and wakes waiters only
-        when it changed (:meth:`states` yields each sample once: recordings used to hold copies
-        0.2 ms apart, and rates read high)."""
-        feedback = False
-        async for msg in subscription:
-            if self._tool_wanted and self.state.connection is not self._tool_asked_on:
-                self._ask_tool_pose()  # a new state connection: the controller forgot who asked
-            if self._feedback_wanted and self.state.connection is not self._feedback_asked_on:
-                self.ask_feedback()
-            if isinstance(msg, ToolPose):
-                self._tool_poses[msg.robot_id] = msg
-                self._wake_activity()
-                continue
-            if isinstance(msg, Status):
-                changed = msg != self._status
-                self._status = msg
-                if self._latest is not None:
-                    latest = self._latest
-                    self._latest = dataclasses.replace(latest, status=msg)
-                if not changed:
-                    continue  # the same STATUS again: nothing new to wake anyone for
-            if isinstance(msg, JointPosition):
-                if feedback:
-                    continue
-                self._latest = JointState(self._positions(msg.joint_data), None, self._status, time.monotonic())
-            elif isinstance(msg, JointFeedback) and msg.robot_id == 0:
-                feedback = True
-                velocities = self._positions(msg.velocities) if ValidFields.VELOCITY & msg.valid_fields else None
-                stamp = float(msg.time) if ValidFields.TIME & msg.valid_fields else None
-                self._latest = JointState(
-                    self._positions(msg.positions), velocities, self._status, time.monotonic(), stamp
-                )
-            else:
-                continue
-            self._changed.set()
-            self._changed = asyncio.Event()
-            self._samples += 1
-            self._wake_activity()
-
-    def _wake_activity(self) -> None:
-        self._activity.set()
-        self._activity = asyncio.Event()
-
-    def _positions(self, values: tuple[float, ...]) -> Array:
-        dof = self.model.dof if self.model is not None else len(values)
-        return self.from_controller(np.array(values[:dof], dtype=float))
+    # -- state (monitor.py) ------------------------------------------------------------------------
 
     def from_controller(self, joints: Array) -> Array:
         """The controller's joints as the model's (Fanuc's J3: + J23_factor x J2)."""
@@ -376,21 +270,21 @@ class RobotDriver:
 
     @property
     def joint_state(self) -> JointState | None:
-        return self._latest
+        return self._monitor.latest
 
     @property
     def status(self) -> Status | None:
-        return self._status
+        return self._monitor.status
 
     @property
     def tool_pose(self) -> ToolPose | None:
         """The latest TOOL_POSE of motion group 0 (None until one arrives: only after
         :meth:`subscribe_tool_pose`, and only from a controller that has the extension)."""
-        return self._tool_poses.get(0)
+        return self._monitor.tool_poses.get(0)
 
     def tool_pose_of(self, group: int) -> ToolPose | None:
         """The latest TOOL_POSE of motion group ``group`` (None until one arrives)."""
-        return self._tool_poses.get(group)
+        return self._monitor.tool_poses.get(group)
 
     async def subscribe_tool_pose(self, *, wait: bool = True, rounds: int | None = 3) -> ToolPose | None:
         """Ask the controller for TOOL_POSE (this project's extension, docs/protocol.md: the actual
@@ -403,64 +297,23 @@ class RobotDriver:
         or the watchdog period, else None; without, returns at once what is known. ``rounds``
         None waits the watchdog period whatever arrives: samples read late come in a burst, which
         would count as rounds before the controller has seen the request."""
-        self._tool_wanted = True
-        if self.state.connection is not self._tool_asked_on:
-            self._ask_tool_pose()
-        pose = self.tool_pose
-        if not wait or pose is not None:
-            return pose
-        start = self._samples
-        with contextlib.suppress(TimeoutError):
-            async with asyncio.timeout(self.watchdog):
-                while self.tool_pose is None and (rounds is None or self._samples - start < rounds):
-                    await self._activity.wait()
-        return self.tool_pose
+        return await self._monitor.subscribe_tool_pose(wait=wait, rounds=rounds)
 
     def ask_feedback(self) -> None:
         """Ask the controller for JOINT_FEEDBACK on the state connection (the emulator's generic
         profile sends it to a client that sent one, docs/protocol.md: positions, velocities and the
         controller's time of each sample, :attr:`JointState.stamp`). A TOPIC: a controller that
         does not know it ignores it. Asked again after a reconnection."""
-        self._feedback_wanted = True
-        connection = self.state.connection
-        if connection is None or connection.closed or self.state.state is not ConnectionState.CONNECTED:
-            return
-        if connection.send_nowait(JointFeedback()):
-            self._feedback_asked_on = connection
-
-    def _ask_tool_pose(self) -> None:
-        """Send the TOOL_POSE request on the state connection as it is now (if it is up)."""
-        connection = self.state.connection
-        if connection is None or connection.closed or self.state.state is not ConnectionState.CONNECTED:
-            return  # asked again once a state message arrives on the next connection
-        if connection.send_nowait(ToolPose()):
-            self._tool_asked_on = connection
-            log.debug("TOOL_POSE requested on %s", self.state.name)
+        self._monitor.ask_feedback()
 
     async def wait_state(self, timeout: float | None = None) -> JointState:
         """The next joint state (within ``timeout``, default the watchdog period)."""
-        waited = timeout if timeout is not None else self.watchdog
-        try:
-            async with asyncio.timeout(waited):
-                while True:
-                    await self._changed.wait()
-                    if self._latest is not None and self._status is not None:
-                        return self._latest
-        except TimeoutError:
-            client = self.state
-            if client.state is not ConnectionState.CONNECTED:
-                raise DriverError(self._no_state(waited)) from None
-            raise DriverError(f"no joint state and STATUS from {client.name}") from None
+        return await self._monitor.wait_state(timeout)
 
-    async def states(self) -> AsyncIterator[JointState]:
+    def states(self) -> AsyncIterator[JointState]:
         """Every joint-state sample once, as it arrives (raises DriverError when none comes for the
         watchdog period); a changed STATUS alone is not a new sample."""
-        last: float | None = None
-        while True:
-            state = await self.wait_state()
-            if state.received != last:
-                last = state.received
-                yield state
+        return self._monitor.states()
 
     # -- requests ----------------------------------------------------------------------------------
 
@@ -524,26 +377,12 @@ class RobotDriver:
                 raise DriverError("the controller answered FAILURE to STOP") from None
         log.info("stop sent")
 
-    # -- straight lines run by the controller (CARTESIAN_LINE, this project's extension; lines.py) --
-
-    async def supports_lines(self) -> bool:
-        """Whether the controller runs straight lines itself (CARTESIAN_LINE, docs/protocol.md).
-
-        The probe is a CARTESIAN_LINE STOP (sequence -4): harmless for a robot at rest, but a stop
-        all the same, so ask only as the motion client about to move. Only a CARTESIAN_LINE reply
-        (type 65001, SERVICE_REPLY, its 12-byte body) means yes, whatever its result; anything
-        else means no: the C++ library's header-only FAILURE, MotoROS's MOTO_MOTION_REPLY, a reply
-        that does not decode, no reply within ``min(reply_timeout, 1)`` s (the link is then reset,
-        as for any lost reply, and the answer kept for the driver's life). The answer is kept for
-        the motion connection it was found on."""
-        return await CartesianLines(self).supports()
-
     def moving_elsewhere(self) -> str | None:
         """Why a motion cannot start now because the robot is moving (the latest STATUS says in_motion
         TRUE): under another motion client when the controller closed this client's motion
         connection, else a motion still under way (:func:`.reasons.moving_elsewhere`). None when
         STATUS does not say the robot moves."""
-        return moving_elsewhere(self._status, self._motion_closed())
+        return moving_elsewhere(self._monitor.status, self._motion_closed())
 
     def _motion_closed(self) -> bool:
         """The controller has closed this client's motion connection since it last answered on it (it is
@@ -559,6 +398,20 @@ class RobotDriver:
                 await self.motion.wait_for(ConnectionState.CONNECTED, self.reply_timeout)
             except (TimeoutError, ConnectionClosed):
                 raise DriverError(f"the motion link to {self.address} is down") from None
+
+    # -- straight lines run by the controller (CARTESIAN_LINE, this project's extension; lines.py) --
+
+    async def supports_lines(self) -> bool:
+        """Whether the controller runs straight lines itself (CARTESIAN_LINE, docs/protocol.md).
+
+        The probe is a CARTESIAN_LINE STOP (sequence -4): harmless for a robot at rest, but a stop
+        all the same, so ask only as the motion client about to move. Only a CARTESIAN_LINE reply
+        (type 65001, SERVICE_REPLY, its 12-byte body) means yes, whatever its result; anything
+        else means no: the C++ library's header-only FAILURE, MotoROS's MOTO_MOTION_REPLY, a reply
+        that does not decode, no reply within ``min(reply_timeout, 1)`` s (the link is then reset,
+        as for any lost reply, and the answer kept for the driver's life). The answer is kept for
+        the motion connection it was found on."""
+        return await self._lines.supports()
 
     async def move_lines(
         self, targets: Sequence[LineGoal], *, speed: float, blend_radius: float = 0.0, group: int = 0
@@ -578,59 +431,7 @@ class RobotDriver:
         :class:`ExecutionAborted` as :meth:`execute` does (an alarm or e-stop, a lost connection,
         a robot standing still short of the goal, no goal in time). Once a line has been
         accepted, any failure (and a cancellation) sends a STOP before raising."""
-        return await CartesianLines(self).move(targets, speed=speed, blend_radius=blend_radius, group=group)
-
-    async def _wait_done(self, wait: Wait, look: Callable[[JointState], Look | None], confirmed: int) -> JointState:
-        """Wait until the robot has done what was sent (``look`` says of each joint state where it
-        is: at the goal, moved from the start): see :meth:`_wait_goal`. Returns the last state."""
-        what = wait.what
-        sent = time.monotonic()
-        deadline = sent + wait.duration + self.goal_timeout
-        stall = Stall(self.stall_timeout)
-        seen_moving = False
-        late = f"the robot did not reach {wait.goal} in time"
-        while True:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                raise ExecutionAborted(late, confirmed, what=what)
-            try:
-                state = await self.wait_state(min(self.watchdog, remaining))
-            except DriverError:
-                if remaining < self.watchdog:
-                    raise ExecutionAborted(late, confirmed, what=what) from None
-                raise ExecutionAborted(self._no_state(), confirmed, what=what) from None
-            seen = look(state)
-            status = state.status
-            if status is not None and status.in_error == TriState.TRUE:
-                raise ExecutionAborted(f"the controller is in error (code {status.error_code})", confirmed, what=what)
-            if (
-                wait.stops
-                and status is not None
-                and (status.e_stopped == TriState.TRUE or status.drives_powered == TriState.FALSE)
-            ):
-                raise ExecutionAborted(f"the robot stopped: {self._why()}", confirmed, what=what)
-            if seen is None:
-                continue
-            if (status is not None and status.in_motion == TriState.TRUE) or seen.moved:
-                seen_moving = True
-            waited = time.monotonic() - sent
-            if not wait.stops and wait.moves and not seen_moving and waited > self.stall_timeout and self._faulted():
-                # a trajectory the controller dropped before it began (a download has no replies)
-                raise ExecutionAborted(f"the robot did not move: {self._why()}", confirmed, what=what)
-            ran = seen_moving or not wait.moves or waited > wait.duration + self.stall_timeout
-            if seen.at_goal and ran and status is not None and status.in_motion != TriState.TRUE:
-                if status.in_motion == TriState.UNKNOWN:
-                    log.warning("%s reached, but the controller reports in_motion UNKNOWN", wait.goal)
-                return state
-            # standing still short of the goal: the controller dropped the motion (a refused
-            # download point has no reply to say so) or someone stopped the robot
-            if stall.standing(not seen.at_goal and status is not None and status.in_motion == TriState.FALSE):
-                raise ExecutionAborted(
-                    f"the robot stands still {seen.short} (in_motion FALSE for {self.stall_timeout} s): the "
-                    f"controller dropped or stopped {wait.motion}{f': {self._why()}' if self._faulted() else ''}",
-                    confirmed,
-                    what=what,
-                )
+        return await self._lines.move(targets, speed=speed, blend_radius=blend_radius, group=group)
 
     # -- execution ---------------------------------------------------------------------------------
 
@@ -638,7 +439,7 @@ class RobotDriver:
         """Run ``trajectory`` and wait for the goal (see the module doc). Returns the final state.
         ``mode``: stream or download (default: the controller family's usual way; a family that
         takes only one refuses the other)."""
-        mode = self._mode(mode)
+        sender = sender_for(self, mode)
         limit = self.dialect.max_points
         if limit is not None and len(trajectory) > limit:
             raise DriverError(
@@ -647,11 +448,7 @@ class RobotDriver:
                 f"{limit} points"
             )
         state = await self.wait_state()
-        if self.motion.state is not ConnectionState.CONNECTED:  # e.g. being reset after a lost reply
-            try:
-                await self.motion.wait_for(ConnectionState.CONNECTED, self.reply_timeout)
-            except (TimeoutError, ConnectionClosed):
-                raise DriverError(f"the motion link to {self.address} is down") from None
+        await self._motion_up()  # e.g. being reset after a lost reply
         if self.model is not None and trajectory.dof != self.model.dof:
             raise DriverError(f"the trajectory has {trajectory.dof} joints, the robot {self.model.dof}")
         if trajectory.dof != state.positions.size and self.model is None:
@@ -672,14 +469,8 @@ class RobotDriver:
             )
         confirmed = -1
         try:
-            sender = TrajectorySender(self)
-            if self.dialect.motion_control:
-                confirmed = await sender.motoros(trajectory)
-            elif mode is Mode.DOWNLOAD:
-                confirmed = await sender.download(trajectory)
-            else:
-                confirmed = await sender.stream(trajectory)
-            return await self._wait_goal(trajectory, confirmed)
+            confirmed = await sender.send(trajectory)
+            return await self._supervisor.goal(trajectory, confirmed)
         except asyncio.CancelledError:
             await self._stop_quietly()
             raise
@@ -690,51 +481,6 @@ class RobotDriver:
             await self._stop_quietly()
             raise ExecutionAborted(str(exc), confirmed) from None
 
-    def _mode(self, mode: Mode | str | None) -> Mode:
-        """The way to send a trajectory: ``mode``, if the controller family takes it, else its usual one."""
-        modes = self.dialect.modes
-        if mode is None:
-            return Mode(modes[0])
-        chosen = Mode(mode)
-        if self.dialect.motion_control:  # one way only, whatever is asked (as before the vendor modes)
-            if chosen.value not in modes:
-                log.warning(
-                    "%s: the %s controller runs a trajectory one way, its trajectory mode: %s is not a choice there",
-                    self.address,
-                    self.dialect.name,
-                    chosen.value,
-                )
-            return Mode(modes[0])
-        if chosen.value not in modes:
-            raise DriverError(
-                f"the {self.dialect.name} controller takes trajectories {' or '.join(f'{m}ed' for m in modes)}, "
-                f"not {chosen.value}ed"
-            )
-        return chosen
-
-    async def _why_now(self) -> str:
-        """:meth:`_why` from a STATUS that came after the refusal (the controller may have replied
-        before publishing the change that made it refuse, e.g. an e-stop), waiting at most a
-        watchdog period for it."""
-        with contextlib.suppress(DriverError, TimeoutError):
-            seen = self._latest.received if self._latest is not None else None
-            async with asyncio.timeout(self.watchdog):
-                while self._latest is None or self._latest.received == seen:
-                    await self.wait_state()
-        return self._why()
-
-    def _faults(self) -> list[str]:
-        """The reasons the latest STATUS gives for the robot not to move (none: nothing wrong)."""
-        return status_faults(self._status)
-
-    def _faulted(self) -> bool:
-        """The latest STATUS shows a reason the robot cannot move (see :meth:`_why`)."""
-        return bool(self._faults())
-
-    def _why(self) -> str:
-        """Why the controller may refuse motion, as its latest STATUS says (:func:`.reasons.status_why`)."""
-        return status_why(self._status)
-
     async def settle_after_stop(self, bound: float = STOP_SETTLE) -> JointState | None:
         """After a cancelled motion (its STOP sent and acknowledged): wait, at most ``bound`` s,
         for the robot to be at rest, so that a client that then leaves does not leave while the
@@ -744,26 +490,8 @@ class RobotDriver:
         may show the robot still braking. When ``bound`` passes with STATUS saying at rest but the
         joints never that slow, the latest state sampled after that STATUS; None when there was
         none. It is also :attr:`stopped_at`."""
-        rest_after: float | None = None  # when the state current as STATUS said at rest arrived
-        previous: JointState | None = None
-        latest: JointState | None = None
-        with contextlib.suppress(DriverError, TimeoutError):
-            async with asyncio.timeout(bound):
-                while True:
-                    state = await self.wait_state()
-                    status = self._status
-                    if status is None or status.in_motion == TriState.TRUE:
-                        rest_after, latest = None, None
-                    elif rest_after is None:
-                        rest_after = state.received
-                    elif state.received > rest_after:
-                        latest = state
-                        if _still(state, previous):
-                            break
-                    if previous is None or state.received != previous.received:
-                        previous = state
-        self.stopped_at = latest
-        return latest
+        self.stopped_at = await self._supervisor.settled(bound)
+        return self.stopped_at
 
     async def _stop_quietly(self) -> None:
         """Stop after an abort; if the motion link is down, wait (bounded) for it to come back."""
@@ -775,43 +503,3 @@ class RobotDriver:
 
         with contextlib.suppress(DriverError, SimpleMessageError, TimeoutError):
             await asyncio.shield(stop())
-
-    async def _wait_goal(self, trajectory: Trajectory, confirmed: int) -> JointState:
-        # "at the goal and not moving" means done only once the robot has run the trajectory: a path
-        # that ends where it starts is "at the goal" before it begins, and the STATUS that comes with
-        # a joint state may be older than the last point. So the robot must have been seen moving
-        # (in_motion TRUE, or away from the start), unless the trajectory does not move it, or the
-        # planned duration (and stall_timeout) has passed since everything was sent.
-        goal = trajectory.positions[-1]
-        start = trajectory.positions[0]
-        moves = bool(np.max(np.abs(trajectory.positions - start)) > self.goal_tolerance)
-
-        def look(state: JointState) -> Look:
-            here = state.positions[: goal.size]
-            if self.path_tolerance is not None:
-                deviation = path_deviation(trajectory, here)
-                if deviation > self.path_tolerance:
-                    raise ExecutionAborted(
-                        f"the robot is {deviation:.4g} from the path (tolerance {self.path_tolerance})", confirmed
-                    )
-            error = float(np.max(np.abs(here - goal)))
-            moved = bool(np.max(np.abs(here - start)) > self.goal_tolerance)
-            return Look(error <= self.goal_tolerance, moved, f"{error:.4g} from the goal")
-
-        # a controller that moves at its own speed (Fanuc, Staubli) takes as long as it takes: no
-        # deadline from the trajectory's times, the robot standing still short of the goal ends it
-        duration = trajectory.duration if self.dialect.timed else math.inf
-        wait = Wait("point", "the goal", "the trajectory", duration, moves, stops=False)
-        return await self._wait_done(wait, look, confirmed)
-
-
-def _still(state: JointState, previous: JointState | None) -> bool:
-    """Every joint of ``state`` still (:func:`.waiting.joints_still`), by its velocities or by the
-    change since ``previous`` over the controller's sample times (else the receipt times)."""
-    if state.velocities is not None or previous is None:
-        return joints_still(state.velocities, None, 0.0)
-    if state.stamp is not None and previous.stamp is not None and state.stamp > previous.stamp:
-        elapsed = state.stamp - previous.stamp
-    else:
-        elapsed = state.received - previous.received
-    return joints_still(None, state.positions - previous.positions, elapsed)

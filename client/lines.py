@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from robot_server.kinematics import fk, quaternion_angle, rotation_to_quaternion
-from simple_message.connection import ConnectionState
+from simple_message.connection import Connection, ConnectionState
 from simple_message.constants import CommType, LineResult, SpecialSeq
 from simple_message.errors import (
     ConnectionClosed,
@@ -38,7 +38,8 @@ from .errors import DriverError, ExecutionAborted, _InFlight, _NotSent
 from .waiting import Look, Wait
 
 if TYPE_CHECKING:
-    from .driver import JointState, RobotDriver
+    from .driver import RobotDriver
+    from .monitor import JointState
 
 __all__ = ["LINE_REFUSALS", "CartesianLines", "LineGoal", "LineRefused", "line_reason"]
 
@@ -105,19 +106,21 @@ class _LineInFlight(ExecutionAborted):
 
 
 class CartesianLines:
-    """Straight lines for ``driver`` (see the module doc); the driver keeps what it found out."""
+    """Straight lines for ``driver`` (see the module doc), and whether its controller runs them."""
 
     def __init__(self, driver: RobotDriver) -> None:
         self.driver = driver
+        #: :meth:`supports`' answer and the motion connection it holds for (None: for the driver's life)
+        self._found: tuple[Connection | None, bool] | None = None
 
     async def supports(self) -> bool:
         """:meth:`.driver.RobotDriver.supports_lines` (see there)."""
         d = self.driver
-        cached = d._lines
+        cached = self._found
         if cached is not None and (cached[0] is None or cached[0] is d.motion.connection):
             return cached[1]
         if not d.dialect.unknown_types:  # a probe would stop ABB's server, misframe Fanuc's, hang on Staubli's
-            d._lines = (None, False)
+            self._found = (None, False)
             return False
         await d._motion_up()
         connection = d.motion.connection
@@ -134,7 +137,7 @@ class CartesianLines:
                 log.warning("no reply to the CARTESIAN_LINE probe within %s s: resetting the motion link", timeout)
                 await connection.close()
             log.info("%s: no reply to CARTESIAN_LINE: no straight-line motion", d.motion.name)
-            d._lines = (None, False)
+            self._found = (None, False)
             return False
         except NotConnected as exc:
             raise DriverError(f"motion connection down: {exc}") from None
@@ -148,7 +151,7 @@ class CartesianLines:
             if supported
             else f"no CARTESIAN_LINE (answered {getattr(reply, 'name', None) or type(reply).__name__})",
         )
-        d._lines = (connection, supported)
+        self._found = (connection, supported)
         return supported
 
     async def move(
@@ -170,7 +173,7 @@ class CartesianLines:
                 f"the controller at {d.address} has no straight-line motion (it does not answer CARTESIAN_LINE)"
             )
         await d.subscribe_tool_pose()
-        start = self.tcp(group, d._latest)
+        start = self.tcp(group, d.joint_state)
         if start is None:
             raise DriverError(
                 "cannot tell where the TCP is: the controller sends no TOOL_POSE and the driver has no robot model"
@@ -204,7 +207,7 @@ class CartesianLines:
         except RequestFailed as exc:
             reply = exc.reply
             if isinstance(reply, CartesianLineReply):
-                why = await d._why_now() if reply.result == LineResult.NOT_READY else ""
+                why = await d._monitor.why_now() if reply.result == LineResult.NOT_READY else ""
                 raise LineRefused(k, reply.result, confirmed, why) from None
             name = getattr(reply, "name", type(reply).__name__)
             raise ExecutionAborted(f"line {k} answered FAILURE ({name})", confirmed, what="line") from None
@@ -242,7 +245,7 @@ class CartesianLines:
         """The actual TCP position and orientation ``(w, x, y, z)``: the latest TOOL_POSE, else
         the forward kinematics of ``state`` (group 0 with a model), else None."""
         d = self.driver
-        pose = d._tool_poses.get(group)
+        pose = d.tool_pose_of(group)
         if pose is not None:
             return np.array([pose.x, pose.y, pose.z]), np.array([pose.qw, pose.qx, pose.qy, pose.qz])
         if d.model is None or group != 0 or state is None:
@@ -253,8 +256,8 @@ class CartesianLines:
     async def _wait(
         self, group: int, start: tuple[Array, Array], goals: list[tuple[Array, Array]], speed: float, confirmed: int
     ) -> ToolPose:
-        """Wait until the robot has run the lines (see :meth:`move`), as the driver's ``_wait_goal``
-        does for a trajectory; the TCP is compared with the last target."""
+        """Wait until the robot has run the lines (see :meth:`move`), as
+        :meth:`.waiting.GoalSupervisor.goal` does for a trajectory; the TCP is compared with the last target."""
         d = self.driver
         goal_position, goal_orientation = goals[-1]
 
@@ -280,14 +283,14 @@ class CartesianLines:
         offsets = [off(start, p, q) for p, q in goals]
         moves = any(far > d.tcp_tolerance or turn > d.orientation_tolerance for far, turn in offsets)
         wait = Wait("line", "the last line's end", "the lines", length / speed, moves, stops=True)
-        state = await d._wait_done(wait, look, confirmed)
+        state = await d._supervisor.done(wait, look, confirmed)
         tcp = self.tcp(group, state)
         assert tcp is not None  # done means it was compared
         return self._final_pose(group, tcp, state)
 
     def _final_pose(self, group: int, tcp: tuple[Array, Array], state: JointState) -> ToolPose:
         d = self.driver
-        pose = d._tool_poses.get(group)
+        pose = d.tool_pose_of(group)
         if pose is not None:
             return pose
         (x, y, z), (qw, qx, qy, qz) = tcp[0].tolist(), tcp[1].tolist()

@@ -1,19 +1,19 @@
-"""How a trajectory goes to a controller: the driver's send strategies, one per way a controller
-family takes points (:class:`~.driver.RobotDriver` chooses by its dialect and mode).
+"""How a trajectory goes to a controller: the driver's senders, one per way a controller family
+takes points (:func:`sender_for` chooses by the dialect and the :class:`Mode` asked for).
 
-* ``stream``: JOINT_TRAJ_PT SERVICE_REQUESTs, sequence 0..n-1, one in flight; each reply must be
-  SUCCESS. Durations are the waypoint time differences (0 for the first point, which is where the
-  robot is); the velocity ratio is the critical joint's peak speed as a share of its limit when the
-  model is known (:meth:`TrajectorySender.ratio`).
-* ``download``: TOPICs with sequence -1, 1..n-2, -3 (a single point is sent twice, as the reference
-  downloader does), then a PING that proves the controller read them all.
-* ``motoros``: CHECK_MOTION_READY (and START_TRAJ_MODE if needed), then JOINT_TRAJ_PT_FULL with time,
-  positions and velocities (central differences when the trajectory has none), on MotoROS's
-  millisecond grid (:func:`_on_milliseconds`); BUSY is retried with a growing back-off; anything
-  else aborts.
+* ``stream`` (:class:`StreamSender`): JOINT_TRAJ_PT SERVICE_REQUESTs, sequence 0..n-1, one in
+  flight; each reply must be SUCCESS. Durations are the waypoint time differences (0 for the first
+  point, which is where the robot is); the velocity ratio is the critical joint's peak speed as a
+  share of its limit when the model is known (:meth:`TrajectorySender.ratio`).
+* ``download`` (:class:`DownloadSender`): TOPICs with sequence -1, 1..n-2, -3 (a single point is
+  sent twice, as the reference downloader does), then a PING that proves the controller read them all.
+* MotoROS's (:class:`MotorosSender`, a dialect with ``motion_control``): CHECK_MOTION_READY (and
+  START_TRAJ_MODE if needed), then JOINT_TRAJ_PT_FULL with time, positions and velocities (central
+  differences when the trajectory has none), on MotoROS's millisecond grid (:func:`_on_milliseconds`);
+  BUSY is retried with a growing back-off; anything else aborts.
 
-Each returns the index of the last point the controller confirmed, or raises
-:class:`~.driver.ExecutionAborted` (with that index).
+Each one's :meth:`~TrajectorySender.send` returns the index of the last point the controller
+confirmed, or raises :class:`~.driver.ExecutionAborted` (with that index).
 """
 
 from __future__ import annotations
@@ -23,6 +23,8 @@ import contextlib
 import logging
 import math
 import time
+from abc import ABC, abstractmethod
+from enum import StrEnum
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -41,18 +43,63 @@ from .trajectory import Trajectory
 if TYPE_CHECKING:
     from .driver import RobotDriver
 
-__all__ = ["TrajectorySender"]
+__all__ = ["DownloadSender", "Mode", "MotorosSender", "StreamSender", "TrajectorySender", "sender_for"]
 
 log = logging.getLogger("client.driver")
 
 Array = NDArray[np.float64]
 
 
-class TrajectorySender:
-    """Sends one trajectory to ``driver``'s controller (see the module doc)."""
+class Mode(StrEnum):
+    """How a controller that takes JOINT_TRAJ_PT gets a trajectory: point by point, or downloaded."""
+
+    STREAM = "stream"
+    DOWNLOAD = "download"
+
+
+def sender_for(driver: RobotDriver, mode: Mode | str | None) -> TrajectorySender:
+    """The sender for ``driver``'s controller family and ``mode`` (see :func:`_mode`)."""
+    chosen = _mode(driver, mode)
+    if driver.dialect.motion_control:
+        return MotorosSender(driver)
+    if chosen is Mode.DOWNLOAD:
+        return DownloadSender(driver)
+    return StreamSender(driver)
+
+
+def _mode(driver: RobotDriver, mode: Mode | str | None) -> Mode:
+    """The way to send a trajectory: ``mode``, if the controller family takes it, else its usual one."""
+    modes = driver.dialect.modes
+    if mode is None:
+        return Mode(modes[0])
+    chosen = Mode(mode)
+    if driver.dialect.motion_control:  # one way only, whatever is asked (as before the vendor modes)
+        if chosen.value not in modes:
+            log.warning(
+                "%s: the %s controller runs a trajectory one way, its trajectory mode: %s is not a choice there",
+                driver.address,
+                driver.dialect.name,
+                chosen.value,
+            )
+        return Mode(modes[0])
+    if chosen.value not in modes:
+        raise DriverError(
+            f"the {driver.dialect.name} controller takes trajectories {' or '.join(f'{m}ed' for m in modes)}, "
+            f"not {chosen.value}ed"
+        )
+    return chosen
+
+
+class TrajectorySender(ABC):
+    """Sends one trajectory to ``driver``'s controller, one way (see the module doc): what the
+    ways share."""
 
     def __init__(self, driver: RobotDriver) -> None:
         self.driver = driver
+
+    @abstractmethod
+    async def send(self, trajectory: Trajectory) -> int:
+        """Send ``trajectory``; the index of the last point the controller confirmed."""
 
     def ratio(self, trajectory: Trajectory, k: int) -> float:
         """The velocity ratio of segment ``k``: the critical joint's peak speed as a share of its
@@ -88,7 +135,24 @@ class TrajectorySender:
             comm_type=comm_type,
         )
 
-    async def stream(self, trajectory: Trajectory) -> int:
+    async def _reconnected(self, k: int, confirmed: int, cause: DriverError) -> None:
+        """Point ``k`` was not sent because the motion link is down: with ``resume``, wait for
+        the reconnection and carry on from ``k`` (saying so); otherwise abort."""
+        if not self.driver.resume:
+            raise ExecutionAborted(f"{cause} before point {k} was sent; not resuming (resume=False)", confirmed)
+        try:
+            await self.driver.motion.wait_for(ConnectionState.CONNECTED, self.driver.reply_timeout)
+        except (TimeoutError, ConnectionClosed):
+            raise ExecutionAborted(
+                f"{cause}; no reconnection within {self.driver.reply_timeout} s, point {k} was never sent", confirmed
+            ) from None
+        log.warning("motion connection re-established: resuming at point %d (points 0..%d confirmed)", k, confirmed)
+
+
+class StreamSender(TrajectorySender):
+    """``stream``: one JOINT_TRAJ_PT request at a time, each reply SUCCESS (see the module doc)."""
+
+    async def send(self, trajectory: Trajectory) -> int:
         confirmed = -1
         k = 0
         while k < len(trajectory):
@@ -98,7 +162,7 @@ class TrajectorySender:
                 if self.driver.dialect.fails_when_full and await self._room_made(k):
                     continue  # a full queue: the same point again, now that the robot has taken one
                 raise ExecutionAborted(
-                    f"the controller refused point {k}: {await self.driver._why_now()}", confirmed
+                    f"the controller refused point {k}: {await self.driver._monitor.why_now()}", confirmed
                 ) from None
             except _NotSent as exc:
                 await self._reconnected(k, confirmed, exc)
@@ -127,20 +191,11 @@ class TrajectorySender:
                 return True
         return False
 
-    async def _reconnected(self, k: int, confirmed: int, cause: DriverError) -> None:
-        """Point ``k`` was not sent because the motion link is down: with ``resume``, wait for
-        the reconnection and carry on from ``k`` (saying so); otherwise abort."""
-        if not self.driver.resume:
-            raise ExecutionAborted(f"{cause} before point {k} was sent; not resuming (resume=False)", confirmed)
-        try:
-            await self.driver.motion.wait_for(ConnectionState.CONNECTED, self.driver.reply_timeout)
-        except (TimeoutError, ConnectionClosed):
-            raise ExecutionAborted(
-                f"{cause}; no reconnection within {self.driver.reply_timeout} s, point {k} was never sent", confirmed
-            ) from None
-        log.warning("motion connection re-established: resuming at point %d (points 0..%d confirmed)", k, confirmed)
 
-    async def download(self, trajectory: Trajectory) -> int:
+class DownloadSender(TrajectorySender):
+    """``download``: the points as TOPICs, then a PING (see the module doc)."""
+
+    async def send(self, trajectory: Trajectory) -> int:
         n = len(trajectory)
         indices = list(range(n)) if n > 1 else [0, 0]
         confirmed = -1
@@ -176,36 +231,12 @@ class TrajectorySender:
             await self.driver._request(Ping())
         return n - 1
 
-    async def _motion_ready(self) -> None:
-        ready = await self.driver._moto(MotoCommand.CHECK_MOTION_READY)
-        if ready.result != MotoResult.TRUE:
-            enable = await self.driver._moto(MotoCommand.START_TRAJ_MODE)
-            if enable.result != MotoResult.SUCCESS:
-                why = await self.driver._why_now()
-                raise ExecutionAborted(
-                    f"START_TRAJ_MODE refused: {moto_reason(enable.result, enable.subcode)}; {why}", -1
-                )
-            ready = await self.driver._moto(MotoCommand.CHECK_MOTION_READY)
-            if ready.result != MotoResult.TRUE:
-                raise ExecutionAborted(
-                    f"the controller is not ready for motion: {moto_reason(ready.result, ready.subcode)}", -1
-                )
-            await self._alarm_cleared()
 
-    async def _alarm_cleared(self, rounds: int = 3) -> None:
-        """After START_TRAJ_MODE, which resets an alarm: wait (a few state rounds, at most the
-        watchdog period) for a STATUS without the alarm, so that one published before the reset, and
-        read after the reply on the other connection, is not taken for an alarm during the motion.
-        An alarm still there after that is the motion's to report."""
-        driver = self.driver
-        with contextlib.suppress(DriverError, TimeoutError):
-            async with asyncio.timeout(driver.watchdog):
-                for _ in range(rounds):
-                    state = await driver.wait_state()
-                    if state.status is None or state.status.in_error != TriState.TRUE:
-                        return
+class MotorosSender(TrajectorySender):
+    """MotoROS's way: trajectory mode, then JOINT_TRAJ_PT_FULL on the millisecond grid (see the
+    module doc)."""
 
-    async def motoros(self, trajectory: Trajectory) -> int:
+    async def send(self, trajectory: Trajectory) -> int:
         await self._motion_ready()
         velocities = trajectory.velocities if trajectory.velocities is not None else _differences(trajectory)
         times, positions, velocities = _on_milliseconds(trajectory.times, trajectory.positions, velocities)
@@ -236,7 +267,7 @@ class TrajectorySender:
                 if reply.result == MotoResult.SUCCESS:
                     break
                 if reply.result != MotoResult.BUSY:
-                    why = await self.driver._why_now() if reply.result == MotoResult.NOT_READY else ""
+                    why = await self.driver._monitor.why_now() if reply.result == MotoResult.NOT_READY else ""
                     raise ExecutionAborted(
                         f"the controller refused point {k}: {moto_reason(reply.result, reply.subcode)}"
                         f"{f'; {why}' if why else ''}",
@@ -249,6 +280,35 @@ class TrajectorySender:
                 delay = min(delay * 1.5, 0.05)
             confirmed = k
         return confirmed
+
+    async def _motion_ready(self) -> None:
+        ready = await self.driver._moto(MotoCommand.CHECK_MOTION_READY)
+        if ready.result != MotoResult.TRUE:
+            enable = await self.driver._moto(MotoCommand.START_TRAJ_MODE)
+            if enable.result != MotoResult.SUCCESS:
+                why = await self.driver._monitor.why_now()
+                raise ExecutionAborted(
+                    f"START_TRAJ_MODE refused: {moto_reason(enable.result, enable.subcode)}; {why}", -1
+                )
+            ready = await self.driver._moto(MotoCommand.CHECK_MOTION_READY)
+            if ready.result != MotoResult.TRUE:
+                raise ExecutionAborted(
+                    f"the controller is not ready for motion: {moto_reason(ready.result, ready.subcode)}", -1
+                )
+            await self._alarm_cleared()
+
+    async def _alarm_cleared(self, rounds: int = 3) -> None:
+        """After START_TRAJ_MODE, which resets an alarm: wait (a few state rounds, at most the
+        watchdog period) for a STATUS without the alarm, so that one published before the reset, and
+        read after the reply on the other connection, is not taken for an alarm during the motion.
+        An alarm still there after that is the motion's to report."""
+        driver = self.driver
+        with contextlib.suppress(DriverError, TimeoutError):
+            async with asyncio.timeout(driver.watchdog):
+                for _ in range(rounds):
+                    state = await driver.wait_state()
+                    if state.status is None or state.status.in_error != TriState.TRUE:
+                        return
 
     async def _ready_after_reconnect(self, k: int, confirmed: int) -> None:
         """MotoROS after a reconnection: carry on only if trajectory mode survived (it still says
