@@ -44,7 +44,6 @@ at full torque under their own loops) and new points are refused until :meth:`Co
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from collections.abc import Sequence
@@ -56,7 +55,6 @@ from numpy.typing import NDArray
 
 from simple_message.lograte import lane
 
-from ..kinematics import fk_batch
 from ..model import RobotModel
 from ..workspace import TCP_SPEED_ALARM, Supervision, Violation, densify, first_violation, point_violation
 from .cartesian import LineLimits, LineMotion, LineTarget
@@ -66,6 +64,8 @@ from .points import Limits, Point, PointRejected, Reason, State, check_point
 from .policies import DEFAULT_POLICY, policy
 from .recorder import Recorder
 from .servo import ServoDrives
+from .supervision import SLOWING_ROUNDS, SlowDown, Slowing, check_zones, path_slowing, tcp_path
+from .supervision import slowed as slowed_point
 from .tool import ToolMeter, ToolState
 
 __all__ = [
@@ -157,7 +157,11 @@ class Tick(NamedTuple):
 
 
 class Controller:
-    """One robot's motion controller (see the module doc)."""
+    """One robot's motion controller (see the module doc). Its methods are its verbs (points,
+    lines, moves, downloads, stop, alarms, drives, step) and the read-only state the emulator
+    publishes, each a few lines over one state machine (the queue, the lines, the moves, the
+    drives and the alarm they share); the planning behind them lives in :mod:`.motion`,
+    :mod:`.cartesian`, :mod:`.moves` and :mod:`.supervision`, so it stays whole past 30 methods."""
 
     def __init__(self, model: RobotModel, config: ControllerConfig | None = None) -> None:
         self.model = model
@@ -208,7 +212,7 @@ class Controller:
             config.line,
             config.interpolation_period,
             capacity=config.queue_capacity,
-            path_check=self._check_path,
+            path_check=lambda positions: check_zones(self.supervision, positions),
         )
         #: joint moves at a share of the joints' speed (:mod:`.moves`)
         self.moves = JointMoves(self.limits, start)
@@ -328,13 +332,13 @@ class Controller:
         plan = self.queue.plan(point, first=first, min_scale=min_scale)
         if self.speed_limit is None and not self.supervision.has_zones:
             return plan
-        slowing, scale = _Slowing(), plan.scale
-        for _ in range(_SLOWING_ROUNDS):
+        slowing, scale = Slowing(), plan.scale
+        for _ in range(SLOWING_ROUNDS):
             slower = self._supervise_path(*self.queue.path(plan, self.config.interpolation_period))
             if slower is None:
                 return plan
             slowing.step(slower)
-            slowed = _slowed(point, slowing.ratio)
+            slowed = slowed_point(point, slowing.ratio)
             plan = self.queue.plan(slowed, first=first, min_scale=max(min_scale, scale * slowing.scale))
         raise PointRejected(Reason.TCP_SPEED, "the trajectory could not be slowed down to the TCP speed limit")
 
@@ -430,14 +434,14 @@ class Controller:
             raise PointRejected(Reason.SEQUENCE, "the end of a download that was never started")
         self.add(point)
         points, self._download = self._download, None
-        slowing = _Slowing()
+        slowing = Slowing()
         try:
-            for _ in range(_SLOWING_ROUNDS):
+            for _ in range(SLOWING_ROUNDS):
                 try:
-                    slowed = [_slowed(p, slowing.ratio) for p in points]
+                    slowed = [slowed_point(p, slowing.ratio) for p in points]
                     self.queue.add_all(slowed, min_scale=slowing.scale, check=self._check_download)
                     break
-                except _SlowDown as slow:
+                except SlowDown as slow:
                     slowing.step(slow.factor)
             else:
                 raise PointRejected(Reason.TCP_SPEED, "the trajectory could not be slowed down to the TCP speed limit")
@@ -480,7 +484,8 @@ class Controller:
         else:
             duration = self.queue.stop()
             if duration and self.supervision.has_zones:
-                positions = self._tcp(*self.queue.path(None, self.config.interpolation_period))[0]
+                times, q = self.queue.path(None, self.config.interpolation_period)
+                positions = tcp_path(self.model, self.supervision.tolerance, times, q)[0]
                 violation = first_violation(self.supervision, densify(positions, self.supervision.tolerance))
                 if violation is not None and self._zone_clear:
                     self.safety_stop(violation, "the stop's braking path")
@@ -651,64 +656,19 @@ class Controller:
             commanded = point_violation(sup, *tool.command_position) is not None
             self.safety_stop(violation, "commanded TCP" if commanded else "actual TCP")
 
-    def _tcp(self, times: NDArray[np.float64], q: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
-        """TCP positions along a joint path (times ``(m,)``, positions ``(m, dof)``, a few ms
-        apart) and its peak speed. Where two positions are more than the supervision's tolerance
-        apart, the joint path is subdivided (linearly: over a few ms the joints move on a
-        straight line to well within the tolerance) until they are not."""
-        tolerance = self.supervision.tolerance
-        positions = fk_batch(self.model, q)[:, :3, 3]
-        gaps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
-        if gaps.size and float(gaps.max()) > tolerance:
-            n = np.maximum(np.ceil(gaps / tolerance).astype(np.int64), 1)
-            interval = np.repeat(np.arange(gaps.size), n)
-            f = (np.arange(interval.size) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n, n)
-            q = np.concatenate([q[interval] + (q[interval + 1] - q[interval]) * f[:, None], q[-1:]])
-            times = np.concatenate([times[interval] + (times[interval + 1] - times[interval]) * f, times[-1:]])
-            positions = fk_batch(self.model, q)[:, :3, 3]
-        dt = np.diff(times)
-        moved = np.linalg.norm(np.diff(positions, axis=0), axis=1)
-        speeds = np.divide(moved, dt, out=np.zeros_like(moved), where=dt > 1e-9)
-        return positions, float(speeds.max()) if speeds.size else 0.0
-
-    def _check_path(self, positions: NDArray[np.float64]) -> None:
-        """Refuse (WORKSPACE) a TCP path that breaks a zone rule. A path that starts in a
-        violation (after an alarm) is checked from where it first gets clear: it may lead out."""
-        sup = self.supervision
-        if not sup.has_zones:
-            return
-        positions = densify(positions, sup.tolerance)
-        violation = first_violation(sup, positions)
-        if violation is not None and violation.sample == 0:
-            clear = next(
-                (i for i, p in enumerate(positions.tolist()) if point_violation(sup, *p) is None), positions.shape[0]
-            )
-            violation = first_violation(sup, positions[clear:])
-        if violation is not None:
-            raise PointRejected(Reason.WORKSPACE, f"the motion would violate a zone: {violation.message}")
-
     def _supervise_path(self, times: NDArray[np.float64], q: NDArray[np.float64]) -> float | None:
-        """Check a planned joint path: the zones (refused: WORKSPACE) and the TCP speed limit in
-        force (AUTO: refused, TCP_SPEED; MANUAL: returns by how much to slow it down). None: fine."""
-        limit = self.speed_limit
-        if limit is None and not self.supervision.has_zones:
-            return None
-        positions, peak = self._tcp(times, q)
-        self._check_path(positions)
-        if limit is None or peak <= limit * self.config.speed_margin:
-            return None
-        if not self.manual:
-            raise PointRejected(
-                Reason.TCP_SPEED, f"the trajectory moves the TCP at {peak:.4g} m/s, over the AUTO limit {limit:.4g} m/s"
-            )
-        return peak / (limit * self.config.speed_margin) * 1.01
+        """A planned joint path against the zones and the TCP speed limit in force
+        (:func:`.supervision.path_slowing`)."""
+        return path_slowing(
+            self.model, self.supervision, manual=self.manual, margin=self.config.speed_margin, times=times, q=q
+        )
 
     def _check_download(self) -> None:
         if self.speed_limit is None and not self.supervision.has_zones:
             return
         slower = self._supervise_path(*self.queue.path(None, self.config.interpolation_period))
         if slower is not None:
-            raise _SlowDown(slower)
+            raise SlowDown(slower)
 
     def _abandon(self) -> None:
         """Drop all motion and command the actual position (alarm, emergency stop)."""
@@ -721,54 +681,6 @@ class Controller:
         self._settled = False  # the drives still brake the joints to a halt
         self.servo.hold()
         self.queue.abandon(np.array(actual))
-
-
-class _Slowing:
-    """How a trajectory is slowed down for the TCP speed limit, round by round. First by the
-    queue's time scale, which reaches every segment decided from the points' times and ratios;
-    once a round gains nothing, also by the velocity ratio of the ratio-timed points (a last
-    segment to rest is planned from its ratio when it starts, out of the time scale's reach, and
-    an acceleration-bound one hardly slows down with its ratio); a round that still gains nothing
-    doubles its step."""
-
-    def __init__(self) -> None:
-        self.scale = 1.0  # the time scale asked of the queue
-        self.ratio = 1.0  # the division of the velocity ratios
-        self._last = math.inf
-        self._by_ratio = False
-
-    def step(self, factor: float) -> None:
-        """One more round, for the TCP's ``factor`` = peak / limit (with margin)."""
-        stuck = factor >= self._last * 0.99
-        self._last = factor
-        if stuck:
-            if self._by_ratio:
-                factor = max(factor, 2.0)
-            self._by_ratio = True
-        self.scale *= factor
-        if self._by_ratio:
-            self.ratio *= factor
-
-
-def _slowed(point: Point, factor: float) -> Point:
-    """``point`` with its velocity ratio divided by ``factor`` where it is timed by one (a
-    JOINT_TRAJ_PT with duration 0); any other point as it is."""
-    timed = point.duration is not None and point.duration > 0.0
-    if factor == 1.0 or point.velocity_ratio is None or timed:
-        return point
-    return dataclasses.replace(point, velocity_ratio=point.velocity_ratio / factor)
-
-
-class _SlowDown(Exception):
-    """A downloaded trajectory must be slowed down by ``factor`` for the TCP speed limit."""
-
-    def __init__(self, factor: float) -> None:
-        super().__init__(f"slow down x{factor:.3g}")
-        self.factor = factor
-
-
-#: how many times a trajectory is slowed down further for the TCP speed limit before it is refused
-_SLOWING_ROUNDS = 10
 
 
 def submit_together(pairs: Sequence[tuple[Controller, Point]], *, first: bool = False) -> None:
