@@ -40,8 +40,7 @@ from simple_message import (
     decode,
     encode,
 )
-from simple_message.capture import CapturedMessage, captured_messages
-from simple_message.capture_writer import CaptureWriter
+from simple_message.capture import CapturedMessage, CaptureWriter, captured_messages
 from simple_message.connection import TapLink
 
 

@@ -5,7 +5,7 @@ Commands: ``ping``, ``status``, ``monitor``, ``move``, ``run FILE``, ``stop``, `
 Angles in radians, lengths in metres. Exit status 0 on success, 1 when the robot or controller
 failed (with one line saying why on stderr), 2 for bad arguments. SIGINT and SIGTERM stop a motion
 under way (STOP sent and acknowledged) before the command exits (130 and 143). ``--capture
-FILE.pcapng`` records the command's traffic as a pcapng file (:mod:`simple_message.capture_writer`).
+FILE.pcapng`` records the command's traffic as a pcapng file (:mod:`simple_message.capture.writer`).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from robot_server.control import POLICIES, policy
 from robot_server.kinematics import fk
 from robot_server.loader import load_model, shipped_models
 from robot_server.model import ModelError, RobotModel, rpy_matrix
-from simple_message.capture_writer import DEFAULT_MAX_BYTES, CaptureWriter
+from simple_message.capture import DEFAULT_MAX_BYTES, CaptureWriter
 from simple_message.cliargs import (
     ArgumentParser,
     add_capture_arguments,

@@ -109,7 +109,7 @@ STOP_SETTLE = 10.0
 class RobotDriver:
     """One controller's motion and state connections (see the module doc). ``tap`` sees both
     connections' traffic (:class:`~simple_message.connection.Tap`, e.g. a
-    :class:`~simple_message.capture_writer.CaptureWriter`: ``robot-client --capture``)."""
+    :class:`~simple_message.capture.CaptureWriter`: ``robot-client --capture``)."""
 
     def __init__(
         self,

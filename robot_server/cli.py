@@ -10,7 +10,7 @@ Faults are injected by typing commands on its standard input (or piping them in)
 ``mode auto|manual``, or scheduled with ``--fault SECONDS:COMMAND`` (controller time from start).
 
 ``--capture FILE.pcapng`` records every connection's traffic (every port, and the serial link) as a
-pcapng file Wireshark opens (:mod:`simple_message.capture_writer`), bounded by ``--capture-max-mb``.
+pcapng file Wireshark opens (:mod:`simple_message.capture.writer`), bounded by ``--capture-max-mb``.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from simple_message.capture_writer import DEFAULT_MAX_BYTES
+from simple_message.capture import DEFAULT_MAX_BYTES
 from simple_message.cliargs import (
     ArgumentParser,
     add_capture_arguments,

@@ -24,8 +24,7 @@ from typing import TYPE_CHECKING
 from ._lazy import LazyExports
 
 if TYPE_CHECKING:
-    from .capture import CapturedMessage, CaptureError, CaptureEvent, captured_messages, read_capture
-    from .capture_writer import CaptureWriter
+    from .capture import CapturedMessage, CaptureError, CaptureEvent, CaptureWriter, captured_messages, read_capture
     from .connection import Connection, ConnectionState, Subscription, Tap, TapLink
     from .constants import (
         HEADER_SIZE,
@@ -290,8 +289,14 @@ _EXPORTS = LazyExports(
     __name__,
     globals(),
     {
-        ".capture": ("CapturedMessage", "CaptureError", "CaptureEvent", "captured_messages", "read_capture"),
-        ".capture_writer": ("CaptureWriter",),
+        ".capture": (
+            "CapturedMessage",
+            "CaptureError",
+            "CaptureEvent",
+            "CaptureWriter",
+            "captured_messages",
+            "read_capture",
+        ),
         ".connection": ("Connection", "ConnectionState", "Subscription", "Tap", "TapLink"),
         ".constants": (
             "HEADER_SIZE",

@@ -299,7 +299,7 @@ def add_version_argument(parser: argparse.ArgumentParser) -> None:
 
 def add_capture_arguments(parser: argparse.ArgumentParser, what: str, default_mb: float) -> None:
     """``--capture FILE.pcapng`` (recording ``what``) and ``--capture-max-mb MB``, as
-    :class:`~.capture_writer.CaptureWriter` writes them (robot-server and robot-client)."""
+    :class:`~.capture.CaptureWriter` writes them (robot-server and robot-client)."""
     parser.add_argument(
         "--capture",
         metavar="FILE.pcapng",

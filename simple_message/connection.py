@@ -30,7 +30,7 @@ peer therefore costs at most one buffer of memory and never delays anyone else.
 When the connection ends for any reason, every pending request fails at once with
 :class:`~.errors.ConnectionClosed`. Nothing is ever re-sent by this layer.
 
-A :class:`Tap` (``tap=``; e.g. :class:`~.capture_writer.CaptureWriter`) sees the connection open,
+A :class:`Tap` (``tap=``; e.g. :class:`~.capture.CaptureWriter`) sees the connection open,
 every chunk of bytes as it is handed to the transport or received from it (before it is acted on:
 a request comes before the reply it causes), and the end. Unset, it costs one ``is not None`` per
 write and read; a tap that raises is logged once and dropped for that connection.

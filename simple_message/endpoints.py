@@ -241,7 +241,7 @@ class Server:
         #: what a connection beyond ``max_connections`` gets: closed at once, or a wait for its turn
         self.excess = excess
         #: sees the traffic of every connection accepted from now on (:class:`~.connection.Tap`,
-        #: e.g. a :class:`~.capture_writer.CaptureWriter`)
+        #: e.g. a :class:`~.capture.CaptureWriter`)
         self.tap = tap
         #: a connection that begins a frame and sends nothing more for this long (s) is closed
         #: (sockets only: a serial link, which cannot be dialled again, is never closed for that)

@@ -22,7 +22,7 @@ from simple_message.capture import (
     CaptureError,
     CaptureEvent,
     EventKind,
-    Segment,
+    TcpSegment,
     capture_format,
     captured_messages,
     format_address,
@@ -210,7 +210,7 @@ def test_fs100_capture_autodetects_big_endian_and_reads_its_segments() -> None:
     assert len(got) == 164 and all(m.message is not None for m in got)
     segments = [s for s in read_capture(FS100) if s.payload]
     assert [(s.src[1], s.dst[1], s.payload) for s in segments] == [(src, dst, p) for _, src, dst, p in load_segments()]
-    assert isinstance(segments[0], Segment) and segments[0].flags & ACK and segments[0].time == 1431715297.100403
+    assert isinstance(segments[0], TcpSegment) and segments[0].flags & ACK and segments[0].time == 1431715297.100403
 
 
 def test_fs100_capture_on_the_command_line(capsys: pytest.CaptureFixture[str]) -> None:

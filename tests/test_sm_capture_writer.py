@@ -1,4 +1,4 @@
-"""Recording our own traffic as pcapng (:mod:`simple_message.capture_writer`, issue 20).
+"""Recording our own traffic as pcapng (:mod:`simple_message.capture.writer`, issue 20).
 
 The files are read back with dpkt (``dpkt.pcapng.Reader``, and block by block for the nanosecond
 timestamps a float cannot hold), each packet checked: Ethernet/IPv4/TCP, valid checksums, each
@@ -36,9 +36,8 @@ from client import cli as client_cli
 from robot_server import cli as server_cli
 from robot_server.emulator import Emulator, EmulatorConfig
 from simple_message import LE32, FrameDecoder, MsgType, Ping, decode
-from simple_message.capture import CapturedMessage, captured_messages
+from simple_message.capture import MAX_SEGMENT, CapturedMessage, CaptureWriter, captured_messages, rotated_name
 from simple_message.capture import read_capture as read_capture_segments
-from simple_message.capture_writer import MAX_SEGMENT, CaptureWriter, rotated_name
 from simple_message.connection import Connection, TapLink
 from simple_message.endpoints import Client, Server
 from simple_message.transport import open_serial, open_tcp

@@ -14,7 +14,7 @@ state together. Use it from tests and programs::
 then closes every connection.
 
 With ``capture`` set, every connection of every port (and the serial link) is recorded to that
-pcapng file (:mod:`simple_message.capture_writer`: opened by ``start()``, closed by ``close()``
+pcapng file (:mod:`simple_message.capture.writer`: opened by ``start()``, closed by ``close()``
 after the connections, bounded by ``capture_max_bytes``).
 """
 
@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from simple_message.capture_writer import DEFAULT_MAX_BYTES, CaptureWriter
+from simple_message.capture import DEFAULT_MAX_BYTES, CaptureWriter
 from simple_message.connection import Tap, TapTee
 from simple_message.constants import MAX_JOINTS
 from simple_message.dialects import ReplyStyle, reply_style_of
@@ -142,9 +142,9 @@ class EmulatorConfig:
     manual_motion: bool = False
     #: where every motion group starts (joint values, SI; default: 0, moved into the limits)
     initial_position: tuple[float, ...] | None = None
-    #: record every connection's traffic to this pcapng file (:mod:`simple_message.capture_writer`)
+    #: record every connection's traffic to this pcapng file (:mod:`simple_message.capture.writer`)
     capture: str | Path | None = None
-    #: the bound of the capture's files together (bytes; the file rotates, see capture_writer)
+    #: the bound of the capture's files together (bytes; the file rotates, see capture.writer)
     capture_max_bytes: int = DEFAULT_MAX_BYTES
     #: do not reproduce the controller's harsh quirks (see :class:`~.profiles.ProfileContext`)
     lenient: bool = False

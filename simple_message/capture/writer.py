@@ -1,6 +1,6 @@
 """Record a program's own simple_message traffic as a pcapng file that Wireshark opens as it is.
 
-A :class:`CaptureWriter` is a :class:`~.connection.Tap`: given to a server (``Server(tap=...)``,
+A :class:`CaptureWriter` is a :class:`~simple_message.connection.Tap`: given to a server (``Server(tap=...)``,
 ``robot-server --capture``) or a client (``Client(tap=...)``, ``robot-client --capture``), it
 writes every chunk of bytes the program sends or receives, as the connection layer hands it to the
 transport or gets it from it, as one TCP segment (or several, see below) of a synthesised
@@ -84,13 +84,14 @@ import time
 import zlib
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import dpkt  # type: ignore[import-untyped, unused-ignore]
 import dpkt.pcap  # type: ignore[import-untyped, unused-ignore]
 import dpkt.pcapng  # type: ignore[import-untyped, unused-ignore]
 
-from .connection import TapLink
+if TYPE_CHECKING:
+    from ..connection import TapLink
 
 __all__ = [
     "CaptureWriter",
@@ -100,7 +101,9 @@ __all__ = [
     "rotated_name",
 ]
 
-log = logging.getLogger(__name__)
+#: the logger keeps the name of the module the writer was before the capture package (logging
+#: configurations name it)
+log = logging.getLogger("simple_message.capture_writer")
 
 #: the bound of all the capture's files together (bytes)
 DEFAULT_MAX_BYTES = 100_000_000
@@ -187,7 +190,7 @@ def _isn(src: _End, dst: _End, serial: int) -> int:
 
 
 class CaptureWriter:
-    """Writes what a :class:`~.connection.Tap` sees as pcapng (see the module doc).
+    """Writes what a :class:`~simple_message.connection.Tap` sees as pcapng (see the module doc).
 
     ``path``: the file (replaced); ``max_bytes``: the bound of all its files together; ``files``:
     how many files share it (rotation; 1: stop at the bound); ``application``: the Section Header
