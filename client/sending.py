@@ -375,8 +375,9 @@ def _on_milliseconds(times: Array, positions: Array, velocities: Array) -> tuple
 
 def _warn_cubics(times: Array, positions: Array, velocities: Array, limit: Array) -> None:
     """Say so, once, before sending, when the cubics MotoROS runs through the points' positions and
-    velocities accelerate a joint beyond its limit: the emulator slows the rest of the trajectory
-    down for it (a real controller's servo lags). It happens where the velocities do not match the
+    velocities accelerate a joint beyond its limit: MotoROS runs them as they are (it checks the
+    points' speeds only), so the drives are asked for more than the joint's acceleration limit and
+    lag (or a real controller alarms). It happens where the velocities do not match the
     positions' timing: a recording of a controller that publishes no sample time (MotoROS) has
     times estimated from the velocities, and where the robot moved at its acceleration limit that
     estimate is not close enough."""
@@ -397,7 +398,7 @@ def _warn_cubics(times: Array, positions: Array, velocities: Array, limit: Array
     k, j = (int(i) for i in np.unravel_index(int(np.argmax(ratio)), ratio.shape))
     log.warning(
         "the cubics through the points' positions and velocities accelerate joint %d up to %.3g x its limit "
-        "(segment %d->%d): the controller will slow the trajectory down (velocities that do not match the "
+        "(segment %d->%d): MotoROS runs them as given, beyond the limit (velocities that do not match the "
         "times: a recording of a controller that publishes no sample time has estimated times)",
         j + 1,
         float(ratio[k, j]),

@@ -92,11 +92,25 @@ async def test_a_recording_replays_in_its_recorded_time(
 
 
 @pytest.mark.slow
-async def test_motoros_states_as_received_replay_in_their_time(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("name", "followed"),
+    [
+        # full-speed moves of many points (the Planner's): timed by the fastest joint, they replayed x1.15 slower
+        ("motoros_states_puma560.npz", False),
+        # rest-to-rest moves at full speed, two points each (robot-client move's): the estimated times and the
+        # measured velocities make cubics beyond the acceleration limit, which MotoROS runs as they are; slowed
+        # down for them, the replay took x1.63 its time
+        ("motoros_states_move_puma560.npz", True),
+    ],
+)
+async def test_motoros_states_as_received_replay_in_their_time(
+    name: str, followed: bool, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     """The states a client received from a MotoROS emulator (positions and velocities, no time; a
-    separate process moved the robot at its full speed), made a recording as ``robot-client record``
-    makes it, replay within 2 % (timed by the fastest joint, they replayed x1.15 slower)."""
-    data = np.load(DATA / "motoros_states_puma560.npz")
+    separate process moved the robot), made a recording as ``robot-client record`` makes it, replay
+    within 2 %. Cubics beyond the acceleration limit are run as given, said once by the controller."""
+    caplog.set_level(logging.WARNING, logger="robot_server.control.motion")
+    data = np.load(DATA / name)
     states = recording(
         data["received"].tolist(),
         data["positions"].astype(float).tolist(),
@@ -107,6 +121,10 @@ async def test_motoros_states_as_received_replay_in_their_time(tmp_path: Path) -
     states.save(path)
     recorded, replayed = await replay(path, "motoros")
     assert abs(replayed / recorded - 1.0) <= 0.02, (recorded, replayed)
+    lines = [r.getMessage() for r in caplog.records if r.name == "robot_server.control.motion"]
+    assert len([line for line in lines if "run as given, as MotoROS runs" in line]) == (1 if followed else 0), lines
+    # a cubic passing a joint's speed limit between its points is still slowed down for (x1.014 once here)
+    assert [line for line in lines if "too fast" in line and "x1.0" not in line] == [], lines
 
 
 @pytest.mark.parametrize("profile", ["generic", "motoros"])
@@ -198,8 +216,8 @@ def test_a_segment_a_hair_faster_than_a_joint_takes_the_time_its_maximum_needs()
 
 def test_the_driver_says_when_motoros_cubics_would_be_too_fast(caplog: pytest.LogCaptureFixture) -> None:
     """A MotoROS recording of a move at the acceleration limit: its estimated times and measured
-    velocities make cubics beyond the limit, which the controller slows down for; the client says
-    so before sending (client.sending._warn_cubics)."""
+    velocities make cubics beyond the limit, which MotoROS runs as they are; the client says so
+    before sending (client.sending._warn_cubics)."""
     from client.sending import _warn_cubics
 
     t = np.array([0.0, 0.024, 0.048])

@@ -324,3 +324,48 @@ def test_a_point_after_the_robot_stopped_dry_is_a_transient_and_warned() -> None
     )
     assert after.pending[-1].transient and after.trajectory.warned_dry
     assert any("came after the robot stopped" in text for _, text in after.messages)
+
+
+def test_motoros_runs_a_given_cubic_beyond_the_acceleration_limit_and_says_so_once() -> None:
+    """MotoROS checks the points' speeds only and runs the cubic between them as it is
+    (MotionServer.c:1313, 1414-1468): with ``follow_given_acceleration`` the trajectory is not slowed
+    down for a given segment's acceleration, one WARNING per trajectory says where; its velocity
+    still counts. Without it (the generic controller) the trajectory is slowed down."""
+    follow = Settings(LIMITS, policy("blend"), follow_given_acceleration=True)
+    moving = State(np.array([0.1, 0.0]), np.array([0.5, 0.0]), ZERO)
+    book = TrajectoryBook(number=1, open=True, points=2, time=1.0, last_position=moving.position)
+    # a point given at 0.5 rad/s whose cubic from 0.5 rad/s reverses within 0.25 s: about 8 rad/s² for 2
+    running = Entry(
+        knot([0.1, 0.0]), ZERO, 1.0, State.rest(ZERO), 1.0, moving, connect(State.rest(ZERO), 1, moving, 1, 1.0)
+    )
+    base = Plan(running, 0.0, (), book)
+    sharp = Point(np.array([0.1, 0.0]), velocities=np.array([-0.5, 0.0]), time=1.25)
+    for settings_, slowed_down in ((follow, False), (Settings(LIMITS, policy("blend")), True)):
+        planned = planning.plan(
+            context(settings_), base, sharp, first=False, bounded=True, defer=False, stopped_dry=None
+        )
+        entry = planned.pending[-1]
+        assert checks.orders(settings_, entry)[1] > 1.0 or slowed_down  # beyond the acceleration limit
+        assert (planned.scale > 1.0) is slowed_down
+        warnings = [text for level, text in planned.messages if level == logging.WARNING]
+        if slowed_down:
+            assert any("too fast" in text for text in warnings)
+        else:
+            assert len(warnings) == 1 and "accelerates joint 1 at" in warnings[0] and "run as given" in warnings[0]
+            assert planned.trajectory.warned_acceleration
+            again = planning.plan(
+                context(follow),
+                planned,
+                Point(np.array([0.0, 0.0]), velocities=np.array([-0.5, 0.0]), time=1.45),
+                first=False,
+                bounded=True,
+                defer=False,
+                stopped_dry=None,
+            )
+            assert not [text for level, text in again.messages if level == logging.WARNING]  # once a trajectory
+    # a given segment beyond the velocity limit between its points is slowed down even when followed:
+    # 1.5 rad in 1 s between two points at 0.5 rad/s peaks at about 2 rad/s for 1
+    fast = Point(np.array([1.6, 0.0]), velocities=np.array([0.5, 0.0]), time=2.0)
+    far = planning.plan(context(follow), base, fast, first=False, bounded=True, defer=False, stopped_dry=None)
+    assert far.scale > 1.5 and checks.speed_excess(follow, far.pending[-1]) <= 1.0
+    assert any("too fast" in text for _, text in far.messages)

@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from . import blend
-from .checks import REFUSALS, check_duration, excess, limit_of, state_need, swings, within_positions
+from .checks import REFUSALS, check_duration, excess, follows, limit_of, state_need, swings, within_positions
 from .entries import (
     MIN_REMAINDER,
     Context,
@@ -167,7 +167,11 @@ def stretched(settings: Settings, entry: Entry) -> Entry:
     transient (a segment from rest where the plan has the robot moving) gets the same for its
     velocity and acceleration too, however long it takes: the plan is not too fast, the robot
     is late. So does a polynomial that would swing beyond its points by more than the robot
-    needs to brake (a fast start over a long segment): ruckig's motion stays within that."""
+    needs to brake (a fast start over a long segment): ruckig's motion stays within that. A given
+    segment under :attr:`.Settings.follow_given_acceleration` is run as given, transient or not, as
+    MotoROS runs its cubics."""
+    if follows(settings, entry):
+        return entry
     over = excess(settings, entry)
     swinging = not entry.is_kind(Kind.GIVEN) and swings(settings, entry)
     if entry.transient or swinging:

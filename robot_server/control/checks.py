@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from .blend import OVERSHOOT
-from .entries import Entry, Settings
+from .entries import Entry, Kind, Settings
 from .points import SLACK, Array, Limits, PointRejected, Reason, State, within
 
 #: what a rest-to-rest segment beyond a limit is refused as, per derivative order
@@ -42,6 +42,26 @@ def check_duration(settings: Settings, duration: float, what: str) -> None:
 def excess(settings: Settings, entry: Entry) -> tuple[float, float]:
     """By how much the segment's time must grow for its velocity and acceleration, and for its
     jerk, to be within the limits (1: they are)."""
+    velocity, acceleration, jerk = orders(settings, entry)
+    return max(velocity, acceleration), jerk
+
+
+def speed_excess(settings: Settings, entry: Entry) -> float:
+    """By how much the segment's time must grow for what the trajectory is slowed down for: its
+    velocity and acceleration, or its velocity alone when a given segment is followed beyond the
+    acceleration limit (:attr:`.Settings.follow_given_acceleration`)."""
+    velocity, acceleration, _ = orders(settings, entry)
+    return velocity if follows(settings, entry) else max(velocity, acceleration)
+
+
+def follows(settings: Settings, entry: Entry) -> bool:
+    """The segment is run as given beyond the acceleration limit (MotoROS's way)."""
+    return settings.follow_given_acceleration and entry.is_kind(Kind.GIVEN)
+
+
+def orders(settings: Settings, entry: Entry) -> tuple[float, float, float]:
+    """By how much the segment's time must grow for its velocity, its acceleration and its jerk,
+    each, to be within the limits (1: it is)."""
     segment = entry.segment
     assert segment is not None
     cached = segment.memo.get(settings)
@@ -58,7 +78,7 @@ def excess(settings: Settings, entry: Entry) -> tuple[float, float]:
         over = float(np.max(np.maximum(-lo, hi) / limit))
         if over > 1.0 + SLACK:
             needed[order] = over ** (1.0 / order)
-    result = max(needed[1], needed[2]), needed[3]
+    result = needed[1], needed[2], needed[3]
     segment.memo[settings] = result
     return result
 
@@ -85,13 +105,13 @@ def uniform_need(settings: Settings, entry: Entry) -> float:
     late, met locally; an end state beyond the limits is a plan too fast from there on), then,
     if the local fix failed, its own."""
     if not entry.transient:
-        return max(excess(settings, entry)[0], end_need(settings, entry) if entry.end is not None else 1.0)
+        return max(speed_excess(settings, entry), end_need(settings, entry) if entry.end is not None else 1.0)
     needed = end_need(settings, entry)
     if needed > 1.0:
         return needed
     # an end state within the limits that the local fix could still not reach (it would have
     # to go faster than the limits to get there in time): the segment's own excess
-    return excess(settings, entry)[0]
+    return speed_excess(settings, entry)
 
 
 def end_need(settings: Settings, entry: Entry) -> float:

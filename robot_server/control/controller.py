@@ -108,6 +108,10 @@ class ControllerConfig:
     max_segment_time: float = 3600.0
     #: a segment from rest waits this long at most for the point after its own, to pass through it
     lookahead_wait: float = 0.008
+    #: JOINT_TRAJ_PT_FULL segments with velocities that pass the acceleration limit between their
+    #: points are run as given (reported once per trajectory) instead of slowing the trajectory
+    #: down: MotoROS checks the points' speeds only (the MotoROS profile sets it)
+    follow_given_acceleration: bool = False
     #: in_motion stays TRUE until every joint is this close to the command (rad or m; at most half
     #: ``start_tolerance``, so a trajectory can always start from the rest the robot reports) ...
     settle_position: float = 1e-3
@@ -185,6 +189,7 @@ class Controller:
             start_tolerance=config.start_tolerance,
             max_duration=config.max_segment_time,
             lookahead_wait=config.lookahead_wait,
+            follow_given_acceleration=config.follow_given_acceleration,
         )
         self.servo = ServoDrives([model.motor(i) for i in range(n)], config.servo_period, start.tolist())
         self._sub = round(config.interpolation_period / config.servo_period)

@@ -137,6 +137,8 @@ class TrajectoryBook:
     #: the scale last logged (further slowing down is logged once per 10 %)
     logged_scale: float = 1.0
     warned_dry: bool = False
+    #: a given segment beyond the acceleration limit was reported (:attr:`Settings.follow_given_acceleration`)
+    warned_acceleration: bool = False
     #: controller time its first point was planned at
     opened: float = 0.0
 
@@ -172,6 +174,9 @@ class Settings:
     start_tolerance: float | None = 0.01
     max_duration: float = 3600.0
     lookahead_wait: float = 0.008
+    #: given segments (velocities given) beyond the acceleration limit are run as given and reported
+    #: once per trajectory, not slowed down for: MotoROS checks the points' speeds only
+    follow_given_acceleration: bool = False
 
 
 @dataclass(frozen=True, slots=True)

@@ -109,8 +109,11 @@ class MotionQueue:
         start_tolerance: float | None = 0.01,
         max_duration: float = 3600.0,
         lookahead_wait: float = 0.008,
+        follow_given_acceleration: bool = False,
     ) -> None:
-        self.settings = Settings(limits, policy, capacity, start_tolerance, max_duration, lookahead_wait)
+        self.settings = Settings(
+            limits, policy, capacity, start_tolerance, max_duration, lookahead_wait, follow_given_acceleration
+        )
         self._t = 0.0
         self._state = start
         self._running: Entry | None = None

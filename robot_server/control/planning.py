@@ -17,7 +17,7 @@ import numpy as np
 
 from .braking import unbraked
 from .building import determine, given, knot, replan_running, rest_segment, stretched, to_rest
-from .checks import check_duration, check_position, end_need, uniform_need
+from .checks import check_duration, check_position, end_need, follows, orders, uniform_need
 from .entries import (
     Context,
     Entry,
@@ -316,6 +316,11 @@ def _fit(context: Context, point: Knot, draft: Plan, built: list[Entry], *, defe
         check_position(settings, e)
     running, started, pending, trajectory = draft.running, draft.started, list(draft.pending), draft.trajectory
     messages = list(draft.messages)
+    if settings.follow_given_acceleration and not trajectory.warned_acceleration:
+        report = next((r for e in built if (r := _followed_acceleration(settings, e)) is not None), None)
+        if report is not None:
+            messages.append((logging.WARNING, f"trajectory {trajectory.number}: {report}"))
+            trajectory = replace(trajectory, warned_acceleration=True)
     if defer:  # what the points' states ask for; the re-scale at the end settles the segments
         needed = max((end_need(settings, e) for e in built), default=1.0)
         return Plan(running, started, tuple(pending), trajectory, tuple(messages), context.at, needed)
@@ -325,6 +330,22 @@ def _fit(context: Context, point: Knot, draft: Plan, built: list[Entry], *, defe
             context, running, started, pending, trajectory, needed=needed, knot=point, messages=messages
         )
     return Plan(running, started, tuple(pending), trajectory, tuple(messages), context.at)
+
+
+def _followed_acceleration(settings: Settings, entry: Entry) -> str | None:
+    """What to say when a given segment run as given passes the acceleration limit (None: it does
+    not, or it is not followed)."""
+    if not follows(settings, entry) or orders(settings, entry)[1] <= 1.0:
+        return None
+    assert entry.segment is not None
+    lo, hi = entry.segment.extremes(2)
+    ratio = np.maximum(-lo, hi) / settings.limits.acceleration
+    j = int(np.argmax(ratio))
+    return (
+        f"the segment to point {entry.index} accelerates joint {j + 1} at {float(ratio[j]):.3g} x its limit: run "
+        "as given, as MotoROS runs its points' cubics (it checks their speeds only); the drives lag where "
+        "they cannot follow"
+    )
 
 
 def dry_message(trajectory: TrajectoryBook, text: str) -> tuple[int, str]:

@@ -13,7 +13,7 @@ import logging
 from dataclasses import replace
 
 from .building import determine, given, stretched
-from .checks import check_duration, check_position, excess, uniform_need, within_positions
+from .checks import check_duration, check_position, speed_excess, uniform_need, within_positions
 from .entries import (
     MIN_REMAINDER,
     Context,
@@ -134,7 +134,7 @@ def scaled(
                 candidate = stretched(settings, candidate)
             if (
                 candidate.segment is not None
-                and excess(settings, candidate)[0] <= 1.0
+                and speed_excess(settings, candidate) <= 1.0
                 and within_positions(settings, candidate)
             ):
                 running, started, transition = candidate, context.at, False

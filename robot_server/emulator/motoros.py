@@ -17,7 +17,12 @@ MOTO_MOTION_REPLY (2002), header SUCCESS, the outcome in ``result``/``subcode`` 
   so run with ``--interpolation-period 0.002`` to imitate an FS100). Speeds above the joint limit
   give 3013, other refusals their data subcode (position 3012, time 3016, anything else 3010);
   MotoROS never refuses a point for its acceleration (3014 is defined and never sent), and neither
-  does the emulator: a segment too fast for the joints is slowed down (``control.motion``).
+  does the emulator. MotoROS checks the points' speeds only (MotionServer.c:1313, motoman_driver
+  1.9.12) and runs the cubic between two points as it is, whatever it asks of the joints' acceleration
+  (MotionServer.c:1414-1468: the increments go to the drives unchecked); so does the emulator
+  (``ControllerConfig.follow_given_acceleration``: one WARNING per trajectory says where and by how
+  much, and the drive models lag where they cannot follow). A segment whose cubic passes a joint's
+  speed limit between its points is slowed down (``control.scaling``); MotoROS would run it too.
   The time becomes whole milliseconds as MotoROS truncates it, except that a time within float32
   precision of a whole millisecond is that millisecond (:func:`motoros_milliseconds`: a client's
   grid time is never a millisecond short, where MotoROS loses one on some), segments are
@@ -624,6 +629,7 @@ MOTOROS_PROFILE = register_profile(
             "io": PortRules(max_connections=1, answer_topics=True),
         },
         start_tolerance=MOTOROS_START_TOLERANCE,
+        follow_given_acceleration=True,
         description="Yaskawa MotoROS: trajectory mode, JOINT_TRAJ_PT_FULL(_EX), MOTO_MOTION_REPLY, IO port",
     )
 )

@@ -149,6 +149,9 @@ class EmulatorProfile:
     #: how far (rad) a trajectory's first point may be from where the robot is (``None``: the
     #: controller's default)
     start_tolerance: float | None = None
+    #: given segments beyond the acceleration limit are run as given, not slowed down for
+    #: (:attr:`.ControllerConfig.follow_given_acceleration`: MotoROS's way)
+    follow_given_acceleration: bool = False
     description: str = ""
     #: state rounds per second of the controller played (``robot-server --state-rate`` overrides it)
     state_rate: float = 40.0

@@ -333,6 +333,7 @@ class Emulator:
             queue_capacity=config.queue_capacity,
             supervision=None if config.cell is None else load_supervision(config.cell),
             initial_position=config.initial_position,
+            follow_given_acceleration=profile.follow_given_acceleration,
         )
         if profile.start_tolerance is not None:
             controller_config = dataclasses.replace(controller_config, start_tolerance=profile.start_tolerance)
