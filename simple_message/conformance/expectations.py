@@ -5,7 +5,9 @@ a PING, how an unknown type is answered, which topics the state port sends at wh
 :data:`EXPECTATIONS`, from the project's protocol notes (simple-message.md §3, §5, §8).
 :data:`SERVER_RULES` lists every rule of the suite, in report order, with what it checks and the
 real peer behaviour it comes from; the rules and their sources are listed in docs/conformance.md
-too.
+too. The groups the suite runs (or skips) together are named here as well: the requests that cannot
+move anything (:data:`REQUEST_RULES`), the state port's rules (:data:`STATE_RULES`) and the motion
+rules (:data:`MOTION_RULES`, MotoROS's among them :data:`MOTOROS_MOTION_RULES`).
 """
 
 from __future__ import annotations
@@ -15,7 +17,15 @@ from dataclasses import dataclass, field
 from ..constants import MsgType
 from ..dialects import ABB, FANUC, GENERIC, MOTOROS, STAUBLI, Dialect
 
-__all__ = ["Expectations", "EXPECTATIONS", "SERVER_RULES"]
+__all__ = [
+    "Expectations",
+    "EXPECTATIONS",
+    "SERVER_RULES",
+    "REQUEST_RULES",
+    "STATE_RULES",
+    "MOTION_RULES",
+    "MOTOROS_MOTION_RULES",
+]
 
 
 @dataclass(frozen=True)
@@ -180,3 +190,35 @@ SERVER_RULES: dict[str, tuple[str, str]] = {
         "MotoROS START_MAX_PULSE_DEVIATION, motoman#134 (§8.1, §10 pitfall 10)",
     ),
 }
+
+#: the requests on the motion port that cannot move anything: they need the motion link and the byte
+#: order the server speaks
+REQUEST_RULES: tuple[str, ...] = (
+    "reply.ping",
+    "reply.order",
+    "reply.unknown-type",
+    "reply.unknown-topic",
+    "malformed.survival",
+    "motoros.check-motion-ready",
+)
+#: the state port's rules, judged over what it sent before any motion
+STATE_RULES: tuple[str, ...] = (
+    "state.topics",
+    "state.rate",
+    "state.joint-state",
+    "state.status",
+    "state.status-consistency",
+)
+#: the rules that move the robot (only with ``allow_motion``)
+MOTION_RULES: tuple[str, ...] = (
+    "motion.preconditions",
+    "motion.small-move",
+    "motion.in-motion",
+    "motion.stop",
+    "motion.out-of-limit",
+    "motoros.traj-mode",
+    "motoros.busy",
+    "motoros.start-position",
+)
+#: the motion rules of a MotoROS server only
+MOTOROS_MOTION_RULES: tuple[str, ...] = ("motoros.traj-mode", "motoros.busy", "motoros.start-position")

@@ -3,64 +3,64 @@ time, byte order and decoded form, so that a rule can cite it as evidence.
 
 The project's own :class:`~simple_message.connection.Connection` is made to *speak* the protocol:
 it closes a link on a bad length and hides a frame in the wrong byte order behind an error. A
-conformance probe must instead *describe* what the peer did: a frame whose length prefix reads as a
-plausible length only in the other byte order is kept, marked ``swapped`` and decoded in that order
+conformance probe must instead *describe* what the peer did, so a link cuts what it reads with the
+suites' tolerant :class:`~.cutter.FrameCutter`: a frame whose length prefix reads as a plausible
+length only in the other byte order is kept, marked ``swapped`` and decoded in that order
 (simple-message.md §10 pitfall 1, the dissector's heuristic); a prefix plausible in neither order
-ends the link with the bytes shown. Nothing here judges: the server suite's rules do
-(:mod:`.server`, :mod:`.server_checks`, :mod:`.server_motion`).
+ends the link with the bytes shown. What is wrong with a frame or with how a link ended is a
+:class:`Fault`, beside the text shown. Nothing here judges: the server suite's rules do
+(:mod:`.server`, :mod:`.server_checks`, :mod:`.server_probes`, :mod:`.server_motion`).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import enum
 import logging
-import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
-from ..constants import HEADER_SIZE, LENGTH_SIZE
+from ..constants import LENGTH_SIZE
 from ..errors import MalformedMessage
 from ..framing import decode_or_error
 from ..messages import Message
 from ..wire import ByteOrder, WireFormat
+from .cutter import MAX_FRAME, FrameCutter, other_order, prefix_order, read_length
 from .report import Evidence
 
-__all__ = ["Seen", "Link", "MAX_FRAME", "other_order", "prefix_order"]
+__all__ = ["Seen", "Link", "Fault", "MAX_FRAME", "other_order", "prefix_order"]
 
 log = logging.getLogger(__name__)
 
-#: the largest length prefix taken as a frame (the largest standard message is about 1 KiB). Every
-#: length from 12 to 0xFFFF reads as at least 0x10000 the other way round, so the byte order of a
-#: plausible prefix is never in doubt (§10 pitfall 1)
-MAX_FRAME = 0xFFFF
 #: frames and bytes a link keeps (its reader goes on, the oldest are dropped)
 KEEP = 20_000
 KEEP_BYTES = 8 * 1024 * 1024
-
-_ORDER = {ByteOrder.LITTLE: struct.Struct("<i"), ByteOrder.BIG: struct.Struct(">i")}
-
-
-def other_order(order: ByteOrder) -> ByteOrder:
-    return ByteOrder.BIG if order is ByteOrder.LITTLE else ByteOrder.LITTLE
+#: bytes read at a time
+_READ = 65536
+#: bytes shown after a length prefix that is no length in either byte order
+_SHOWN_AFTER_BAD_PREFIX = 60
 
 
-def prefix_order(prefix: bytes | bytearray, expected: ByteOrder) -> tuple[ByteOrder, int] | None:
-    """The byte order a length prefix is a plausible length in, ``expected`` first, and that
-    length; ``None`` when it is one in neither (the stream cannot be cut further)."""
-    for order in (expected, other_order(expected)):
-        (length,) = _ORDER[order].unpack_from(prefix, 0)
-        if HEADER_SIZE <= length <= MAX_FRAME:
-            return order, length
-    return None
+class Fault(enum.Enum):
+    """What is wrong with what the server sent, as the framing rules tell it apart (a frame's
+    :attr:`Seen.fault`, a link's :attr:`Link.fault`); the text shown is beside it."""
+
+    #: a length prefix that is no length in either byte order: the link could not be cut further
+    PREFIX = "prefix"
+    #: a body that fits no layout of its type in the float size read
+    LAYOUT = "layout"
+    #: the stream ended inside a frame
+    CUT_SHORT = "cut short"
 
 
 @dataclass(frozen=True)
 class Seen:
     """One frame on a link: ``outgoing`` (the suite sent it) or received, at ``time`` (monotonic).
     ``swapped``: its length prefix was plausible only in the other byte order, and it was decoded in
-    that order. ``message`` is its decoded form, ``problem`` why it does not decode."""
+    that order. ``message`` is its decoded form; ``fault`` what is wrong with it when it does not
+    decode, and ``problem`` that said in words."""
 
     role: str
     outgoing: bool
@@ -70,6 +70,7 @@ class Seen:
     swapped: bool = False
     message: Message | None = None
     problem: str | None = None
+    fault: Fault | None = None
 
     def evidence(self, real_size: int = 4) -> Evidence:
         direction = f"{self.role} sent" if self.outgoing else f"{self.role} received"
@@ -97,11 +98,14 @@ class Link:
         self.closed_by_peer = False
         self.closed_at: float | None = None  # monotonic time the peer closed it
         self.close_reason: str | None = None
+        #: what was wrong when the link ended (a bad prefix, or the stream cut inside a frame)
+        self.fault: Fault | None = None
         self._on_frame = on_frame
         self._reader: asyncio.StreamReader | None = None
         self._writer: asyncio.StreamWriter | None = None
         self._task: asyncio.Task[None] | None = None
         self._arrived = asyncio.Event()
+        self._cutter = FrameCutter(wire.byte_order if wire is not None else ByteOrder.LITTLE)
         self._read = 0  # frames handed out by next_frame
         self._bytes = 0  # in self.frames
 
@@ -115,14 +119,18 @@ class Link:
         return self._task is not None and not self._task.done()
 
     def set_wire(self, wire: WireFormat) -> None:
-        """Read frames in ``wire`` from now on, and decode those kept again in its float size."""
+        """Read frames in ``wire`` from now on, and decode those kept again in its float size (the
+        bytes after a bad length prefix are no frame of any size: they stay as they are)."""
         self.wire = wire
+        self._cutter.order = wire.byte_order
         for i, seen in enumerate(self.frames):
+            if seen.fault is Fault.PREFIX:
+                continue
             decoded = decode_or_error(seen.raw, WireFormat(seen.order, wire.real_size))
             if isinstance(decoded, MalformedMessage):
-                self.frames[i] = replace(seen, message=None, problem=str(decoded))
+                self.frames[i] = replace(seen, message=None, problem=str(decoded), fault=Fault.LAYOUT)
             else:
-                self.frames[i] = replace(seen, message=decoded, problem=None)
+                self.frames[i] = replace(seen, message=decoded, problem=None, fault=None)
 
     def send(self, data: bytes, message: Message | None = None) -> Seen:
         """Write ``data`` (one frame or any bytes) and keep it as sent."""
@@ -184,15 +192,21 @@ class Link:
         assert self._reader is not None
         try:
             while True:
-                prefix = await self._reader.readexactly(LENGTH_SIZE)
-                seen = await self._frame(prefix)
-                if seen is None:
+                data = await self._reader.read(_READ)
+                if not data:
+                    self.closed_by_peer = True
+                    # the part being read when the stream ended: the prefix, or once it is whole the body
+                    held = self._cutter.held
+                    partial = held - LENGTH_SIZE if held >= LENGTH_SIZE else held
+                    if partial:
+                        self.close_reason = f"closed in the middle of a frame ({partial} bytes)"
+                        self.fault = Fault.CUT_SHORT
                     return
-                self._keep(seen)
-        except asyncio.IncompleteReadError as exc:
-            self.closed_by_peer = True
-            if exc.partial:
-                self.close_reason = f"closed in the middle of a frame ({len(exc.partial)} bytes)"
+                for raw, order in self._cutter.feed(data):
+                    if order is None:
+                        await self._bad_prefix(raw)
+                        return
+                    self._keep(self._frame(raw, order))
         except (ConnectionError, OSError) as exc:
             self.closed_by_peer = True
             self.close_reason = f"connection error: {exc}"
@@ -201,28 +215,31 @@ class Link:
                 self.closed_at = time.monotonic()
             self._arrived.set()
 
-    async def _frame(self, prefix: bytes) -> Seen | None:
-        assert self._reader is not None
-        expected = self.wire.byte_order if self.wire is not None else ByteOrder.LITTLE
-        found = prefix_order(prefix, expected)
-        if found is None:
-            rest = await _read_some(self._reader, 60)
-            (length,) = _ORDER[expected].unpack(prefix)
-            self._keep(
-                Seen(self.role, False, time.monotonic(), prefix + rest, expected, problem=f"length prefix {length}")
-            )
-            self.close_reason = f"a length prefix that is no length in either byte order ({prefix.hex()})"
-            return None
-        order, length = found
+    def _frame(self, raw: bytes, order: ByteOrder) -> Seen:
         # before the order is known, the first frame decides it; after, another order is a finding
-        swapped = self.wire is not None and order is not expected
-        body = await self._reader.readexactly(length)
-        raw = prefix + body
+        swapped = self.wire is not None and order is not self.wire.byte_order
         real_size = self.wire.real_size if self.wire else 4
         decoded = decode_or_error(raw, WireFormat(order, real_size))
         if isinstance(decoded, MalformedMessage):
-            return Seen(self.role, False, time.monotonic(), raw, order, swapped, problem=str(decoded))
+            return Seen(
+                self.role, False, time.monotonic(), raw, order, swapped, problem=str(decoded), fault=Fault.LAYOUT
+            )
         return Seen(self.role, False, time.monotonic(), raw, order, swapped, message=decoded)
+
+    async def _bad_prefix(self, rest: bytes) -> None:
+        """A length prefix that is no length in either byte order: kept, with what follows it, as
+        the link's last frame; the link reads no further."""
+        assert self._reader is not None
+        expected = self._cutter.order
+        prefix, after = rest[:LENGTH_SIZE], rest[LENGTH_SIZE : LENGTH_SIZE + _SHOWN_AFTER_BAD_PREFIX]
+        if not after:
+            after = await _read_some(self._reader, _SHOWN_AFTER_BAD_PREFIX)
+        problem = f"length prefix {read_length(prefix, expected)}"
+        self._keep(
+            Seen(self.role, False, time.monotonic(), prefix + after, expected, problem=problem, fault=Fault.PREFIX)
+        )
+        self.close_reason = f"a length prefix that is no length in either byte order ({prefix.hex()})"
+        self.fault = Fault.PREFIX
 
     def _keep(self, seen: Seen) -> None:
         if len(self.frames) >= KEEP or self._bytes > KEEP_BYTES:

@@ -10,9 +10,11 @@ over the whole run: one byte order and one real size, the ones expected (there i
 of their type's layout (§2.2, §3), and replies of the right comm_type and reply_code (§1.2).
 
 Each check is a function of the frames and of the little it needs of the suite (its options, the
-profile's :class:`~.expectations.Expectations`, the wire format); :mod:`.server` runs them as rules
-and reports what they return or the SKIP they raise. The small helpers the suite's modules share
-(reading a frame's real size, the joints of a joint state, STATUS as text) are here too.
+profile's :class:`~.expectations.Expectations`, the wire format); the suite (:mod:`.server`) runs
+them as rules through its :class:`~.server_runner.RuleRunner`, which reports what they return or
+the SKIP they raise. A frame's fault is told by its :class:`~.links.Fault`, never by the words of
+its problem. The small helpers the suite's modules share (reading a frame's real size, the joints
+of a joint state, STATUS as text) are here too.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from ..messages import (
 )
 from ..wire import WireFormat
 from .expectations import Expectations
-from .links import Link, Seen
+from .links import Fault, Link, Seen
 from .report import Evidence, Verdict
 
 if TYPE_CHECKING:
@@ -287,7 +289,7 @@ async def framing_float_size(frames: list[Seen], options: ServerSuiteOptions, de
         raise _Skip("no state frame to measure reals by")
     size = detected.real_size
     sized = [f for f in frames if f.message is not None and _has_reals(f.message)]
-    wrong = [f for f in frames if f.problem and "fits no layout" in f.problem]
+    wrong = [f for f in frames if f.fault is Fault.LAYOUT]
     expected = options.float_size
     if expected and expected != size:
         return _Verdict(
@@ -305,8 +307,8 @@ async def framing_float_size(frames: list[Seen], options: ServerSuiteOptions, de
 async def framing_length(frames: list[Seen], links: list[Link], real: int) -> _Verdict:
     if not frames:
         raise _Skip("no frame was received")
-    bad = [f for f in frames if f.problem and f.problem.startswith("length prefix")]
-    cut = [link for link in links if link.close_reason and "middle of a frame" in link.close_reason]
+    bad = [f for f in frames if f.fault is Fault.PREFIX]
+    cut = [link for link in links if link.fault is Fault.CUT_SHORT]
     if bad or cut:
         ev = [f.evidence(real) for f in bad[:5]] + [Evidence.note(f"{lk.role}: {lk.close_reason}") for lk in cut]
         return _Verdict(Verdict.FAIL, "a length prefix that does not frame the stream", ev)
@@ -326,7 +328,7 @@ async def framing_body(frames: list[Seen], dialect: Dialect, real: int) -> _Verd
     problems: list[tuple[Seen, str]] = []
     for f in frames:
         msg = f.message
-        if f.problem and "fits no layout" in f.problem:
+        if f.fault is Fault.LAYOUT and f.problem:
             problems.append((f, f.problem))
         elif isinstance(msg, HeaderOnly) and not _may_be_header_only(msg, dialect):
             problems.append((f, f"{_type_name(msg.msg_type)} with no body, where its layout is required"))

@@ -9,8 +9,9 @@ that cannot go on (the server stopped answering, a move failed, the state port w
 the motion phase: the rules after it SKIP, and the suite sends a STOP (and on MotoROS
 STOP_TRAJ_MODE) whatever happened.
 
-The rules are methods of :class:`_MotionRules`, mixed into :class:`~.server.ServerSuite`: they share
-its links, its rule runner and what its state link says of the robot.
+The rules are methods of :class:`MotionRules`: they send through the suite's
+:class:`~.server_session.Session`, know the robot by its :class:`~.server_session.RobotView` and are
+judged by its :class:`~.server_runner.RuleRunner`.
 """
 
 from __future__ import annotations
@@ -20,7 +21,6 @@ import contextlib
 import math
 import time
 from collections.abc import Awaitable, Callable, Sequence
-from typing import TYPE_CHECKING
 
 from ..constants import (
     CommType,
@@ -34,7 +34,6 @@ from ..constants import (
     TriState,
     ValidFields,
 )
-from ..dialects import Dialect
 from ..messages import (
     JointTrajPt,
     JointTrajPtFull,
@@ -43,15 +42,14 @@ from ..messages import (
     MotoMotionReply,
     Status,
 )
-from .expectations import SERVER_RULES, Expectations
-from .links import Link, Seen
-from .report import Evidence, Report, Verdict
+from .expectations import MOTION_RULES, MOTOROS_MOTION_RULES
+from .links import Seen
+from .report import Evidence, Verdict
 from .server_checks import STILL, _mode, _Skip, _status_text, _tri, _Verdict
+from .server_runner import RuleRunner, _Abort
+from .server_session import Session
 
-if TYPE_CHECKING:
-    from .server import ServerSuiteOptions
-
-__all__ = ["BEYOND_LIMITS", "BEYOND_SECONDS"]
+__all__ = ["BEYOND_LIMITS", "BEYOND_SECONDS", "MotionRules"]
 
 #: how far beyond the current position the out-of-limit point puts the joint (rad): beyond the
 #: range of any revolute joint of an industrial arm
@@ -60,83 +58,34 @@ BEYOND_LIMITS = 100.0
 BEYOND_SECONDS = 1000.0
 
 
-class _Abort(Exception):
-    """The motion phase cannot go on (the server stopped answering, or a move failed): this rule
-    FAILs with the reason and the evidence so far, the rules after it SKIP."""
+class MotionRules:
+    """The motion rules of one run: sent through ``session``, judged by ``runner``."""
 
-    def __init__(self, reason: str, evidence: list[Evidence] | None = None) -> None:
-        super().__init__(reason)
-        self.evidence = evidence or []
+    def __init__(self, session: Session, runner: RuleRunner) -> None:
+        self.session = session
+        self.runner = runner
+        self.options = session.options
+        self.expect = session.expect
+        self.dialect = session.dialect
+        self.robot = session.robot
 
+    # -- motion -------------------------------------------------------------------------------------------------
 
-class _MotionRules:
-    """The motion rules, mixed into :class:`~.server.ServerSuite`."""
-
-    if TYPE_CHECKING:
-        # what the rules use of the suite, declared for the type checker (:class:`~.server.ServerSuite`
-        # defines it)
-        options: ServerSuiteOptions
-        dialect: Dialect
-        motion: Link | None
-        report: Report
-        _aborted: str | None
-        _saw_in_motion: bool
-
-        async def _rule(
-            self, rule: str, check: Callable[[], Awaitable[_Verdict]], *, always: bool = False
-        ) -> _Verdict | None: ...
-
-        def _skip_all(self, rules: Sequence[str], reason: str) -> None: ...
-
-        async def _exchange(
-            self, link: Link, message: Message, timeout: float | None = None, *, keep: bool = False
-        ) -> tuple[Seen, Seen | None]: ...
-
-        def _stop_message(self) -> Message: ...
-
-        def _answers(self, request: Message, reply: Seen | None) -> bool: ...
-
-        @property
-        def _real(self) -> int: ...
-
-        def _current_joints(self) -> tuple[float, ...] | None: ...
-
-        def _current_status(self) -> Status | None: ...
-
-        def _status_since(self, since: float) -> Status | None: ...
-
-        async def _reopen_motion(self) -> None: ...
-
-        expect: Expectations
-
-        def _state_fresh(self, within: float = 1.0) -> bool: ...
-
-        def _moved_since(self, before: tuple[float, ...] | None) -> str: ...
-
-        async def _wait_state(
-            self, check: Callable[[tuple[float, ...], Status | None], bool], timeout: float
-        ) -> bool: ...
-
-    # -- motion ------------------------------------------------------------------------------------------------
-
-    async def _motion(self) -> None:
-        names = [
-            r
-            for r in SERVER_RULES
-            if r.startswith("motion.") or r in ("motoros.traj-mode", "motoros.busy", "motoros.start-position")
-        ]
+    async def run(self) -> None:
+        """The motion rules in their order (each SKIPs without ``allow_motion``, or once one
+        aborted), then a STOP (and on MotoROS STOP_TRAJ_MODE) whatever happened."""
+        names = MOTION_RULES
         moroso = self.dialect.motion_control
         if not moroso:
-            self._skip_all(
-                ["motoros.traj-mode", "motoros.busy", "motoros.start-position"],
-                f"not a MotoROS server (profile {self.options.profile})",
-            )
+            self.runner.skip_all(MOTOROS_MOTION_RULES, f"not a MotoROS server (profile {self.options.profile})")
         if not self.options.allow_motion:
-            self._skip_all(names, "needs --allow-motion (it moves the robot)")
+            self.runner.skip_all(names, "needs --allow-motion (it moves the robot)")
             return
-        pre = await self._rule("motion.preconditions", self._preconditions)
+        pre = await self.runner.rule("motion.preconditions", self._preconditions)
         if pre is None or pre.verdict is not Verdict.PASS:
-            self._skip_all(names, "motion.preconditions " + ("not run" if pre is None else "not met: " + pre.detail))
+            self.runner.skip_all(
+                names, "motion.preconditions " + ("not run" if pre is None else "not met: " + pre.detail)
+            )
             return
         steps: list[tuple[str, Callable[[], Awaitable[_Verdict]]]] = [
             ("motion.small-move", self._small_move),
@@ -147,30 +96,30 @@ class _MotionRules:
         steps.append(("motion.out-of-limit", self._out_of_limit))
         try:
             if moroso:
-                ready = await self._rule("motoros.traj-mode", self._start_traj_mode)
+                ready = await self.runner.rule("motoros.traj-mode", self._start_traj_mode)
                 if ready is not None and ready.verdict is Verdict.FAIL:
                     raise _Abort("trajectory mode could not be started")
             for rule, check in steps:
-                await self._rule(rule, check)
-                if self._aborted:
+                await self.runner.rule(rule, check)
+                if self.runner.aborted:
                     # the robot may not be where the next rule needs it: no more motion
-                    raise _Abort(self._aborted)
+                    raise _Abort(self.runner.aborted)
         except _Abort as abort:
-            self._skip_all(names, f"an earlier motion rule failed: {abort}")
+            self.runner.skip_all(names, f"an earlier motion rule failed: {abort}")
         finally:
-            if self.motion is not None:
+            if self.session.motion is not None:
                 with contextlib.suppress(Exception):
-                    await self._exchange(self.motion, self._stop_message())
+                    await self.session.exchange(self.session.motion, self.session.stop_message())
                 if moroso:
                     with contextlib.suppress(Exception):
                         await self._stop_traj_mode_end()
 
     async def _preconditions(self) -> _Verdict:
-        status = self._current_status()
-        joints = self._current_joints()
+        status = self.robot.status()
+        joints = self.robot.joints()
         if status is None or joints is None:
             return _Verdict(Verdict.WARN, "no STATUS or joint state to check the robot by")
-        if not self._state_fresh():
+        if not self.robot.fresh():
             return _Verdict(Verdict.WARN, "the state port went silent: no motion sent without knowing the robot")
         ev = [Evidence.note(f"STATUS {_status_text(status)}")]
         problems = []
@@ -235,31 +184,31 @@ class _MotionRules:
         """A two-point trajectory from where the robot is to ``target`` in ``seconds``, both points
         accepted (BUSY is resent: MotoROS's flow control); else :class:`_Abort` saying why, with
         the frames."""
-        assert self.motion is not None
+        assert self.session.motion is not None
         first, second = self._sequences()
         for seq, pos, dt in ((first, start, 0.0), (second, target, seconds)):
             reply = await self._send_point(self._point(seq, pos, dt, dt, ratio), ev)
             if reply is None:
-                why = "the connection was closed" if not self.motion.alive else "no reply"
+                why = "the connection was closed" if not self.session.motion.alive else "no reply"
                 raise _Abort(f"{what}: {why} (point {seq})", ev)
             if not self._accepted(reply):
                 raise _Abort(f"{what}: point {seq} was refused", ev)
 
     async def _send_point(self, point: Message, ev: list[Evidence]) -> Seen | None:
-        assert self.motion is not None
+        assert self.session.motion is not None
         loop = asyncio.get_running_loop()
         deadline = loop.time() + self.options.motion_timeout
         while True:
-            sent, reply = await self._exchange(self.motion, point)
+            sent, reply = await self.session.exchange(self.session.motion, point)
             busy = (
                 reply is not None
                 and isinstance(reply.message, MotoMotionReply)
                 and reply.message.result == MotoResult.BUSY
             )
             if not busy or loop.time() > deadline:
-                ev.append(sent.evidence(self._real))
+                ev.append(sent.evidence(self.session.real))
                 if reply is not None:
-                    ev.append(reply.evidence(self._real))
+                    ev.append(reply.evidence(self.session.real))
                 return reply
             await asyncio.sleep(0.01)  # MotoROS's client resends a BUSY point every few ms
 
@@ -271,7 +220,7 @@ class _MotionRules:
         began = time.monotonic()
 
         def done(joints: tuple[float, ...], _status: Status | None) -> bool:
-            status = self._status_since(began)
+            status = self.robot.status_since(began)
             if status is None:
                 return False
             last.append(joints)
@@ -282,13 +231,13 @@ class _MotionRules:
             # in_motion UNKNOWN (the C++ default, §5): still over ten joint states
             return len(last) > 10 and _distance(last[-11], joints) <= STILL
 
-        if not await self._wait_state(done, timeout):
+        if not await self.robot.wait(done, timeout):
             return None
-        return self._current_joints()
+        return self.robot.joints()
 
     async def _return_to(self, start: tuple[float, ...]) -> None:
         """Move back to where a rule began (a rule leaves the robot where it found it)."""
-        now = self._current_joints()
+        now = self.robot.joints()
         if now is None or _distance(now, start) <= self.options.tolerance:
             return
         ev: list[Evidence] = []
@@ -298,7 +247,7 @@ class _MotionRules:
 
     async def _small_move(self) -> _Verdict:
         o = self.options
-        start = self._current_joints()
+        start = self.robot.joints()
         assert start is not None
         target = self._target(start, o.amplitude)
         ev = [
@@ -307,11 +256,11 @@ class _MotionRules:
             )
         ]
         sent_at = time.monotonic()
-        self._saw_in_motion = False
+        self.robot.saw_in_motion = False
         await self._send_move(start, target, o.move_time, ev, "a small move near the current position")
         final = await self._settle_after_motion(o.move_time + o.motion_timeout)
         took = time.monotonic() - sent_at
-        await self._rule("motion.in-motion", lambda: self._in_motion_verdict(final, ev, took))
+        await self.runner.rule("motion.in-motion", lambda: self._in_motion_verdict(final, ev, took))
         if final is None:
             raise _Abort(f"the move did not end within {o.move_time + o.motion_timeout:g} s", ev)
         error = _distance(final, target)
@@ -323,23 +272,23 @@ class _MotionRules:
 
     async def _settle_after_motion(self, timeout: float) -> tuple[float, ...] | None:
         """Wait for the move to begin (in_motion TRUE or the joints leaving the start) and then end."""
-        start = self._current_joints()
+        start = self.robot.joints()
         assert start is not None
-        began = await self._wait_state(
-            lambda j, s: self._saw_in_motion or _distance(j, start) > STILL,
+        began = await self.robot.wait(
+            lambda j, s: self.robot.saw_in_motion or _distance(j, start) > STILL,
             min(timeout, 2.0 + self.options.move_time / 2),
         )
         if not began:
-            return self._current_joints()
+            return self.robot.joints()
         return await self._settle(timeout)
 
     async def _in_motion_verdict(
         self, final: tuple[float, ...] | None, ev: list[Evidence], took: float = math.inf
     ) -> _Verdict:
-        status = self._current_status()
+        status = self.robot.status()
         if status is None:
             raise _Skip("no STATUS")
-        if not self._saw_in_motion:
+        if not self.robot.saw_in_motion:
             rate = self.expect.rates.get(MsgType.STATUS)
             if rate is not None and took < 2.0 / rate:
                 # a controller that moves at its own speed may be done between two STATUS (Fanuc's
@@ -361,8 +310,8 @@ class _MotionRules:
 
     async def _stop(self) -> _Verdict:
         o = self.options
-        start = self._current_joints()
-        assert start is not None and self.motion is not None
+        start = self.robot.joints()
+        assert start is not None and self.session.motion is not None
         seconds = 2 * o.move_time
         target = self._target(start, o.amplitude)
         ev: list[Evidence] = [Evidence.note(f"a {seconds:g} s move of joint {o.joint}, stopped once it moves")]
@@ -370,16 +319,16 @@ class _MotionRules:
         ratio = 0.1 if self.dialect.timed else 0.01
         await self._send_move(start, target, seconds, ev, "the move to stop", ratio=ratio)
         # STOP once a tenth of the way is done (the move is then surely under way)
-        moving = await self._wait_state(lambda j, s: _distance(j, start) > o.amplitude / 10, seconds + o.motion_timeout)
-        at_stop = self._current_joints()
+        moving = await self.robot.wait(lambda j, s: _distance(j, start) > o.amplitude / 10, seconds + o.motion_timeout)
+        at_stop = self.robot.joints()
         if not moving or at_stop is None:
             await self._settle(seconds + o.motion_timeout)
             await self._return_to(start)
             raise _Skip("the move did not begin; STOP not tried")
-        stop = self._stop_message()
-        sent, reply = await self._exchange(self.motion, stop)
-        ev += [sent.evidence(self._real)] + ([reply.evidence(self._real)] if reply else [])
-        if reply is None or not self._answers(stop, reply):
+        stop = self.session.stop_message()
+        sent, reply = await self.session.exchange(self.session.motion, stop)
+        ev += [sent.evidence(self.session.real)] + ([reply.evidence(self.session.real)] if reply else [])
+        if reply is None or not self.session.answers(stop, reply):
             await self._settle(seconds + o.motion_timeout)
             await self._return_to(start)
             return _Verdict(
@@ -420,8 +369,8 @@ class _MotionRules:
         that a server that wrongly accepts it would creep towards it, and a STOP at once on its
         reply: whatever the server does, the robot cannot go far."""
         o = self.options
-        start = self._current_joints()
-        assert start is not None and self.motion is not None
+        start = self.robot.joints()
+        assert start is not None and self.session.motion is not None
         target = self._target(start, BEYOND_LIMITS)
         seconds = BEYOND_SECONDS
         ev: list[Evidence] = [
@@ -437,15 +386,18 @@ class _MotionRules:
         accepted = self._accepted(reply)
         if accepted and self.expect.acks_before_checking:
             # Fanuc's relay acknowledges what it reads, then checks it: a FAILURE follows, and it hangs up
-            late = await self.motion.next_frame(self.options.reply_timeout)
+            late = await self.session.motion.next_frame(self.options.reply_timeout)
             if late is not None:
-                ev.append(late.evidence(self._real))
+                ev.append(late.evidence(self.session.real))
             if late is not None and late.message is not None and late.message.reply_code == ReplyCode.FAILURE:
-                moved = await self._wait_state(lambda j, s: _distance(j, start) > 10 * STILL, 0.5)
-                closed = not self.motion.alive or await self.motion.next_frame(self.options.reply_timeout) is None
-                await self._reopen_motion()
+                moved = await self.robot.wait(lambda j, s: _distance(j, start) > 10 * STILL, 0.5)
+                closed = (
+                    not self.session.motion.alive
+                    or await self.session.motion.next_frame(self.options.reply_timeout) is None
+                )
+                await self.session.reopen_motion()
                 if moved:
-                    ev.append(Evidence.note(f"moved: {self._moved_since(start)}"))
+                    ev.append(Evidence.note(f"moved: {self.robot.moved_since(start)}"))
                     return _Verdict(Verdict.FAIL, "the robot moved towards a point beyond its limits", ev)
                 return _Verdict(
                     Verdict.PASS,
@@ -456,14 +408,16 @@ class _MotionRules:
                 )
         if accepted or reply is None:
             with contextlib.suppress(Exception):
-                await self._exchange(self.motion, self._stop_message())
-        moved = await self._wait_state(lambda j, s: _distance(j, start) > 10 * STILL, 0.5)
-        fresh = self._state_fresh()
+                await self.session.exchange(self.session.motion, self.session.stop_message())
+        moved = await self.robot.wait(lambda j, s: _distance(j, start) > 10 * STILL, 0.5)
+        fresh = self.robot.fresh()
         if not accepted and reply is not None:
             with contextlib.suppress(Exception):
-                await self._exchange(self.motion, self._stop_message())  # close the trajectory begun
+                await self.session.exchange(
+                    self.session.motion, self.session.stop_message()
+                )  # close the trajectory begun
         if moved:
-            ev.append(Evidence.note(f"moved: {self._moved_since(start)}"))
+            ev.append(Evidence.note(f"moved: {self.robot.moved_since(start)}"))
             await self._settle(o.motion_timeout)
             await self._return_to(start)
             return _Verdict(Verdict.FAIL, "the robot moved towards a point beyond its limits", ev)
@@ -490,11 +444,11 @@ class _MotionRules:
     async def _ctrl(
         self, command: MotoCommand, ev: list[Evidence], timeout: float | None = None
     ) -> MotoMotionReply | None:
-        assert self.motion is not None
-        sent, reply = await self._exchange(self.motion, MotoMotionCtrl(0, 0, command), timeout)
-        ev.append(sent.evidence(self._real))
+        assert self.session.motion is not None
+        sent, reply = await self.session.exchange(self.session.motion, MotoMotionCtrl(0, 0, command), timeout)
+        ev.append(sent.evidence(self.session.real))
         if reply is not None:
-            ev.append(reply.evidence(self._real))
+            ev.append(reply.evidence(self.session.real))
         msg = reply.message if reply else None
         return msg if isinstance(msg, MotoMotionReply) else None
 
@@ -513,7 +467,7 @@ class _MotionRules:
         ev: list[Evidence] = []
         stop = await self._ctrl(MotoCommand.STOP_TRAJ_MODE, ev)
         ready = await self._ctrl(MotoCommand.CHECK_MOTION_READY, ev)
-        result = next((r for r in self.report.results if r.rule == "motoros.traj-mode"), None)
+        result = self.runner.reported("motoros.traj-mode")
         if result is None or result.verdict is not Verdict.PASS:
             return
         result.evidence.extend(ev[:4])
@@ -526,8 +480,8 @@ class _MotionRules:
 
     async def _busy(self) -> _Verdict:
         o = self.options
-        start = self._current_joints()
-        assert start is not None and self.motion is not None
+        start = self.robot.joints()
+        assert start is not None and self.session.motion is not None
         count = 8
         step = o.move_time / 4
         ev: list[Evidence] = [
@@ -542,12 +496,12 @@ class _MotionRules:
         deadline = loop.time() + o.motion_timeout + count * step
         for point in points:
             while True:
-                sent, reply = await self._exchange(self.motion, point)
+                sent, reply = await self.session.exchange(self.session.motion, point)
                 msg = reply.message if reply else None
                 if isinstance(msg, MotoMotionReply) and msg.result == MotoResult.BUSY:
                     busy += 1
                     if busy <= 3:
-                        ev += [sent.evidence(self._real), reply.evidence(self._real)] if reply else []
+                        ev += [sent.evidence(self.session.real), reply.evidence(self.session.real)] if reply else []
                     if msg.sequence != getattr(point, "sequence", None):
                         return _Verdict(Verdict.FAIL, f"a BUSY reply names sequence {msg.sequence}", ev)
                     if loop.time() > deadline:
@@ -555,7 +509,7 @@ class _MotionRules:
                     await asyncio.sleep(0.01)
                     continue
                 if not self._accepted(reply):
-                    ev += [sent.evidence(self._real)] + ([reply.evidence(self._real)] if reply else [])
+                    ev += [sent.evidence(self.session.real)] + ([reply.evidence(self.session.real)] if reply else [])
                     raise _Abort(f"point {getattr(point, 'sequence', '?')} refused", ev)
                 break
         target = self._target(start, o.amplitude)
@@ -571,14 +525,14 @@ class _MotionRules:
 
     async def _start_position(self) -> _Verdict:
         o = self.options
-        start = self._current_joints()
+        start = self.robot.joints()
         assert start is not None
         off = self._target(start, o.amplitude)
         ev: list[Evidence] = [Evidence.note(f"sequence 0 at joint {o.joint} + {o.amplitude:g} rad")]
         reply = await self._send_point(self._point(0, off, 0.0, 0.0), ev)
-        moved = await self._wait_state(lambda j, s: _distance(j, start) > 10 * STILL, 0.5)
+        moved = await self.robot.wait(lambda j, s: _distance(j, start) > 10 * STILL, 0.5)
         msg = reply.message if reply else None
-        if not moved and not self._state_fresh():
+        if not moved and not self.robot.fresh():
             raise _Abort("the state port went silent: whether the robot moved cannot be told", ev)
         if moved:
             await self._settle(o.motion_timeout)
