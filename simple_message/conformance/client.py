@@ -12,9 +12,10 @@ the profile has one). For each connection the client opens it opens one to the s
 upstream controller and forwards the bytes both ways unchanged, frame by frame, except for the
 replies it injects (below). The client's frames, on every port, and the controller's on the motion
 port are cut and fed to the rules (the controller's state and IO traffic passes as it comes: no rule
-judges the controller). The cutter is tolerant: a frame in the other byte order is evidence, not the
-end of the stream (§10 pitfall 1's rule: a length above 0xFFFF read one way is a frame of the other
-order), and bytes that are no frame in either order are passed on uncut. Replies keep their order
+judges the controller). The cutter is the suites' tolerant one (:class:`~.cutter.FrameCutter`, the
+server suite's links cut with it too): a frame in the other byte order is evidence, not the end of
+the stream (§10 pitfall 1's rule: a length above 0xFFFF read one way is a frame of the other order),
+and bytes that are no frame in either order are passed on uncut. Replies keep their order
 (a reply answers the oldest request still waiting, §3): an injected reply waits behind the upstream
 replies owed before it. The suite also keeps its own connection to the controller's state port,
 so it always knows where the robot is (JOINT_POSITION, or JOINT_FEEDBACK of group 0 for MotoROS)
@@ -56,6 +57,11 @@ end. Nothing a client sends can crash the suite (bad bytes are evidence), and no
 the suite's memory without bound: the proxy's cutters hold at most one incomplete frame each and it
 reads no more from a client owed ``MAX_PENDING`` replies; the observer keeps a frame only while a
 rule still needs it and caps its evidence.
+
+This module holds the profiles, the options and :class:`ClientSuite`: its lifecycle, the spawned
+controller, the listening ports and the connections accepted, the injections (which point gets
+which, and the reply played), and the suite's own view of the robot. One connection's forwarding is
+:mod:`.client_proxy`'s :class:`~.client_proxy.ProxyLink`.
 """
 
 from __future__ import annotations
@@ -71,20 +77,16 @@ import sys
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Final, cast
+from typing import Final
 
 from ..constants import (
-    LENGTH_SIZE,
     CommType,
     InvalidSubcode,
-    MotoCommand,
     MotoResult,
-    MsgType,
     ReplyCode,
     ValidFields,
 )
 from ..dialects import ABB, FANUC, GENERIC, MOTOROS, STAUBLI, Dialect, ReplyStyle
-from ..errors import MalformedMessage
 from ..framing import decode_or_error
 from ..messages import (
     HeaderOnly,
@@ -94,12 +96,12 @@ from ..messages import (
     JointTrajPtFull,
     JointTrajPtFullEx,
     Message,
-    MotoMotionCtrl,
     MotoMotionReply,
 )
 from ..wire import ByteOrder, WireFormat
-from .client_rules import RULES, SAME, LinkState, Observer, Point, Positions
-from .links import prefix_order
+from .client_proxy import READ, ProxyLink, nowhere
+from .client_rules import RULES, SAME, Observer, Point, Positions
+from .cutter import FrameCutter
 from .report import Report
 
 __all__ = [
@@ -123,18 +125,9 @@ STOP_TIMEOUT = 10.0
 CONNECT_TIMEOUT = 5.0
 #: start() waits at most this long for the first joint state from the controller
 FIRST_STATE_TIMEOUT = 5.0
-#: replies owed to the client on one connection before the suite reads no more from it (a real
-#: controller, too, stops reading a client that does not wait for its replies)
-MAX_PENDING = 256
-
-_READ = 65536
 #: what a client of a shared state port may leave unread before it is closed (a client that does
 #: not read must not make the suite hold the controller's whole state stream)
 _STATE_BACKLOG = 1024 * 1024
-#: MotoROS closes the motion connection on these, without a reply (§8.1)
-_MOTO_CLOSERS = frozenset(
-    {MsgType.STATUS, MsgType.JOINT_FEEDBACK, MsgType.MOTO_MOTION_REPLY, MsgType.JOINT_FEEDBACK_EX}
-)
 _READY = re.compile(r"\b(motion|state|io) (\S+):(\d+)")
 
 
@@ -248,232 +241,6 @@ def _check_options(options: ClientSuiteOptions) -> _Profile:
             if not ok:
                 raise ValueError(f"upstream[{role!r}] must be (host, port 1..65535), not {address!r}")
     return profile
-
-
-# -- the tolerant cutter ------------------------------------------------------------------------------
-
-
-class _Cutter:
-    """Cuts a byte stream into frames, each in the byte order its length prefix is plausible in.
-
-    A peer's frame in the other byte order is a frame to show, not the end of the stream: every
-    length a frame can have (12..0xFFFF) reads as at least 0x10000 the other way round, so the
-    order of each prefix is never in doubt (§10 pitfall 1). A prefix plausible in neither order ends
-    the cutting: the rest of the stream is handed on as it is (``order`` None). At most one frame
-    (4 + 0xFFFF bytes) is held.
-    """
-
-    def __init__(self, order: ByteOrder) -> None:
-        self.order = order
-        self._buf = bytearray()
-        #: the stream could not be cut any further
-        self.lost = False
-
-    def feed(self, data: bytes) -> list[tuple[bytes, ByteOrder | None]]:
-        if self.lost:
-            return [(data, None)] if data else []
-        self._buf += data
-        out: list[tuple[bytes, ByteOrder | None]] = []
-        buf = self._buf
-        while len(buf) >= LENGTH_SIZE:
-            found = prefix_order(buf, self.order)
-            if found is None:
-                out.append((bytes(buf), None))
-                buf.clear()
-                self.lost = True
-                break
-            order, length = found
-            end = LENGTH_SIZE + length
-            if len(buf) < end:
-                break
-            out.append((bytes(buf[:end]), order))
-            del buf[:end]
-        return out
-
-
-# -- the proxy ----------------------------------------------------------------------------------------
-
-
-@dataclass(eq=False)
-class _Slot:
-    """A reply the client is owed, in order: from upstream, or injected (``reply`` already set)."""
-
-    point: Point | None
-    request: Message | MalformedMessage
-    upstream: bool
-    reply: Message | MalformedMessage | None = None
-    frame: bytes | None = None
-    drop_after: bool = False
-
-
-class _Link:
-    """One client connection and its upstream twin, forwarded frame by frame."""
-
-    def __init__(
-        self,
-        suite: ClientSuite,
-        state: LinkState,
-        client: tuple[asyncio.StreamReader, asyncio.StreamWriter],
-        upstream: tuple[asyncio.StreamReader, asyncio.StreamWriter],
-    ) -> None:
-        self.suite = suite
-        self.state = state
-        self.client_reader, self.client_writer = client
-        self.up_reader, self.up_writer = upstream
-        self.slots: deque[_Slot] = deque()
-        #: set when a reply owed was sent (the client side waits for it when MAX_PENDING are owed)
-        self.room = asyncio.Event()
-        self.dropped = False
-
-    async def run(self) -> str:
-        """Forward until one side closes; who closed it: ``client``, ``upstream`` or ``drop``."""
-        loop = asyncio.get_running_loop()
-        pumps = {
-            loop.create_task(self._from_client(), name=f"client suite {self.state.name} client"): "client",
-            loop.create_task(self._from_upstream(), name=f"client suite {self.state.name} upstream"): "upstream",
-        }
-        try:
-            done, _ = await asyncio.wait(pumps, return_when=asyncio.FIRST_COMPLETED)
-        finally:
-            for task in pumps:
-                task.cancel()
-            outcomes = await asyncio.gather(*pumps, return_exceptions=True)
-        for task, outcome in zip(pumps, outcomes, strict=True):
-            if isinstance(outcome, Exception):
-                log.error("%s: forwarding (%s) failed", self.state.name, pumps[task], exc_info=outcome)
-        if self.dropped:
-            return "drop"
-        first = next(iter(done))
-        return pumps[first]
-
-    # client -> upstream ----------------------------------------------------------------------------
-
-    async def _from_client(self) -> None:
-        observer = self.suite.observer
-        cutter = _Cutter(self.suite.wire.byte_order)
-        motion = self.state.role == "motion"
-        with contextlib.suppress(OSError):
-            while not self.dropped:
-                data = await self.client_reader.read(_READ)
-                if not data:
-                    return
-                for frame, order in cutter.feed(data):
-                    if self.closed():
-                        return
-                    if order is None:
-                        observer.client_frame(self.state, frame, None, None)
-                        self.up_writer.write(frame)
-                        continue
-                    wire = self.suite.wire if order is self.suite.wire.byte_order else observer.other_wire
-                    msg = decode_or_error(frame, wire)
-                    point = observer.client_frame(self.state, frame, order, msg)
-                    if motion and order is self.suite.wire.byte_order:
-                        self._request(frame, msg, point)
-                    else:
-                        self.up_writer.write(frame)
-                await self.up_writer.drain()
-                await self.client_writer.drain()
-                while len(self.slots) >= MAX_PENDING and not self.closed():
-                    self.room.clear()
-                    await self.room.wait()
-
-    def _answered(self, frame: bytes, msg: Message | MalformedMessage) -> bool:
-        """Whether the controller owes a reply: a SERVICE_REQUEST, or for MotoROS anything but a reply and
-        the types that close its motion connection (simple-message.md §3, §8.1)."""
-        _, msg_type, comm, _ = self.suite.wire.header.unpack_from(frame, 0)
-        if not self.suite.profile.dialect.motion_control:
-            return bool(comm == CommType.SERVICE_REQUEST)
-        if comm == CommType.SERVICE_REPLY or msg_type in _MOTO_CLOSERS:
-            return False
-        return not (isinstance(msg, MotoMotionCtrl) and msg.command == MotoCommand.DISCONNECT)
-
-    def _request(self, frame: bytes, msg: Message | MalformedMessage, point: Point | None) -> None:
-        answered = self._answered(frame, msg)
-        injection = self.suite.injection_for(point) if point is not None and answered else None
-        if injection in ("busy", "failure") and isinstance(msg, Message) and point is not None:
-            reply = self.suite.injected_reply(injection, msg)
-            reply_frame = reply.encode(self.suite.wire)
-            self._injected(injection, point, f"not forwarded, answered {_describe(reply)}")
-            self.slots.append(_Slot(point, msg, upstream=False, reply=reply, frame=reply_frame))
-            self._flush()
-            return
-        self.up_writer.write(frame)
-        if answered:
-            slot = _Slot(point, msg, upstream=True)
-            if injection == "drop" and point is not None:
-                slot.drop_after = True
-                self._injected("drop", point, "forwarded; the connection is closed once its reply reached the client")
-            self.slots.append(slot)
-
-    def _injected(self, kind: str, point: Point, what: str) -> None:
-        """Tell the observer (it watches the client's reaction from now on), and log the injection."""
-        log.info("injected %s", self.suite.observer.injected(kind, point, what))
-
-    # upstream -> client ----------------------------------------------------------------------------
-
-    async def _from_upstream(self) -> None:
-        cutter = _Cutter(self.suite.wire.byte_order)
-        motion = self.state.role == "motion"
-        with contextlib.suppress(OSError):
-            while not self.dropped:
-                data = await self.up_reader.read(_READ)
-                if not data:
-                    return
-                if not motion:
-                    self.client_writer.write(data)
-                else:
-                    for frame, order in cutter.feed(data):
-                        if self.closed():
-                            return
-                        if order is not self.suite.wire.byte_order:
-                            self.client_writer.write(frame)
-                            continue
-                        self._reply(frame)
-                await self.client_writer.drain()
-
-    def _reply(self, frame: bytes) -> None:
-        _, _, comm, _ = self.suite.wire.header.unpack_from(frame, 0)
-        slot = next((s for s in self.slots if s.upstream and s.reply is None), None)
-        if comm != CommType.SERVICE_REPLY or slot is None:
-            self.client_writer.write(frame)  # a topic, or a reply nothing here waits for
-            return
-        reply = decode_or_error(frame, self.suite.wire)
-        slot.reply = reply
-        slot.frame = frame
-        self._flush()
-
-    def _flush(self) -> None:
-        """Send the replies owed, in order, as far as they are known."""
-        while self.slots and self.slots[0].reply is not None:
-            slot = self.slots.popleft()
-            self.room.set()
-            assert slot.frame is not None and slot.reply is not None
-            self.client_writer.write(slot.frame)
-            if slot.point is not None:
-                self.suite.observer.reply_sent(slot.point, slot.reply, slot.frame)
-            if slot.drop_after:
-                self._drop()
-                return
-
-    def closed(self) -> bool:
-        """The drop injection closed both connections (checked between frames of one chunk)."""
-        return self.dropped
-
-    def _drop(self) -> None:
-        """The drop injection: the reply just written goes out, then both connections close."""
-        self.dropped = True
-        self.client_writer.close()
-        self.up_writer.close()
-
-
-def _describe(reply: Message) -> str:
-    if isinstance(reply, MotoMotionReply):
-        result = MotoResult(reply.result).name if reply.result in MotoResult._value2member_map_ else reply.result
-        sub = f"/{reply.subcode}" if reply.subcode else ""
-        return f"MOTO_MOTION_REPLY {result}{sub}"
-    code = ReplyCode(reply.reply_code).name if reply.reply_code in ReplyCode._value2member_map_ else reply.reply_code
-    body = "header-only " if isinstance(reply, HeaderOnly) else ""
-    return f"{body}{reply.name} {code}"
 
 
 # -- the suite ----------------------------------------------------------------------------------------
@@ -741,7 +508,7 @@ class ClientSuite:
                 # controllers never read their state socket)
                 self._state_clients.add(writer)
                 try:
-                    by = await _Link(self, state, (reader, writer), _nowhere()).run()
+                    by = await ProxyLink(self, state, (reader, writer), nowhere()).run()
                 finally:
                     self._state_clients.discard(writer)
                 return
@@ -752,7 +519,7 @@ class ClientSuite:
                 log.warning("%s: cannot reach the controller's %s port %s:%s: %s", state.name, role, host, port, exc)
                 return
             upstream = up[1]
-            by = await _Link(self, state, (reader, writer), up).run()
+            by = await ProxyLink(self, state, (reader, writer), up).run()
         except asyncio.CancelledError:
             # the suite is finishing (it cancels its handlers). Not raised on: this is the stream
             # server's callback task, and asyncio logs a callback task that ends cancelled as an error
@@ -833,10 +600,10 @@ class ClientSuite:
             delay = min(delay * 2, 2.0)
 
     async def _read_state(self, reader: asyncio.StreamReader) -> None:
-        cutter = _Cutter(self.wire.byte_order)
+        cutter = FrameCutter(self.wire.byte_order)
         with contextlib.suppress(OSError):
             while True:
-                data = await reader.read(_READ)
+                data = await reader.read(READ)
                 if not data:
                     return
                 for frame, order in cutter.feed(data):
@@ -863,30 +630,6 @@ class ClientSuite:
                         continue
                     self.observer.state_sample(positions)
                     self._first_state.set()
-
-
-class _Nowhere:
-    """The upstream of a client connection that has none of its own (a shared state port): it
-    takes what is written and never sends anything."""
-
-    def write(self, data: bytes) -> None:
-        pass
-
-    async def drain(self) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-    async def wait_closed(self) -> None:
-        pass
-
-    def is_closing(self) -> bool:
-        return False
-
-
-def _nowhere() -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
-    return asyncio.StreamReader(), cast(asyncio.StreamWriter, _Nowhere())
 
 
 async def _until(event: asyncio.Event) -> None:
