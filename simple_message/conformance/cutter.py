@@ -8,8 +8,9 @@ dissector's heuristic): every length a frame can have (12..0xFFFF) reads as at l
 other way round, so the byte order of a plausible prefix is never in doubt. A prefix plausible in
 neither order ends the cutting: the rest of the stream is handed on as it is, uncut.
 
-The server suite's links (:mod:`.links`) read the server's frames with :class:`FrameCutter`, the
-client suite's proxy the client's and the controller's.
+The server suite's links (:mod:`.links`) read the server's frames with :class:`FrameCutter`; the
+client suite's proxy (:mod:`.client_proxy`) the client's and the controller's, and the client suite
+(:mod:`.client`) the controller's state port.
 """
 
 from __future__ import annotations
