@@ -102,6 +102,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from codec import machine
 
 from client.demo import distance_to_path
+from robot_server import Array
 from robot_server.cli import parser as server_parser
 from robot_server.kinematics import fk_batch
 from robot_server.loader import load_model
@@ -131,8 +132,6 @@ from simple_message.constants import CommType
 from simple_message.errors import RequestFailed
 from simple_message.transport import open_tcp
 from simple_message.wire import WireFormat
-
-Array = NDArray[np.float64]
 
 MODEL = "jibot_zxs"
 HOST = "127.0.0.1"

@@ -19,8 +19,8 @@ is the way, not the same path by joints, which the same zones would refuse.
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
+from robot_server import Array
 from robot_server.control import ControllerConfig
 from robot_server.control.cartesian import LineMotion, LineTarget
 from robot_server.control.points import Limits, PointRejected
@@ -35,8 +35,6 @@ __all__ = ["PATH_REFUSALS", "after_refusal", "line_check", "instead"]
 #: the controller's refusals of a straight line that the joints cannot run: the same target may be
 #: reached another way (the line planned on the PC, a joint move)
 PATH_REFUSALS = frozenset({LineResult.SINGULAR, LineResult.UNREACHABLE, LineResult.JOINT_LIMIT})
-
-Array = NDArray[np.float64]
 
 
 def line_check(model: RobotModel, here: Array, target: Array, speed: float) -> str | None:

@@ -61,7 +61,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from robot_server import Recorder
+from robot_server import Array, Recorder
 from robot_server.control import DEFAULT_POLICY
 from robot_server.kinematics import closed_form, fk, fk_batch, rotation_to_quaternion
 from robot_server.loader import load_model
@@ -88,8 +88,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-Array = NDArray[np.float64]
 
 #: where the rectangle's centre is: the flange pose at this configuration of the paper's robot (a
 #: tilted tool, well away from the wrist, shoulder and elbow singularities)

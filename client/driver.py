@@ -61,9 +61,8 @@ import time
 from collections.abc import AsyncIterator, Sequence
 
 import numpy as np
-from numpy.typing import NDArray
 
-from robot_server import RobotModel
+from robot_server import Array, RobotModel
 from simple_message.connection import ConnectionState, Tap
 from simple_message.constants import MotoCommand, MotoResult, MsgType, SpecialSeq
 from simple_message.dialects import GENERIC, Dialect, dialect
@@ -98,8 +97,6 @@ from .waiting import GoalSupervisor
 __all__ = ["RobotDriver", "DriverError", "ExecutionAborted", "LineRefused", "LineGoal", "JointState", "Mode"]
 
 log = logging.getLogger(__name__)
-
-Array = NDArray[np.float64]
 
 
 #: how long (s) a cancelled motion waits for the robot to come to rest before the client goes on

@@ -8,16 +8,13 @@ import dataclasses
 import logging
 
 import numpy as np
-from numpy.typing import NDArray
 
-from robot_server import RobotModel
+from robot_server import Array, RobotModel
 
 from .errors import DriverError
 from .trajectory import Trajectory
 
 __all__ = ["check_limits", "within_speeds", "path_deviation", "MEASURED_OVERSHOOT"]
-
-Array = NDArray[np.float64]
 
 log = logging.getLogger("client.driver")
 

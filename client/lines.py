@@ -19,8 +19,9 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from robot_server import Array
 from robot_server.kinematics import fk, quaternion_angle, rotation_to_quaternion
 from simple_message.connection import Connection, ConnectionState
 from simple_message.constants import CommType, LineResult, SpecialSeq
@@ -44,8 +45,6 @@ if TYPE_CHECKING:
 __all__ = ["LINE_REFUSALS", "CartesianLines", "LineGoal", "LineRefused", "line_reason"]
 
 log = logging.getLogger("client.driver")
-
-Array = NDArray[np.float64]
 
 
 #: what each refusal of a straight line means (docs/protocol.md, CARTESIAN_LINE's reply)

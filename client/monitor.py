@@ -19,8 +19,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
 
+from robot_server import Array
 from simple_message.connection import Connection, ConnectionState, Subscription
 from simple_message.constants import ValidFields
 from simple_message.messages import JointFeedback, JointPosition, Status, ToolPose
@@ -34,8 +34,6 @@ if TYPE_CHECKING:
 __all__ = ["JointState", "StateMonitor"]
 
 log = logging.getLogger("client.driver")
-
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from robot_server import RobotModel
+from robot_server import Array, RobotModel
 from robot_server.control import (
     CUBIC_PEAK_ACCELERATION,
     CUBIC_PEAK_VELOCITY,
@@ -57,8 +57,6 @@ from robot_server.kinematics import (
 from .trajectory import Trajectory
 
 __all__ = ["Planner", "Motion", "PlanningError", "pose", "rotation_to_quaternion", "quaternion_to_rotation", "slerp"]
-
-Array = NDArray[np.float64]
 
 #: how often a piece's limits are checked after planning (s)
 _CHECK_DT = 0.002

@@ -28,8 +28,8 @@ from enum import StrEnum
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
 
+from robot_server import Array
 from robot_server.control import QUINTIC_PEAK_VELOCITY
 from robot_server.control.segments import cubic_hermite
 from simple_message.connection import ConnectionState
@@ -46,8 +46,6 @@ if TYPE_CHECKING:
 __all__ = ["DownloadSender", "Mode", "MotorosSender", "StreamSender", "TrajectorySender", "sender_for"]
 
 log = logging.getLogger("client.driver")
-
-Array = NDArray[np.float64]
 
 
 class Mode(StrEnum):

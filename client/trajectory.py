@@ -35,11 +35,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+
+from robot_server import Array
 
 __all__ = ["Trajectory", "TrajectoryError", "recording"]
-
-Array = NDArray[np.float64]
 
 
 class TrajectoryError(ValueError):

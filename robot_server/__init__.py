@@ -27,18 +27,29 @@ from typing import TYPE_CHECKING
 from simple_message._lazy import LazyExports
 
 if TYPE_CHECKING:
+    from .arrays import Array
     from .control import Recorder
     from .emulator import Emulator, EmulatorConfig
     from .loader import load_model, shipped_models
     from .model import ModelError, RobotModel
 
-__all__ = ["Emulator", "EmulatorConfig", "ModelError", "Recorder", "RobotModel", "load_model", "shipped_models"]
+__all__ = [
+    "Array",
+    "Emulator",
+    "EmulatorConfig",
+    "ModelError",
+    "Recorder",
+    "RobotModel",
+    "load_model",
+    "shipped_models",
+]
 
 #: where each public name lives; its module is imported when the name is first used
 _EXPORTS = LazyExports(
     __name__,
     globals(),
     {
+        ".arrays": ("Array",),
         ".control": ("Recorder",),
         ".emulator": ("Emulator", "EmulatorConfig"),
         ".loader": ("load_model", "shipped_models"),

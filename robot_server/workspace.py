@@ -71,6 +71,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._strict import did_you_mean, show
+from .arrays import Array
 
 __all__ = [
     "Box",
@@ -88,7 +89,6 @@ __all__ = [
     "parse_supervision",
 ]
 
-Array = NDArray[np.float64]
 Vector3 = tuple[float, float, float]
 
 #: alarm code: the actual TCP speed exceeded the limit in force (manual_speed in MANUAL, auto_speed in AUTO)

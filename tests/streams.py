@@ -12,14 +12,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from client.demo import distance_to_path
+from robot_server import Array
 from robot_server.control import Controller, Point, PointRejected, Reason, Recorder
 from robot_server.kinematics import fk_batch
 from robot_server.model import RobotModel
-
-Array = NDArray[np.float64]
 
 DELTA = np.array([1.2, 0.4, -0.5, 0.6, -0.4, 0.8]) * 0.5
 BUMP = np.array([0.0, 0.15, 0.10, 0.0, 0.10, 0.0]) * 0.5

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from numpy.typing import NDArray
 
+from robot_server import Array
 from robot_server.cli import parser
 from robot_server.emulator import Emulator, EmulatorConfig
 from robot_server.kinematics import closed_form, fk, ik, ik_numeric
@@ -26,8 +26,6 @@ from robot_server.loader import load_model, shipped_models
 from robot_server.model import JointType, ModelError, RobotModel
 from simple_message import LE32, Client, CommType, JointPosition, JointTrajPt, MsgType, ReplyCode
 from tests.test_rs_server_process import robot_server
-
-Array = NDArray[np.float64]
 
 # -- the new models: what a contributor writes (one file each) --------------------------------------
 

@@ -22,8 +22,8 @@ from typing import ClassVar
 
 import numpy as np
 import pytest
-from numpy.typing import NDArray
 
+from robot_server import Array
 from robot_server.control import (
     DEFAULT_POLICY,
     POLICIES,
@@ -52,8 +52,6 @@ from robot_server.emulator import Emulator, EmulatorConfig
 from robot_server.loader import load_model
 from simple_message import LE32, Client, CommType, JointPosition, JointTrajPt, MsgType, ReplyCode
 from tests.test_rs_server_process import robot_server
-
-Array = NDArray[np.float64]
 
 # -- the new policy: what a contributor writes (one module) -----------------------------------------
 

@@ -49,13 +49,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
 
+from ..arrays import Array
 from .points import State
 
 __all__ = ["estimate", "shape_preserving", "jerk_limited", "through_state", "RESERVE"]
-
-Array = NDArray[np.float64]
 
 #: share of the next segment's monotonicity budget that the point at its start may use
 RESERVE = 0.25

@@ -14,6 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..arrays import Array
 from . import blend
 from .checks import REFUSALS, check_duration, excess, follows, limit_of, state_need, swings, within_positions
 from .entries import (
@@ -33,7 +34,7 @@ from .entries import (
     need,
     overshoot,
 )
-from .points import MIN_DURATION, SLACK, Array, Limits, Point, PointRejected, Reason, State, within
+from .points import MIN_DURATION, SLACK, Limits, Point, PointRejected, Reason, State, within
 from .segments import PlanningError, RuckigSegment, Segment, hold, launch, linear, run_up
 
 #: a jerk-limited replacement may take at most this factor times the segment's time plus MAX_LAG (s)

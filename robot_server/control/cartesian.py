@@ -49,6 +49,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from ..arrays import Array
 from ..kinematics import (
     ClosedFormIK,
     Singularity,
@@ -69,7 +70,6 @@ __all__ = ["LineLimits", "LineTarget", "LineMotion", "PathCheck"]
 
 log = logging.getLogger(__name__)
 
-Array = NDArray[np.float64]
 Quaternion = tuple[float, float, float, float]
 
 #: a check of TCP positions (N, 3) along a path: raises PointRejected(WORKSPACE) on a violation

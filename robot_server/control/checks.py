@@ -12,9 +12,10 @@ import math
 
 import numpy as np
 
+from ..arrays import Array
 from .blend import OVERSHOOT
 from .entries import Entry, Kind, Settings
-from .points import SLACK, Array, Limits, PointRejected, Reason, State, within
+from .points import SLACK, Limits, PointRejected, Reason, State, within
 
 #: what a rest-to-rest segment beyond a limit is refused as, per derivative order
 REFUSALS = {

@@ -16,7 +16,8 @@ from enum import Enum, Flag
 
 import numpy as np
 
-from .points import Array, Limits, State
+from ..arrays import Array
+from .points import Limits, State
 from .policies import Policy
 from .segments import Segment, cubic_hermite, linear, quintic_hermite
 

@@ -84,11 +84,12 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..arrays import Array
 from . import planning
 from .braking import start_next
 from .building import stop_entry, to_rest
 from .entries import Context, Entry, Plan, Settings, TrajectoryBook, at_rest, connect, knot_of, log, moving
-from .points import Array, Limits, Point, PointRejected, Reason, State, check_point
+from .points import Limits, Point, PointRejected, Reason, State, check_point
 from .policies import Policy
 from .scaling import rescale
 from .segments import PlanningError, Segment

@@ -48,14 +48,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from ..arrays import Array
 from .points import Limits, PointRejected, Reason, State, within
 from .segments import PlanningError, RuckigSegment
 
 __all__ = ["JointMoves", "Move"]
-
-Array = NDArray[np.float64]
 
 #: joints that move less than this (rad or m) do not constrain a move's profile
 _STILL = 1e-12

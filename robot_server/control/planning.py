@@ -15,6 +15,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..arrays import Array
 from .braking import unbraked
 from .building import determine, given, knot, replan_running, rest_segment, stretched, to_rest
 from .checks import check_duration, check_position, end_need, follows, orders, uniform_need
@@ -32,7 +33,7 @@ from .entries import (
     moving,
     need,
 )
-from .points import SLACK, Array, Point, PointRejected, Reason, State, check_point
+from .points import SLACK, Point, PointRejected, Reason, State, check_point
 from .scaling import RESCALE_MARGIN, rescale
 
 #: with the start check off, a first point farther than this (rad or m) is a move to it

@@ -27,13 +27,12 @@ from enum import StrEnum
 from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from ..arrays import Array
 from ..model import RobotModel
 
 __all__ = ["Point", "State", "Limits", "Reason", "PointRejected", "check_point", "within", "MIN_DURATION"]
-
-Array = NDArray[np.float64]
 
 #: relative slack on limit checks (floating-point noise of exact-at-the-limit values)
 SLACK = 1e-9

@@ -29,10 +29,10 @@ from contextlib import AbstractContextManager
 from typing import ClassVar, TypeVar
 
 import numpy as np
-from numpy.typing import NDArray
 
 from simple_message.registry import Registry
 
+from ..arrays import Array
 from .peaks import CUBIC_PEAK_ACCELERATION, CUBIC_PEAK_VELOCITY, QUINTIC_PEAK_ACCELERATION, QUINTIC_PEAK_VELOCITY
 from .points import Limits, PointRejected, Reason, State
 from .segments import PlanningError, RuckigSegment, Segment, cubic, hold, linear, quintic
@@ -46,8 +46,6 @@ __all__ = [
     "unregister_policy",
     "scoped_policies",
 ]
-
-Array = NDArray[np.float64]
 
 
 class Policy(ABC):

@@ -28,7 +28,9 @@ from typing import NamedTuple
 import numpy as np
 import numpy.polynomial  # loaded now: numpy imports it lazily, 5 ms inside a controller tick
 import ruckig
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+
+from ..arrays import Array
 
 __all__ = [
     "Samples",
@@ -47,8 +49,6 @@ __all__ = [
     "hold",
     "PlanningError",
 ]
-
-Array = NDArray[np.float64]
 
 
 class PlanningError(ValueError):

@@ -15,10 +15,11 @@ import math
 
 import numpy as np
 
+from ..arrays import Array
 from ..kinematics import fk_batch
 from ..model import RobotModel
 from ..workspace import Supervision, densify, first_violation, point_violation
-from .points import Array, Point, PointRejected, Reason
+from .points import Point, PointRejected, Reason
 
 #: how many times a trajectory is slowed down further for the TCP speed limit before it is refused
 SLOWING_ROUNDS = 10

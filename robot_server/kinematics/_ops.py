@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from ._quartic import TrigRoot, trig_quadratic_roots
 
-__all__ = ["Ops", "ScalarOps", "ArrayOps", "SCALAR_OPS", "ARRAY_OPS", "OP_NAMES", "TrigRoot", "Array"]
+__all__ = ["Ops", "ScalarOps", "ArrayOps", "SCALAR_OPS", "ARRAY_OPS", "OP_NAMES", "TrigRoot", "AnyArray"]
 
 V = TypeVar("V")
 
@@ -32,7 +32,7 @@ V = TypeVar("V")
 OP_NAMES = ("sqrt", "atan2", "cos", "sin", "acos", "where", "maximum", "quartic")
 
 #: a batch's values: numpy arrays (float, bool or int)
-Array = NDArray[Any]
+AnyArray = NDArray[Any]
 
 
 @runtime_checkable
@@ -100,46 +100,46 @@ class ArrayOps:
     """:class:`Ops` on numpy arrays (one column per input): a batch."""
 
     @staticmethod
-    def sqrt(x: float | Array) -> float | Array:
-        value: float | Array = np.sqrt(np.maximum(x, 0.0))
+    def sqrt(x: float | AnyArray) -> float | AnyArray:
+        value: float | AnyArray = np.sqrt(np.maximum(x, 0.0))
         return value
 
     @staticmethod
-    def atan2(y: float | Array, x: float | Array) -> float | Array:
-        value: float | Array = np.arctan2(y, x)
+    def atan2(y: float | AnyArray, x: float | AnyArray) -> float | AnyArray:
+        value: float | AnyArray = np.arctan2(y, x)
         return value
 
     @staticmethod
-    def cos(x: float | Array) -> float | Array:
-        value: float | Array = np.cos(x)
+    def cos(x: float | AnyArray) -> float | AnyArray:
+        value: float | AnyArray = np.cos(x)
         return value
 
     @staticmethod
-    def sin(x: float | Array) -> float | Array:
-        value: float | Array = np.sin(x)
+    def sin(x: float | AnyArray) -> float | AnyArray:
+        value: float | AnyArray = np.sin(x)
         return value
 
     @staticmethod
-    def acos(x: float | Array) -> float | Array:
-        value: float | Array = np.arccos(np.clip(x, -1.0, 1.0))
+    def acos(x: float | AnyArray) -> float | AnyArray:
+        value: float | AnyArray = np.arccos(np.clip(x, -1.0, 1.0))
         return value
 
     @staticmethod
-    def where(condition: bool | Array, a: float | Array, b: float | Array) -> float | Array:
+    def where(condition: bool | AnyArray, a: float | AnyArray, b: float | AnyArray) -> float | AnyArray:
         return np.where(condition, a, b)
 
     @staticmethod
-    def flag(condition: bool | Array, value: int) -> int | Array:
+    def flag(condition: bool | AnyArray, value: int) -> int | AnyArray:
         return np.where(condition, value, 0)
 
     @staticmethod
-    def maximum(x: float | Array, y: float | Array, *rest: float | Array) -> float | Array:
-        value: float | Array = functools.reduce(np.maximum, rest, np.maximum(x, y))
+    def maximum(x: float | AnyArray, y: float | AnyArray, *rest: float | AnyArray) -> float | AnyArray:
+        value: float | AnyArray = functools.reduce(np.maximum, rest, np.maximum(x, y))
         return value
 
-    def quartic(self, *k: float | Array) -> tuple[TrigRoot[Array], ...]:
+    def quartic(self, *k: float | AnyArray) -> tuple[TrigRoot[AnyArray], ...]:
         return trig_quadratic_roots(self, *k)
 
 
 SCALAR_OPS: Ops[float] = ScalarOps()
-ARRAY_OPS: Ops[Array] = ArrayOps()
+ARRAY_OPS: Ops[AnyArray] = ArrayOps()

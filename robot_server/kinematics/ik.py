@@ -52,7 +52,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..model import JointType, ModelError, RobotModel
 from ._chain import chain
-from ._ops import ARRAY_OPS, SCALAR_OPS, Array, Ops, TrigRoot
+from ._ops import ARRAY_OPS, SCALAR_OPS, AnyArray, Ops, TrigRoot
 from ._trace import TRACE_OPS, Flags, Generated, Real, Tracer, Truth, Var
 from .fk import fk
 
@@ -263,7 +263,7 @@ class ClosedFormIK:
         self.limits = tuple(zip(model.lower.tolist(), model.upper.tolist(), strict=True))
         self._solver, self._batch_solver = self._trace()
 
-    def _trace(self) -> tuple[Generated[tuple[Branch[float], ...]], Generated[tuple[Branch[Array], ...]]]:
+    def _trace(self) -> tuple[Generated[tuple[Branch[float], ...]], Generated[tuple[Branch[AnyArray], ...]]]:
         """The generated solver ``f(r00, ..., r22, px, py, pz, s0, ..., s5, ops)`` (rotation,
         position, seed) for floats and for numpy columns: the 8 :class:`Branch`."""
         tracer = Tracer()

@@ -12,11 +12,11 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+
+from ..arrays import Array
 
 __all__ = ["rotation_to_quaternion", "quaternion_to_rotation", "slerp", "quaternion_angle", "quaternion_of"]
-
-Array = NDArray[np.float64]
 
 
 def quaternion_of(rows: Sequence[float]) -> tuple[float, float, float, float]:
