@@ -40,9 +40,9 @@ from robot_server.control import (
     CUBIC_PEAK_VELOCITY,
     QUINTIC_PEAK_ACCELERATION,
     QUINTIC_PEAK_VELOCITY,
+    PlanningError,
     RuckigSegment,
 )
-from robot_server.control import PlanningError as SegmentPlanningError
 from robot_server.kinematics import (
     ClosedFormIK,
     Singularity,
@@ -78,10 +78,6 @@ _TRY_SINGULAR = (
     "aligned, joint 5 near 0, as at the home pose); move the robot out of it by joints first, e.g. "
     "move --joints 0 0.3 -0.2 0 0.9 0"
 )
-
-
-class PlanningError(ValueError):
-    """The task cannot be planned (unreachable, a singularity, a joint jump, a bad argument)."""
 
 
 # -- rotations -------------------------------------------------------------------------------------
@@ -452,7 +448,7 @@ class Planner:
                 profile = RuckigSegment.plan(
                     ([0.0], [0.0], [0.0]), ([length], [0.0], [0.0]), [speed], [acceleration], [jerk]
                 )
-            except SegmentPlanningError as exc:
+            except PlanningError as exc:
                 raise PlanningError(f"no timing profile: {exc}") from None
             piece = _Piece(s, q, dq, ddq, knots, profile, start)
             worst = self._excess(piece)

@@ -52,7 +52,12 @@ __all__ = [
 
 
 class PlanningError(ValueError):
-    """A segment cannot be built from these inputs (ruckig refused them, or a duration <= 0)."""
+    """A motion cannot be planned from these inputs.
+
+    The project's one planning error: here a segment that cannot be built (ruckig refused the
+    inputs, a duration <= 0); in the PC planner (:mod:`client.planner`, which re-exports it) a task
+    that cannot be planned (unreachable, a singularity, a joint jump, a bad argument).
+    """
 
 
 class Samples(NamedTuple):
