@@ -71,8 +71,8 @@ class Dwell(Policy):
 
     def segment_time(self, delta: Array, ratio: float, limits: Limits) -> float:
         # the quintic's peak speed and acceleration over D/T and D/T^2
-        speed = QUINTIC_PEAK_VELOCITY * np.abs(delta) / (ratio * limits.velocity)
-        accel = np.sqrt(QUINTIC_PEAK_ACCELERATION * np.abs(delta) / limits.acceleration)
+        speed = QUINTIC_PEAK_VELOCITY * np.abs(delta) / (ratio * limits.max_velocity)
+        accel = np.sqrt(QUINTIC_PEAK_ACCELERATION * np.abs(delta) / limits.max_acceleration)
         return float(np.maximum(speed, accel).max())
 
     def to_rest(

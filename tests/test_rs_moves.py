@@ -12,9 +12,9 @@ DT = 0.004
 LIMITS = Limits(
     lower=np.full(2, -3.0),
     upper=np.full(2, 3.0),
-    velocity=np.full(2, 2.0),
-    acceleration=np.full(2, 8.0),
-    jerk=np.full(2, 200.0),
+    max_velocity=np.full(2, 2.0),
+    max_acceleration=np.full(2, 8.0),
+    max_jerk=np.full(2, 200.0),
 )
 
 

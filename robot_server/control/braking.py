@@ -102,7 +102,7 @@ def braking(settings: Settings, entry: Entry, last: Entry, stops: NDArray[np.boo
         # in the controller's tick): beyond the last point, or back before this one, by more
         # than OVERSHOOT
         travel = stop_travel(
-            end.velocity / f, end.acceleration / (f * f), limits=(lim.velocity, lim.acceleration, lim.jerk)
+            end.velocity / f, end.acceleration / (f * f), limits=(lim.max_velocity, lim.max_acceleration, lim.max_jerk)
         )
         beyond = np.maximum(travel - np.maximum(ahead, 0.0), np.minimum(ahead, 0.0) - travel)
         return bool(np.max(np.where(stops, beyond, 0.0)) > blend.OVERSHOOT)

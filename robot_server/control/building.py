@@ -104,8 +104,8 @@ def through(limits: Limits, entry: Entry, duration: float, after: Array, after_d
         after_duration=after_duration,
         before=entry.before,
         before_duration=entry.before_duration,
-        jerk=limits.jerk,
-        acceleration=None if entry.transient else limits.acceleration,  # a transient is met locally anyway
+        jerk=limits.max_jerk,
+        acceleration=None if entry.transient else limits.max_acceleration,  # a transient is met locally anyway
         lower=limits.lower,
         upper=limits.upper,
     )
@@ -136,7 +136,7 @@ def determine(settings: Settings, entry: Entry, after: Array, after_duration: fl
 
 def launched(settings: Settings, entry: Entry, end: State) -> Entry:
     """The segment from rest to ``end`` starting as a plan does, with an acceleration."""
-    segment = launch(entry.start.position, end, entry.duration, settings.limits.jerk)
+    segment = launch(entry.start.position, end, entry.duration, settings.limits.max_jerk)
     if segment is None:
         segment = connect(entry.start, entry.start_order, end, 2, entry.duration)
     return stretched(settings, entry.marked(Phase.SLOWED, False, end=end, segment=segment))
@@ -232,7 +232,9 @@ def to_rest(settings: Settings, entry: Entry, messages: list[tuple[int, str]]) -
 
 def jerk_limited(limits: Limits, start: State, end: State, duration: float) -> RuckigSegment:
     """ruckig's time-optimal, jerk-limited motion from ``start`` to ``end`` taking ``duration`` at least."""
-    return RuckigSegment.plan(start, end, limits.velocity, limits.acceleration, limits.jerk, minimum_duration=duration)
+    return RuckigSegment.plan(
+        start, end, limits.max_velocity, limits.max_acceleration, limits.max_jerk, minimum_duration=duration
+    )
 
 
 def replan_running(
@@ -286,7 +288,7 @@ def stop_entry(limits: Limits, state: State, at: Array | None = None) -> Entry:
     target = (state.position if at is None else at, rest, rest)
     try:
         segment: Segment = RuckigSegment.plan(
-            state, target, limits.velocity, limits.acceleration, limits.jerk, velocity_interface=at is None
+            state, target, limits.max_velocity, limits.max_acceleration, limits.max_jerk, velocity_interface=at is None
         )
     except PlanningError:  # pragma: no cover - ruckig plans a stop from any finite state
         log.exception("no jerk-limited stop from %s; holding", state)
@@ -313,7 +315,9 @@ def reachable(start: Array, state: State, limits: Limits) -> State:
     def fits(k: float) -> bool:
         target = np.where(concerned, speed / k, 0.0)
         target_acc = np.where(concerned, state.acceleration * direction / (k * k), 0.0)
-        needed = run_up(zero, zero, target, target_acc, limits=(limits.velocity, limits.acceleration, limits.jerk))
+        needed = run_up(
+            zero, zero, target, target_acc, limits=(limits.max_velocity, limits.max_acceleration, limits.max_jerk)
+        )
         return bool(np.all(np.where(concerned, needed <= room * (1.0 + SLACK) + 1e-12, True)))
 
     if fits(1.0):

@@ -636,8 +636,8 @@ class LineMotion:
         qs = np.stack([np.interp(grid, times, q[:, j]) for j in range(q.shape[1])], axis=1)
         velocity = np.gradient(qs, dt, axis=0)
         acceleration = np.diff(qs, 2, axis=0) / (dt * dt)
-        ratio_v = float((np.abs(velocity) / self.limits.velocity[None, :]).max())
-        ratio_a = float((np.abs(acceleration) / self.limits.acceleration[None, :]).max())
+        ratio_v = float((np.abs(velocity) / self.limits.max_velocity[None, :]).max())
+        ratio_a = float((np.abs(acceleration) / self.limits.max_acceleration[None, :]).max())
         return ratio_v, ratio_a
 
     def _blend_start(self, line: _Line, radius: float) -> float | None:

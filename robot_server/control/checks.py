@@ -28,7 +28,7 @@ REFUSALS = {
 
 def limit_of(limits: Limits, order: int) -> Array:
     """The limit of the ``order``-th derivative (1 velocity, 2 acceleration, 3 jerk)."""
-    return {1: limits.velocity, 2: limits.acceleration, 3: limits.jerk}[order]
+    return {1: limits.max_velocity, 2: limits.max_acceleration, 3: limits.max_jerk}[order]
 
 
 def check_duration(settings: Settings, duration: float, what: str) -> None:
@@ -93,9 +93,9 @@ def swings(settings: Settings, entry: Entry) -> bool:
     lo, hi = segment.bounds(0)
     lim = settings.limits
     v0, a0 = np.abs(entry.start.velocity), np.abs(entry.start.acceleration)
-    ramp = (a0 + lim.acceleration) / lim.jerk  # time to turn the acceleration round
+    ramp = (a0 + lim.max_acceleration) / lim.max_jerk  # time to turn the acceleration round
     fastest = v0 + a0 * ramp
-    braking = fastest * ramp + fastest * fastest / (2.0 * lim.acceleration) + OVERSHOOT
+    braking = fastest * ramp + fastest * fastest / (2.0 * lim.max_acceleration) + OVERSHOOT
     p0, p1 = entry.start.position, entry.end.position
     return bool(np.any(lo < np.minimum(p0, p1) - braking) or np.any(hi > np.maximum(p0, p1) + braking))
 
@@ -162,25 +162,25 @@ def state_need(state: State, limits: Limits) -> float:
     speed = np.abs(state.velocity)
     direction = np.sign(state.velocity)
     push = state.acceleration * direction
-    gain = np.where(push > 0.0, push * push / (2.0 * limits.jerk), 0.0)  # at k = 1; / k^4 when scaled
-    needed = max(1.0, float(np.max(speed / limits.velocity)))
-    needed = max(needed, math.sqrt(float(np.max(np.abs(state.acceleration) / limits.acceleration))))
+    gain = np.where(push > 0.0, push * push / (2.0 * limits.max_jerk), 0.0)  # at k = 1; / k^4 when scaled
+    needed = max(1.0, float(np.max(speed / limits.max_velocity)))
+    needed = max(needed, math.sqrt(float(np.max(np.abs(state.acceleration) / limits.max_acceleration))))
     # room to brake before the position limit the joint heads for
     room = np.where(direction > 0.0, limits.upper - state.position, state.position - limits.lower)
 
     def fits(k: float) -> bool:
         v, a = speed / k, np.maximum(push, 0.0) / (k * k)
-        if not np.all(v + gain / k**4 <= limits.velocity * (1.0 + SLACK)):
+        if not np.all(v + gain / k**4 <= limits.max_velocity * (1.0 + SLACK)):
             return False
-        ramp = (a + limits.acceleration) / limits.jerk  # to turn the acceleration round
+        ramp = (a + limits.max_acceleration) / limits.max_jerk  # to turn the acceleration round
         fastest = v + a * ramp
-        braking = fastest * ramp + fastest * fastest / (2.0 * limits.acceleration)
+        braking = fastest * ramp + fastest * fastest / (2.0 * limits.max_acceleration)
         return bool(np.all(braking <= room + SLACK))
 
     if not fits(needed):
         # both terms fall with k: at ``high`` each is at most half the limit
-        low, high = needed, max(needed, float(np.max(2.0 * speed / limits.velocity)))
-        high = max(high, float(np.max(2.0 * gain / limits.velocity) ** 0.25))
+        low, high = needed, max(needed, float(np.max(2.0 * speed / limits.max_velocity)))
+        high = max(high, float(np.max(2.0 * gain / limits.max_velocity) ** 0.25))
         while not fits(high):  # braking room: the braking distance falls as 1 / k (at least)
             if high > 1e6:
                 return high  # no room at all (a joint at its limit, moving on): slowing cannot help

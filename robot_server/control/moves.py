@@ -203,9 +203,9 @@ class JointMoves:
             begin = earliest if previous is None else max(earliest, previous.end)
             return Move(begin, start, target, None, 0.0, 0.0)
         share = way[moving]
-        v = float(np.min(speed * lim.velocity[moving] / share))
-        a = float(np.min(acceleration * lim.acceleration[moving] / share))
-        j = float(np.min(lim.jerk[moving] / share))
+        v = float(np.min(speed * lim.max_velocity[moving] / share))
+        a = float(np.min(acceleration * lim.max_acceleration[moving] / share))
+        j = float(np.min(lim.max_jerk[moving] / share))
         try:
             profile = RuckigSegment.plan(([0.0], [0.0], [0.0]), ([1.0], [0.0], [0.0]), [v], [a], [j])
         except PlanningError as exc:
@@ -281,9 +281,9 @@ class JointMoves:
         segment = RuckigSegment.plan(
             (state.position, state.velocity, state.acceleration),
             (zero, zero, zero),
-            lim.velocity,
-            lim.acceleration,
-            lim.jerk,
+            lim.max_velocity,
+            lim.max_acceleration,
+            lim.max_jerk,
             velocity_interface=True,
         )
         self._stopping = (self._t, segment)

@@ -340,7 +340,7 @@ def _followed_acceleration(settings: Settings, entry: Entry) -> str | None:
         return None
     assert entry.segment is not None
     lo, hi = entry.segment.extremes(2)
-    ratio = np.maximum(-lo, hi) / settings.limits.acceleration
+    ratio = np.maximum(-lo, hi) / settings.limits.max_acceleration
     j = int(np.argmax(ratio))
     return (
         f"the segment to point {entry.index} accelerates joint {j + 1} at {float(ratio[j]):.3g} x its limit: run "

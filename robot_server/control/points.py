@@ -103,11 +103,13 @@ class State(NamedTuple):
 
 @dataclass(frozen=True)
 class Limits:
+    """The joints' limits, one value per joint, named as :class:`.RobotModel` names them."""
+
     lower: Array
     upper: Array
-    velocity: Array
-    acceleration: Array
-    jerk: Array
+    max_velocity: Array
+    max_acceleration: Array
+    max_jerk: Array
 
     @classmethod
     def from_model(cls, model: RobotModel) -> Limits:
@@ -159,7 +161,7 @@ def check_point(point: Point, limits: Limits, max_duration: float) -> Array:
         )
     within(point.positions, limits.lower, limits.upper, Reason.POSITION_LIMIT, "position")
     if point.velocities is not None:
-        within(point.velocities, -limits.velocity, limits.velocity, Reason.VELOCITY_LIMIT, "velocity")
+        within(point.velocities, -limits.max_velocity, limits.max_velocity, Reason.VELOCITY_LIMIT, "velocity")
     return point.positions
 
 

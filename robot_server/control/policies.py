@@ -79,9 +79,9 @@ class _PeakShape(Policy):
     accel_factor: ClassVar[float]
 
     def segment_time(self, delta: Array, ratio: float, limits: Limits) -> float:
-        times = self.speed_factor * np.abs(delta) / (ratio * limits.velocity)
+        times = self.speed_factor * np.abs(delta) / (ratio * limits.max_velocity)
         if self.accel_factor:
-            times = np.maximum(times, np.sqrt(self.accel_factor * np.abs(delta) / limits.acceleration))
+            times = np.maximum(times, np.sqrt(self.accel_factor * np.abs(delta) / limits.max_acceleration))
         return float(times.max())
 
     def to_rest(
@@ -145,11 +145,11 @@ class Ruckig(Policy):
     ) -> Segment | None:
         if duration is None and not np.any(target - start.position):
             return None
-        speed = limits.velocity * (_ratio(ratio) if duration is None else ratio or 1.0)
+        speed = limits.max_velocity * (_ratio(ratio) if duration is None else ratio or 1.0)
         rest = np.zeros_like(target)
         try:
             return RuckigSegment.plan(
-                start, (target, rest, rest), speed, limits.acceleration, limits.jerk, minimum_duration=duration
+                start, (target, rest, rest), speed, limits.max_acceleration, limits.max_jerk, minimum_duration=duration
             )
         except PlanningError as exc:
             raise PointRejected(Reason.TIMING, str(exc)) from None
@@ -162,7 +162,7 @@ class Blend(Policy):
     checked_orders = (1, 2, 3)
 
     def segment_time(self, delta: Array, ratio: float, limits: Limits) -> float:
-        return float((np.abs(delta) / (_ratio(ratio) * limits.velocity)).max())
+        return float((np.abs(delta) / (_ratio(ratio) * limits.max_velocity)).max())
 
 
 def _ratio(ratio: float) -> float:
