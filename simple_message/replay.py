@@ -208,7 +208,7 @@ def _sides(item: Captured, known: set[int]) -> tuple[Address, Address]:
 
 
 @dataclass
-class _Link:
+class _TargetConnection:
     """One connection to the target: its reader feeds replies to a queue, keeps the joint state."""
 
     reader: asyncio.StreamReader
@@ -283,17 +283,17 @@ async def replay(
     """Send ``items`` to the controller at ``host`` (capture port -> target port: ``ports``) and
     return one :class:`Outcome` each (see the module doc; ``remap``: the target's joint count,
     to move the trajectory to where the target stands)."""
-    links: dict[int, _Link] = {}
+    connections: dict[int, _TargetConnection] = {}
     try:
         for captured_port in sorted(ports):
             try:
                 reader, writer = await asyncio.wait_for(asyncio.open_connection(host, ports[captured_port]), 5.0)
             except (OSError, TimeoutError) as exc:
                 raise ReplayError(f"cannot connect to {host}:{ports[captured_port]}: {exc}") from None
-            link = _Link(reader, writer, wire)
-            link.task = asyncio.get_running_loop().create_task(link.read())
-            links[captured_port] = link
-        shift = await _shift(items, links, remap) if remap is not None else None
+            connection = _TargetConnection(reader, writer, wire)
+            connection.task = asyncio.get_running_loop().create_task(connection.read())
+            connections[captured_port] = connection
+        shift = await _shift(items, connections, remap) if remap is not None else None
         outcomes: list[Outcome] = []
         started = time.monotonic()
         first = items[0].time if items else 0.0
@@ -302,36 +302,36 @@ async def replay(
                 delay = exchange.time - first - (time.monotonic() - started)
                 if delay > 0:
                     await asyncio.sleep(delay)
-            link = links[exchange.port]
+            connection = connections[exchange.port]
             outcomes.append(
-                await _one(exchange, link, shift, remap, reply_timeout=reply_timeout, busy_timeout=busy_timeout)
+                await _one(exchange, connection, shift, remap, reply_timeout=reply_timeout, busy_timeout=busy_timeout)
             )
         return outcomes
     finally:
-        for link in links.values():
-            link.writer.close()
-            if link.task is not None:
-                link.task.cancel()
+        for connection in connections.values():
+            connection.writer.close()
+            if connection.task is not None:
+                connection.task.cancel()
                 with contextlib.suppress(asyncio.CancelledError, OSError, ConnectionError):
-                    await link.task
+                    await connection.task
             with contextlib.suppress(OSError, ConnectionError, TimeoutError):
-                await asyncio.wait_for(link.writer.wait_closed(), 2.0)
+                await asyncio.wait_for(connection.writer.wait_closed(), 2.0)
 
 
-async def _shift(items: Sequence[Exchange], links: dict[int, _Link], joints: int) -> list[float]:
+async def _shift(items: Sequence[Exchange], connections: dict[int, _TargetConnection], joints: int) -> list[float]:
     """How far to move the captured points: the target's position minus the capture's first point."""
     first = next((_positions(e.message) for e in items if _positions(e.message) is not None), None)
     if first is None:
         return [0.0] * joints
-    waits = [asyncio.ensure_future(link.state_seen.wait()) for link in links.values()]
+    waits = [asyncio.ensure_future(connection.state_seen.wait()) for connection in connections.values()]
     try:
-        await asyncio.wait(waits, timeout=5.0, return_when=asyncio.FIRST_COMPLETED)  # any link's first state
+        await asyncio.wait(waits, timeout=5.0, return_when=asyncio.FIRST_COMPLETED)  # any connection's first state
     finally:
         for wait in waits:
             wait.cancel()
-    for link in links.values():
-        if link.position is not None:
-            here = link.position
+    for connection in connections.values():
+        if connection.position is not None:
+            here = connection.position
             return [here[j] - first[j] for j in range(min(joints, len(here), len(first)))] + [0.0] * max(
                 0, joints - min(len(here), len(first))
             )
@@ -385,7 +385,7 @@ def _moved(msg: Message, shift: list[float], joints: int) -> Message:
 
 async def _one(
     exchange: Exchange,
-    link: _Link,
+    connection: _TargetConnection,
     shift: list[float] | None,
     joints: int | None,
     *,
@@ -394,17 +394,17 @@ async def _one(
 ) -> Outcome:
     frame = exchange.frame
     if shift is not None and joints is not None and _positions(exchange.message) is not None:
-        frame = encode(_moved(exchange.message, shift, joints), link.wire)
+        frame = encode(_moved(exchange.message, shift, joints), connection.wire)
     outcome = Outcome(exchange, None)
     is_request = exchange.message.comm_type == CommType.SERVICE_REQUEST
     deadline = time.monotonic() + busy_timeout
     while True:
-        if link.ended is not None:
-            outcome.note = link.ended
+        if connection.ended is not None:
+            outcome.note = connection.ended
             return outcome
         try:
-            link.writer.write(frame)
-            await link.writer.drain()
+            connection.writer.write(frame)
+            await connection.writer.drain()
         except (OSError, ConnectionError) as exc:
             outcome.note = f"cannot send: {exc}"
             return outcome
@@ -412,9 +412,9 @@ async def _one(
             outcome.match = True
             outcome.note = "topic: no reply expected"
             return outcome
-        reply = await link.reply_to(exchange.message, reply_timeout)
+        reply = await connection.reply_to(exchange.message, reply_timeout)
         if reply is None:
-            outcome.note = link.ended or f"no reply within {reply_timeout:g} s"
+            outcome.note = connection.ended or f"no reply within {reply_timeout:g} s"
             return outcome
         if _busy(reply) and not _busy(exchange.expected) and time.monotonic() < deadline:
             outcome.busy += 1
