@@ -2,7 +2,7 @@
 through ``FrameDecoder.feed_messages``, in both byte orders and both real sizes, and a property over
 random body bytes of every fixed layout and the MotoROS EX messages.
 
-What is exact and what is not is stated in ``simple_message/messages.py``: everything, except that a
+What is exact and what is not is stated in ``simple_message/messages/__init__.py``: everything, except that a
 float32 signalling NaN comes back quieted (bit 22 set, every other bit kept) before CPython 3.14.
 """
 

@@ -111,7 +111,7 @@ def test_random_frames_decode_or_fail_typed_and_reencode(body: bytes, wire: Wire
         return
     again = encode(msg, wire)
     if again != frame:
-        # The only permitted difference: float32 signalling NaNs come back quieted (see messages.py).
+        # The only permitted difference: float32 signalling NaNs come back quieted (see simple_message.messages).
         assert wire.real_size == 4
         assert any(math.isnan(v) for v in _reals(msg))
 
