@@ -136,7 +136,7 @@ class HeaderError(RemoteProtocolError):
         self.received_reply_code = reply_code
 
 
-# -- errors of the asyncio layer (connection.py, endpoints.py) -----------------------------------
+# -- errors of the asyncio layer (simple_message.connection, .endpoints) -------------------------
 
 
 class ConnectionClosed(SimpleMessageError, ConnectionError):

@@ -345,7 +345,7 @@ async def test_a_flood_of_newcomers_to_a_full_port_reads_the_socket_table_once_a
         scans.append(len(socks))
         return [0] * len(socks)
 
-    monkeypatch.setattr(endpoints, "unread_by_peers", counted)
+    monkeypatch.setattr(endpoints.server, "unread_by_peers", counted)
     server = _ping_server(max_connections=2, idle_after=None)
     port = await server.serve_tcp("127.0.0.1", 0)
     peers = [await RawPeer.connect(port) for _ in range(2)]

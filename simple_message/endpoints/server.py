@@ -1,4 +1,4 @@
-"""Servers and reconnecting clients over TCP and serial links.
+"""The simple_message server: handlers per message type, over any number of links.
 
 :class:`Server` is what every emulated controller port is built on. Per connection it reads in
 arrival order and answers every SERVICE_REQUEST exactly once, in order (simple-message.md §11 item
@@ -6,8 +6,8 @@ arrival order and answers every SERVICE_REQUEST exactly once, in order (simple-m
 
 * handlers are registered per message type: ``server.handle(MsgType.JOINT_TRAJ_PT, fn)``. A handler
   gets ``(message, session)`` and may be sync or async; for a request it returns the reply message,
-  a :class:`~.constants.ReplyCode` (replied in the server's ``reply_style``, a
-  :class:`~.dialects.ReplyStyle`: ``ECHO`` like the C++ library, header-only like ABB, §3; the
+  a :class:`~..constants.ReplyCode` (replied in the server's ``reply_style``, a
+  :class:`~..dialects.ReplyStyle`: ``ECHO`` like the C++ library, header-only like ABB, §3; the
   dialects whose replies are messages of their own, Fanuc's and MotoROS's, have their handlers
   return those and get header-only otherwise), or ``None`` for SUCCESS;
 * ``on_arrival`` hooks run synchronously the moment a request is read, before queued requests are
@@ -31,77 +31,67 @@ arrival order and answers every SERVICE_REQUEST exactly once, in order (simple-m
 * at most ``max_connections`` connections per server: excess ones are accepted and closed at once,
   with a log line, so the peer sees a clean EOF rather than a hang; or, with ``excess="wait"``, they
   wait unserved (not read, not written) until a connection ends, as in the listen backlog of a
-  controller that accepts its next client only when the last one has gone (:mod:`.backlog`; at
+  controller that accepts its next client only when the last one has gone (:mod:`..backlog`; at
   most ``MAX_WAITING`` of them; more are closed); :meth:`Server.reset_backlog` closes those
   waiting (a controller that closes its listening socket and opens a new one);
-* writes are bounded per connection (:class:`~.connection.Connection`), so a stalled peer is closed
+* writes are bounded per connection (:class:`~..connection.Connection`), so a stalled peer is closed
   and never delays the others. :meth:`Server.broadcast` publishes a topic to every connection: encoded
   once per wire format, and what one loop iteration broadcasts is written in one go per connection
   (``batch_topics``; without it each message is written the moment it is broadcast, in its own
   write, as a controller that sends each message with its own call does);
 * ``reader``: connections cut their input as a controller that reads fixed byte counts does
-  (:class:`~.fixed_reads.FixedReads`, one per connection), every read going to the handlers
+  (:class:`~..fixed_reads.FixedReads`, one per connection), every read going to the handlers
   (``validate_headers`` False skips the C++ header rules: such controllers check nothing);
   ``write_split``: each frame is written in these pieces, one write each.
 
-An accepted TCP socket gets its :class:`~.connection.Connection` as its asyncio protocol before it
+An accepted TCP socket gets its :class:`~..connection.Connection` as its asyncio protocol before it
 reads a byte (no streams); serial, pty and other links come as stream pairs (:meth:`Server.serve_link`)
-whose transport the connection takes over. :func:`run` runs a program on uvloop when it is installed.
-
-:class:`Client` keeps one connection to a server and reconnects with bounded exponential backoff
-and jitter when it is lost. Its state is observable (:class:`~.connection.ConnectionState`); while it
-is not connected, requests fail at once with :class:`~.errors.NotConnected` (nothing is queued, so
-nothing is sent late); pending requests fail with :class:`~.errors.ConnectionClosed` the moment the
-link drops. Subscriptions survive reconnection.
+whose transport the connection takes over. Each connection is a :class:`~.sessions.Session`.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import enum
 import functools
-import importlib
 import inspect
 import logging
-import os
-import random
 import socket
 import time
-from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine, Iterable, Sequence
-from dataclasses import dataclass
-from typing import Any, Literal, TypeVar
+from collections.abc import Awaitable, Callable, Iterable, Sequence
+from typing import Any, Literal
 
-from .backlog import MAX_WAITING, Backlog, Waiting
-from .connection import Connection, ConnectionState, Subscription, Tap
-from .constants import CommType, MsgType, ReplyCode
-from .dialects import Dialect, ReplyStyle, any_dialect_answers, reply_style_of
-from .errors import ConnectionClosed, HeaderError, MalformedMessage, NotConnected
-from .fixed_reads import FixedReads
-from .framing import DEFAULT_MAX_LENGTH
-from .header import header_error
-from .lograte import LogBudget
-from .messages import HeaderOnly, Message, Ping
-from .transport import StreamPair, open_fd, open_serial, open_tcp, unread_by_peers
-from .wire import DEFAULT_FORMAT, WireFormat
+from ..backlog import MAX_WAITING, Backlog, Waiting
+from ..connection import Connection, Tap
+from ..constants import CommType, MsgType, ReplyCode
+from ..dialects import ReplyStyle, reply_style_of
+from ..errors import ConnectionClosed, HeaderError, MalformedMessage
+from ..fixed_reads import FixedReads
+from ..framing import DEFAULT_MAX_LENGTH
+from ..header import header_error
+from ..lograte import LogBudget
+from ..messages import HeaderOnly, Message, Ping
+from ..transport import StreamPair, open_fd, open_serial, unread_by_peers
+from ..wire import DEFAULT_FORMAT, WireFormat
+from .sessions import (
+    _PING_REPLY,
+    NO_REPLY,
+    ArrivalHook,
+    CloseConnection,
+    Handler,
+    HandlerResult,
+    MalformedHandler,
+    Session,
+    _Item,
+    _Later,
+    _Marker,
+    _Ready,
+)
 
-__all__ = [
-    "Server",
-    "Session",
-    "Handler",
-    "MalformedHandler",
-    "Client",
-    "CloseConnection",
-    "ReconnectPolicy",
-    "run",
-    "LOOP_VARIABLE",
-    "DEFAULT_FRAME_TIMEOUT",
-    "DEFAULT_IDLE_AFTER",
-    "MAX_WAITING",
-    "NO_REPLY",
-]
+__all__ = ["Server", "DEFAULT_FRAME_TIMEOUT", "DEFAULT_IDLE_AFTER"]
 
-log = logging.getLogger(__name__)
+#: the endpoints' logger (its name is what the log lines have always shown)
+log = logging.getLogger("simple_message.endpoints")
 
 #: a server closes a connection that began a frame and sent nothing more for this long (s)
 DEFAULT_FRAME_TIMEOUT = 5.0
@@ -112,90 +102,6 @@ DEFAULT_IDLE_AFTER = 10.0
 _DEAF_BYTES = 16 * 1024
 #: how long a full port trusts its last look at what its peers left unread (s)
 _UNREAD_SCAN_AGE = 1.0
-
-
-class _NoReply(enum.Enum):
-    NO_REPLY = "no reply"
-
-
-#: a handler's result: send nothing, though the message is a request
-NO_REPLY = _NoReply.NO_REPLY
-
-HandlerResult = Message | ReplyCode | int | _NoReply | None
-#: ``handler(message, session)``: returns the reply (see the module docstring); may be async.
-Handler = Callable[[Message, "Session"], HandlerResult | Awaitable[HandlerResult]]
-#: ``handler(error, session)``: the reply to a request whose body does not decode, or ``None`` for
-#: none; may raise :class:`CloseConnection`.
-MalformedHandler = Callable[[MalformedMessage, "Session"], Message | None]
-#: ``hook(message, session)``: runs synchronously as soon as a request arrives.
-ArrivalHook = Callable[[Message, "Session"], None]
-
-
-class CloseConnection(Exception):
-    """Raised by a handler: close this connection at once, without replying."""
-
-
-class Session:
-    """One server-side connection and its request pipeline."""
-
-    def __init__(self, server: Server, connection: Connection, queue_size: int) -> None:
-        self.server = server
-        self.connection = connection
-        self.queue: asyncio.Queue[_Item] = asyncio.Queue(queue_size)
-        #: True while the worker handles a message (so new ones must queue behind it).
-        self.busy = False
-        #: Free for handlers to keep per-connection state in.
-        self.data: dict[str, Any] = {}
-        self.end_reason: BaseException | None = None
-        self._end_task: asyncio.Task[None] | None = None
-        self._ping_wire: WireFormat | None = None
-        self._ping_frame = b""
-        #: the task that handles what is queued, in order
-        self.worker: asyncio.Task[None] | None = None
-
-    def ping_reply(self) -> bytes:
-        """The frame of the server's own PING reply in this session's wire format (cached)."""
-        wire = self.connection.link.wire
-        if wire is not self._ping_wire:
-            self._ping_frame = _PING_REPLY.encode(wire)
-            self._ping_wire = wire
-        return self._ping_frame
-
-    @property
-    def name(self) -> str:
-        return self.connection.name
-
-    def log(self, logger: logging.Logger, level: int, msg: str, *args: object, exc_info: bool = False) -> bool:
-        """Log ``"<session name>: " + msg % args`` within this peer's log budget (at most a few lines
-        per second per connection, the rest counted and summarised: :mod:`.lograte`). Use it for
-        every line a peer's input causes; returns whether the line was written."""
-        return self.connection.log_budget.log(logger, level, msg, *args, exc_info=exc_info)
-
-    @property
-    def wire(self) -> WireFormat:
-        return self.connection.wire
-
-    async def send(self, msg: Message) -> None:
-        await self.connection.send(msg)
-
-    def end_of_input(self, reason: BaseException | None) -> None:
-        """The peer stopped sending (EOF or a frame error): answer what is queued, then close."""
-        self.end_reason = reason
-        self._end_task = asyncio.get_running_loop().create_task(self.queue.put(_Marker.END))
-
-    def send_nowait(self, msg: Message) -> bool:
-        return self.connection.send_nowait(msg)
-
-    def assume_wire(self, wire: WireFormat) -> None:
-        """Speak ``wire`` to a peer whose byte order is not known yet (an autodetecting session
-        that has not heard a frame); once the peer has spoken, its own order stays."""
-        if self.server.autodetect and not self.connection.link.detected:
-            self.connection.wire = wire
-
-    @property
-    def spoke(self) -> bool:
-        """The peer's byte order was detected from a frame it sent (autodetecting servers)."""
-        return self.connection.link.detected
 
 
 class Server:
@@ -750,10 +656,6 @@ def _header_error(msg_type: int, comm_type: int, reply_code: int) -> HeaderError
     return problem
 
 
-#: the server's own answer to a PING (messages are immutable: one instance serves every reply)
-_PING_REPLY = Ping(comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS)
-
-
 class _Accepted(asyncio.Protocol):
     """The protocol an accepted TCP socket starts with: it hands the transport to the server, whose
     :class:`~.connection.Connection` becomes its protocol at once (or closes it)."""
@@ -765,266 +667,6 @@ class _Accepted(asyncio.Protocol):
         self.server._accept(transport)
 
 
-class _Later:
-    """A handler's awaitable result, finished by the connection's worker in order."""
-
-    __slots__ = ("awaitable", "msg")
-
-    def __init__(self, msg: Message, awaitable: Awaitable[HandlerResult]) -> None:
-        self.msg = msg
-        self.awaitable = awaitable
-
-
-class _Ready:
-    """A reply computed on arrival that must wait for the write buffer (sent by the worker)."""
-
-    __slots__ = ("reply",)
-
-    def __init__(self, reply: Message) -> None:
-        self.reply = reply
-
-
-class _Marker(enum.Enum):
-    #: what the handler's CloseConnection turns into on the way to the worker
-    CLOSE = "close"
-    #: queued after the last message of a connection whose input ended
-    END = "end"
-
-
-_Item = Message | MalformedMessage | _Later | _Ready | _Marker
-
-
 def _addr(sock: socket.socket) -> str:
     name = sock.getsockname()
     return f"[{name[0]}]:{name[1]}" if sock.family == socket.AF_INET6 else f"{name[0]}:{name[1]}"
-
-
-# ---------------------------------------------------------------------------------------------
-# Running a program
-# ---------------------------------------------------------------------------------------------
-
-#: ``$SIMPLE_MESSAGE_LOOP``: ``uvloop`` or ``asyncio`` forces :func:`run`'s event loop
-LOOP_VARIABLE = "SIMPLE_MESSAGE_LOOP"
-
-_T = TypeVar("_T")
-
-
-def run(main: Coroutine[Any, Any, _T], *, debug: bool | None = None) -> _T:
-    """:func:`asyncio.run` on uvloop's event loop when uvloop is installed (the ``uvloop`` extra), on
-    asyncio's own otherwise. ``$SIMPLE_MESSAGE_LOOP=asyncio`` forces asyncio's, ``uvloop`` uvloop's."""
-    choice = os.environ.get(LOOP_VARIABLE, "").strip().lower()
-    if choice not in ("", "auto", "asyncio", "uvloop"):
-        raise ValueError(f"${LOOP_VARIABLE} must be asyncio or uvloop, not {choice!r}")
-    if choice != "asyncio":
-        try:
-            uvloop = importlib.import_module("uvloop")
-        except ImportError:
-            if choice == "uvloop":
-                raise
-        else:
-            with asyncio.Runner(debug=debug, loop_factory=uvloop.new_event_loop) as runner:
-                return runner.run(main)
-    return asyncio.run(main, debug=debug)
-
-
-# ---------------------------------------------------------------------------------------------
-# Reconnecting client
-# ---------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class ReconnectPolicy:
-    """Bounded exponential backoff with jitter. ``max_attempts=None`` retries for ever."""
-
-    initial_delay: float = 0.1
-    max_delay: float = 5.0
-    factor: float = 2.0
-    jitter: float = 0.2
-    max_attempts: int | None = None
-
-    def delay(self, attempt: int, rng: random.Random | None = None) -> float:
-        """The wait before reconnection attempt ``attempt`` (1-based), jitter included."""
-        base = min(self.max_delay, self.initial_delay * self.factor ** max(0, attempt - 1))
-        spread = base * self.jitter
-        return max(0.0, base + (rng or random).uniform(-spread, spread))
-
-
-Connector = Callable[[], Awaitable[StreamPair]]
-
-
-class Client:
-    """A client that keeps one connection alive and reconnects (see the module docstring)."""
-
-    def __init__(
-        self,
-        connector: Connector,
-        wire: WireFormat = DEFAULT_FORMAT,
-        *,
-        name: str = "client",
-        reconnect: ReconnectPolicy | None = ReconnectPolicy(),
-        max_length: int = DEFAULT_MAX_LENGTH,
-        drain_timeout: float = 5.0,
-        dialect: Dialect | None = None,
-        tap: Tap | None = None,
-    ) -> None:
-        self._connector = connector
-        #: sees the traffic of every connection the client makes (:class:`~.connection.Tap`)
-        self.tap = tap
-        #: the server's dialect (which replies answer which requests); None: any dialect's
-        self.dialect = dialect
-        self.wire = wire
-        self.name = name
-        self.reconnect = reconnect
-        self.max_length = max_length
-        self.drain_timeout = drain_timeout
-        self.connection: Connection | None = None
-        self.subscriptions: list[Subscription] = []
-        self._state = ConnectionState.CONNECTING
-        self._changed = asyncio.Event()
-        self._task: asyncio.Task[None] | None = None
-        self._closing = False
-        self.attempts = 0
-        self.connects = 0
-        #: Why the last connection attempt or connection failed.
-        self.last_error: BaseException | None = None
-        self._refused_ends = False
-
-    @classmethod
-    def tcp(cls, host: str, port: int, wire: WireFormat = DEFAULT_FORMAT, **kwargs: Any) -> Client:
-        return cls(lambda: open_tcp(host, port), wire, name=kwargs.pop("name", f"{host}:{port}"), **kwargs)
-
-    @classmethod
-    def serial(cls, url: str, wire: WireFormat = DEFAULT_FORMAT, **kwargs: Any) -> Client:
-        options = kwargs.pop("serial_options", {})
-        return cls(lambda: open_serial(url, **options), wire, name=kwargs.pop("name", url), **kwargs)
-
-    # -- state -------------------------------------------------------------------------------------
-
-    @property
-    def state(self) -> ConnectionState:
-        return self._state
-
-    def _set_state(self, state: ConnectionState) -> None:
-        if state is not self._state:
-            log.info("%s: %s", self.name, state.value)
-            self._state = state
-            self._changed.set()
-            self._changed = asyncio.Event()
-
-    async def wait_for(self, state: ConnectionState, timeout: float | None = None) -> None:
-        """Wait until the client is in ``state``; raises TimeoutError after ``timeout`` s."""
-        async with asyncio.timeout(timeout):
-            while self._state is not state:
-                if self._state is ConnectionState.CLOSED:
-                    raise ConnectionClosed(f"{self.name}: closed ({self.last_error})")
-                await self._changed.wait()
-
-    async def states(self) -> AsyncIterator[ConnectionState]:
-        """Yields the current state, then every change, until CLOSED."""
-        state = self._state
-        yield state
-        while state is not ConnectionState.CLOSED:
-            await self._changed.wait()
-            state = self._state
-            yield state
-
-    @property
-    def closing(self) -> bool:
-        """True once :meth:`close` was called (checked after every await of the supervisor)."""
-        return self._closing
-
-    # -- lifecycle ---------------------------------------------------------------------------------
-
-    async def start(self, timeout: float | None = 10.0, *, refused_ends: bool = False) -> Client:
-        """Connect, and keep reconnecting in the background. Waits for the first connection.
-        ``refused_ends``: if the very first attempt is refused (nothing listens there), give up at
-        once with :class:`ConnectionClosed` (its ``last_error`` the refusal) instead of retrying
-        until ``timeout``: what a command a user just typed wants."""
-        self._refused_ends = refused_ends
-        if self._task is None:
-            self._task = asyncio.get_running_loop().create_task(self._run(), name=f"sm-client {self.name}")
-        await self.wait_for(ConnectionState.CONNECTED, timeout)
-        return self
-
-    async def __aenter__(self) -> Client:
-        return await self.start()
-
-    async def __aexit__(self, *exc: object) -> None:
-        await self.close()
-
-    async def close(self) -> None:
-        """Close the connection and stop reconnecting (cancels a pending backoff wait)."""
-        self._closing = True
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-        if self.connection is not None:
-            await self.connection.close()
-        for sub in self.subscriptions:
-            sub.close()
-        self._set_state(ConnectionState.CLOSED)
-
-    async def _run(self) -> None:
-        failures = 0
-        try:
-            while not self._closing:
-                try:
-                    self.attempts += 1
-                    streams = await self._connector()
-                except (OSError, TimeoutError) as exc:
-                    self.last_error = exc
-                    failures += 1
-                    log.info("%s: connection attempt %d failed: %s", self.name, failures, exc)
-                    if self._refused_ends and self.connects == 0 and isinstance(exc, ConnectionRefusedError):
-                        break
-                else:
-                    failures = 0
-                    self.connects += 1
-                    conn = Connection(
-                        streams,
-                        self.wire,
-                        max_length=self.max_length,
-                        name=self.name,
-                        subscriptions=self.subscriptions,
-                        drain_timeout=self.drain_timeout,
-                        answers=self.dialect.answers if self.dialect is not None else any_dialect_answers,
-                        tap=self.tap,
-                    )
-                    self.connection = conn.start()
-                    self._set_state(ConnectionState.CONNECTED)
-                    await conn.wait_closed()
-                    self.last_error = conn.close_reason
-                    failures = 1
-                if self.closing:
-                    break
-                if self.reconnect is None or (
-                    self.reconnect.max_attempts is not None and failures > self.reconnect.max_attempts
-                ):
-                    break
-                self._set_state(ConnectionState.RECONNECTING)
-                await asyncio.sleep(self.reconnect.delay(failures))
-        finally:
-            if not self._closing:
-                self._set_state(ConnectionState.CLOSED)
-
-    # -- traffic -----------------------------------------------------------------------------------
-
-    def _live(self) -> Connection:
-        conn = self.connection
-        if conn is None or conn.closed or self._state is not ConnectionState.CONNECTED:
-            raise NotConnected(f"{self.name}: not connected ({self._state.value})")
-        return conn
-
-    async def request(self, msg: Message, timeout: float | None = 5.0) -> Message:
-        """See :meth:`Connection.request`; raises NotConnected at once while disconnected."""
-        return await self._live().request(msg, timeout)
-
-    async def send(self, msg: Message) -> None:
-        await self._live().send(msg)
-
-    def subscribe(self, maxsize: int = 256, msg_types: Iterable[int] | None = None) -> Subscription:
-        """A bounded subscription to received topics that lasts across reconnections."""
-        sub = Subscription(maxsize, msg_types)
-        self.subscriptions.append(sub)
-        return sub
