@@ -57,8 +57,8 @@ from .demo import PAPER_POLICIES, DemoConfig, format_table, run_demo
 from .driver import STOP_SETTLE, DriverError, JointState, LineGoal, LineRefused, Mode, RobotDriver
 from .errors import ExecutionAborted
 from .identity import check_model
-from .limits import check_limits, within_speeds
-from .planner import Planner, PlanningError, pose
+from .limits import check_limits, within_cubics, within_speeds
+from .planner import Motion, Planner, PlanningError, pose
 from .trajectory import Trajectory, TrajectoryError, recording
 from .waiting import joints_still
 
@@ -556,9 +556,17 @@ async def _move(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> N
         except PlanningError as exc:
             ways = instead(model, here, target, planner, linear=False)
             raise PlanningError(_advised(str(exc), None, ways, model_said)) from None
-    # JOINT_TRAJ_PT points are joined at rest by the controllers that take them
-    rest_to_rest = driver.dialect.point_type == MsgType.JOINT_TRAJ_PT
-    await _execute(driver, motion.sparse(rest_to_rest=rest_to_rest), args.mode, out)
+    await _execute(driver, _handed(motion, driver, model), args.mode, out)
+
+
+def _handed(motion: Motion, driver: RobotDriver, model: RobotModel) -> Trajectory:
+    """A planned motion as the controller takes it: JOINT_TRAJ_PT points are joined at rest by the
+    controllers that take them (retimed for it); MotoROS joins JOINT_TRAJ_PT_FULL points by cubics
+    through their positions and velocities and runs them as given, so the plan is kept within the
+    acceleration limit for those (:func:`.limits.within_cubics`)."""
+    if driver.dialect.point_type == MsgType.JOINT_TRAJ_PT:
+        return motion.sparse(rest_to_rest=True)
+    return within_cubics(motion.sparse(), model)
 
 
 def _advised(refusal: str, where: str | None, ways: list[str], unconfirmed: str | None = None) -> str:
@@ -641,8 +649,7 @@ async def _run(driver: RobotDriver, args: argparse.Namespace, out: TextIO) -> No
             jerk_scale=share,
             joint_spacing=2 * math.pi,
         )
-        rest_to_rest = driver.dialect.point_type == MsgType.JOINT_TRAJ_PT
-        approach = planner.joint_move(np.clip(here, model.lower, model.upper), start).sparse(rest_to_rest=rest_to_rest)
+        approach = _handed(planner.joint_move(np.clip(here, model.lower, model.upper), start), driver, model)
         print(
             f"approach: to the start of {args.file}, {gap:.4g} rad away, at {share * 100:g} % of the joint limits "
             f"({approach.duration:.2f} s)",

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 
 import numpy as np
 
@@ -14,7 +15,14 @@ from robot_server import Array, RobotModel
 from .errors import DriverError
 from .trajectory import Trajectory
 
-__all__ = ["check_limits", "within_speeds", "path_deviation", "MEASURED_OVERSHOOT"]
+__all__ = [
+    "check_limits",
+    "within_speeds",
+    "within_cubics",
+    "cubic_accelerations",
+    "path_deviation",
+    "MEASURED_OVERSHOOT",
+]
 
 log = logging.getLogger("client.driver")
 
@@ -118,3 +126,59 @@ def within_speeds(trajectory: Trajectory, model: RobotModel, *, velocities: bool
     dt = np.where(stretch, need, dt)
     times = np.concatenate([trajectory.times[:1], trajectory.times[0] + np.cumsum(dt)])
     return dataclasses.replace(trajectory, times=times)
+
+
+def cubic_accelerations(times: Array, positions: Array, velocities: Array) -> Array:
+    """The largest |acceleration| of each cubic through consecutive points' positions and velocities
+    (``(segments, dof)``): at one of its ends, as a cubic's acceleration is linear. MotoROS joins its
+    points by these cubics (motoman_driver MotoPlus/MotionServer.c:1414-1468) and runs them as given."""
+    h = np.diff(times)[:, None]
+    d = np.diff(positions, axis=0)
+    v0, v1 = velocities[:-1], velocities[1:]
+    start = (6.0 * d / h - 4.0 * v0 - 2.0 * v1) / h
+    end = (-6.0 * d / h + 2.0 * v0 + 4.0 * v1) / h
+    peaks: Array = np.maximum(np.abs(start), np.abs(end))
+    return peaks
+
+
+#: :func:`within_cubics` aims this far inside the acceleration limit (the millisecond grid the
+#: points are then moved onto changes the cubics by a little)
+_CUBIC_MARGIN = 0.99
+
+
+def within_cubics(trajectory: Trajectory, model: RobotModel) -> Trajectory:
+    """The client's own plan for a controller that joins points by cubics through their positions
+    and velocities and runs them as given (MotoROS): slowed down uniformly (times x k, velocities /
+    k, so the cubics' accelerations / k^2) until every cubic is within the joints' acceleration
+    limit. A plan at the limits (``--speed 1``) is exactly there, and a cubic through its points,
+    which cannot follow its phases, passes it: a rest-to-rest joint move sent as two points would
+    ask 1.5x the limit. Without velocities the points' velocities are the central differences the
+    MotoROS sender uses. Not for a recording: its time is what a replay keeps."""
+    if len(trajectory) < 2:
+        return trajectory
+    t, q = trajectory.times, trajectory.positions
+    v = trajectory.velocities
+    if v is None:
+        v = np.zeros_like(q)
+        if len(trajectory) > 2:
+            v[1:-1] = (q[2:] - q[:-2]) / (t[2:] - t[:-2])[:, None]
+    ratio = cubic_accelerations(t, q, v) / model.max_acceleration
+    worst = float(ratio.max())
+    if worst <= _CUBIC_MARGIN:
+        return trajectory
+    k = math.sqrt(worst / _CUBIC_MARGIN)
+    k_, j = (int(i) for i in np.unravel_index(int(np.argmax(ratio)), ratio.shape))
+    log.info(
+        "slowed down x%.3f: the cubics MotoROS runs through the points would accelerate joint %d up to %.3g x its "
+        "limit (segment %d->%d)",
+        k,
+        j + 1,
+        worst,
+        k_,
+        k_ + 1,
+    )
+    velocities = None if trajectory.velocities is None else trajectory.velocities / k
+    accelerations = None if trajectory.accelerations is None else trajectory.accelerations / (k * k)
+    return dataclasses.replace(
+        trajectory, times=t[0] + (t - t[0]) * k, velocities=velocities, accelerations=accelerations
+    )

@@ -38,6 +38,7 @@ from simple_message.errors import ConnectionClosed, RequestFailed
 from simple_message.messages import JointTrajPt, JointTrajPtFull, MotoMotionReply, Ping
 
 from .errors import DriverError, ExecutionAborted, _InFlight, _NotSent, moto_reason
+from .limits import cubic_accelerations
 from .trajectory import Trajectory
 
 if TYPE_CHECKING:
@@ -343,7 +344,7 @@ def _on_milliseconds(times: Array, positions: Array, velocities: Array) -> tuple
     velocities. A point 0.4 ms off the grid (a recording's times are the controller's sample
     instants, to the microsecond) would then be reached 0.4 ms early with the position and velocity
     of its own time: at 2 rad/s over a 24 ms segment the cubic's acceleration is off by some
-    10 rad/s^2, and the controller must slow the whole trajectory down for it. So each point is
+    10 rad/s^2, which MotoROS runs as given (beyond the limit, where the trajectory was at it). So each point is
     moved to its nearest millisecond (after the one before it), with the position and velocity the
     trajectory's own cubics give there (the velocity kept between those of the two points around it);
     the first keeps its state, and the last, reached at rest or not, keeps its state at the
@@ -375,22 +376,13 @@ def _warn_cubics(times: Array, positions: Array, velocities: Array, limit: Array
     """Say so, once, before sending, when the cubics MotoROS runs through the points' positions and
     velocities accelerate a joint beyond its limit: MotoROS runs them as they are (it checks the
     points' speeds only), so the drives are asked for more than the joint's acceleration limit and
-    lag (or a real controller alarms). It happens where the velocities do not match the
-    positions' timing: a recording of a controller that publishes no sample time (MotoROS) has
-    times estimated from the velocities, and where the robot moved at its acceleration limit that
-    estimate is not close enough."""
+    lag (or a real controller alarms). The client's own plans are kept within
+    (:func:`.limits.within_cubics`); a recording is not retimed (its time is what a replay keeps):
+    where the robot moved at its acceleration limit, the times estimated from the velocities of a
+    controller that publishes no sample time (MotoROS) do not match them closely enough."""
     if times.size < 2:
         return
-    h = np.diff(times)[:, None]
-    d = np.diff(positions, axis=0)
-    v0, v1 = velocities[:-1], velocities[1:]
-    start = (6.0 * d / h - 4.0 * v0 - 2.0 * v1) / h
-    end = (-6.0 * d / h + 2.0 * v0 + 4.0 * v1) / h
-    ratio = np.maximum(np.abs(start), np.abs(end)) / limit
-    # a segment from or to rest is the controller's to shape (the emulator starts a motion from rest
-    # jerk-limited); the velocities the points give matter between moving points
-    moving = np.any(velocities != 0.0, axis=1)
-    ratio[~(moving[:-1] & moving[1:])] = 0.0
+    ratio = cubic_accelerations(times, positions, velocities) / limit
     if not np.any(ratio > 1.0 + 1e-6):
         return
     k, j = (int(i) for i in np.unravel_index(int(np.argmax(ratio)), ratio.shape))

@@ -16,7 +16,8 @@ import pytest
 
 from client.driver import RobotDriver
 from client.errors import DriverError
-from client.limits import MEASURED_OVERSHOOT, within_speeds
+from client.limits import MEASURED_OVERSHOOT, cubic_accelerations, within_cubics, within_speeds
+from client.planner import Planner
 from client.sending import _on_milliseconds
 from client.trajectory import Trajectory, recording
 from robot_server import load_model
@@ -121,10 +122,12 @@ async def test_motoros_states_as_received_replay_in_their_time(
     states.save(path)
     recorded, replayed = await replay(path, "motoros")
     assert abs(replayed / recorded - 1.0) <= 0.02, (recorded, replayed)
-    lines = [r.getMessage() for r in caplog.records if r.name == "robot_server.control.motion"]
-    assert len([line for line in lines if "run as given, as MotoROS runs" in line]) == (1 if followed else 0), lines
+    records = [r for r in caplog.records if r.name == "robot_server.control.motion"]
+    lines = [r.getMessage() for r in records]
+    warned = [r.getMessage() for r in records if r.levelno == logging.WARNING and "run as given" in r.getMessage()]
+    assert len(warned) == (1 if followed else 0), lines
     # a cubic passing a joint's speed limit between its points is still slowed down for (x1.014 once here)
-    assert [line for line in lines if "too fast" in line and "x1.0" not in line] == [], lines
+    assert [line for line in lines if "too fast" in line and "x1.014" not in line] == [], lines
 
 
 @pytest.mark.parametrize("profile", ["generic", "motoros"])
@@ -232,6 +235,31 @@ def test_the_driver_says_when_motoros_cubics_would_be_too_fast(caplog: pytest.Lo
     smooth_v = np.outer((30 * s**2 - 60 * s**3 + 30 * s**4) / 1.0, np.full(6, 0.2))
     with caplog.at_level(logging.WARNING, logger="client.driver"):
         _warn_cubics(s, smooth_q, smooth_v, PUMA.max_acceleration)
-        # from rest to rest in one segment: the controller's to shape (a jerk-limited start), no warning
-        _warn_cubics(np.array([0.0, 0.3]), np.array([[0.0] * 6, [0.5] * 6]), np.zeros((2, 6)), PUMA.max_acceleration)
     assert caplog.text == ""
+    # from rest to rest in one segment: MotoROS runs that cubic too (6 d / T^2 at both ends)
+    with caplog.at_level(logging.WARNING, logger="client.driver"):
+        _warn_cubics(np.array([0.0, 0.3]), np.array([[0.0] * 6, [0.5] * 6]), np.zeros((2, 6)), PUMA.max_acceleration)
+    assert "segment 0->1" in caplog.text
+
+
+def test_the_client_s_own_plan_is_kept_within_motoros_s_cubics() -> None:
+    """A joint move at the full acceleration sent to MotoROS as its two points would be one cubic
+    from rest to rest at 1.5x the limit and more, which MotoROS runs as given: the client slows its
+    own plan down uniformly until every cubic is within (client.limits.within_cubics); a plan within
+    is sent as it is."""
+    planner = Planner(PUMA, velocity_scale=1.0, acceleration_scale=1.0, jerk_scale=1.0, joint_spacing=2 * np.pi)
+    motion = planner.joint_move(np.zeros(6), np.array([1.2, 0.3, -0.6, 1.0, 0.8, -1.5])).sparse()
+    v = motion.velocities
+    assert v is not None
+    before = cubic_accelerations(motion.times, motion.positions, v) / PUMA.max_acceleration
+    assert before.max() > 1.3
+    kept = within_cubics(motion, PUMA)
+    assert kept.velocities is not None
+    after = cubic_accelerations(kept.times, kept.positions, kept.velocities) / PUMA.max_acceleration
+    assert 0.98 <= after.max() <= 0.99 + 1e-9
+    assert kept.duration == pytest.approx(motion.duration * np.sqrt(before.max() / 0.99))
+    slow = Planner(PUMA, velocity_scale=0.3, acceleration_scale=0.3, jerk_scale=0.3).joint_move(
+        np.zeros(6), np.full(6, 0.5)
+    )
+    gentle = slow.sparse()
+    assert within_cubics(gentle, PUMA) is gentle

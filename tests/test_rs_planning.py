@@ -326,46 +326,92 @@ def test_a_point_after_the_robot_stopped_dry_is_a_transient_and_warned() -> None
     assert any("came after the robot stopped" in text for _, text in after.messages)
 
 
-def test_motoros_runs_a_given_cubic_beyond_the_acceleration_limit_and_says_so_once() -> None:
+def test_motoros_runs_a_given_cubic_beyond_the_acceleration_limit_and_says_so() -> None:
     """MotoROS checks the points' speeds only and runs the cubic between them as it is
-    (MotionServer.c:1313, 1414-1468): with ``follow_given_acceleration`` the trajectory is not slowed
-    down for a given segment's acceleration, one WARNING per trajectory says where; its velocity
-    still counts. Without it (the generic controller) the trajectory is slowed down."""
+    (MotionServer.c:1313, 1414-1505): with ``follow_given_acceleration`` the trajectory is not slowed
+    down for a given segment's acceleration, and a WARNING says where and by how much (then INFO
+    when a later one asks 10 % more); its velocity still counts. Without it (the generic
+    controller) the trajectory is slowed down."""
     follow = Settings(LIMITS, policy("blend"), follow_given_acceleration=True)
     moving = State(np.array([0.1, 0.0]), np.array([0.5, 0.0]), ZERO)
     book = TrajectoryBook(number=1, open=True, points=2, time=1.0, last_position=moving.position)
-    # a point given at 0.5 rad/s whose cubic from 0.5 rad/s reverses within 0.25 s: about 8 rad/s² for 2
     running = Entry(
         knot([0.1, 0.0]), ZERO, 1.0, State.rest(ZERO), 1.0, moving, connect(State.rest(ZERO), 1, moving, 1, 1.0)
     )
     base = Plan(running, 0.0, (), book)
+    # from 0.5 rad/s to -0.5 rad/s in 0.25 s, back where it started: the cubic's acceleration is
+    # (-4 v0 - 2 v1) / h = -4 rad/s² at the start, twice the 2 rad/s² limit
     sharp = Point(np.array([0.1, 0.0]), velocities=np.array([-0.5, 0.0]), time=1.25)
-    for settings_, slowed_down in ((follow, False), (Settings(LIMITS, policy("blend")), True)):
-        planned = planning.plan(
-            context(settings_), base, sharp, first=False, bounded=True, defer=False, stopped_dry=None
-        )
-        entry = planned.pending[-1]
-        assert checks.orders(settings_, entry)[1] > 1.0 or slowed_down  # beyond the acceleration limit
-        assert (planned.scale > 1.0) is slowed_down
-        warnings = [text for level, text in planned.messages if level == logging.WARNING]
-        if slowed_down:
-            assert any("too fast" in text for text in warnings)
-        else:
-            assert len(warnings) == 1 and "accelerates joint 1 at" in warnings[0] and "run as given" in warnings[0]
-            assert planned.trajectory.warned_acceleration
-            again = planning.plan(
-                context(follow),
-                planned,
-                Point(np.array([0.0, 0.0]), velocities=np.array([-0.5, 0.0]), time=1.45),
-                first=False,
-                bounded=True,
-                defer=False,
-                stopped_dry=None,
-            )
-            assert not [text for level, text in again.messages if level == logging.WARNING]  # once a trajectory
-    # a given segment beyond the velocity limit between its points is slowed down even when followed:
-    # 1.5 rad in 1 s between two points at 0.5 rad/s peaks at about 2 rad/s for 1
+    generic = planning.plan_scaled(
+        context(Settings(LIMITS, policy("blend"))),
+        base,
+        sharp,
+        first=False,
+        min_scale=1.0,
+        bounded=True,
+        stopped_dry=None,
+    )
+    assert generic.scale > 1.0 and any("too fast" in text for _, text in generic.messages)
+    planned = planning.plan_scaled(
+        context(follow), base, sharp, first=False, min_scale=1.0, bounded=True, stopped_dry=None
+    )
+    assert planned.scale == 1.0 and checks.acceleration_ratio(follow, planned.pending[-1]) == (pytest.approx(2.0), 0)
+    assert [level for level, _ in planned.messages] == [logging.WARNING]
+    assert "the segment to point 2 accelerates joint 1 at 2 x its limit: run as given" in planned.messages[0][1]
+    assert planned.trajectory.reported_acceleration == pytest.approx(2.0)
+    # a later segment asking less says nothing; one asking 10 % more says so at INFO
+    gentle = Point(np.array([0.0, 0.0]), velocities=np.array([-0.5, 0.0]), time=1.45)
+    again = planning.plan_scaled(
+        context(follow), planned, gentle, first=False, min_scale=1.0, bounded=True, stopped_dry=None
+    )
+    assert not again.messages
+    sharper = Point(np.array([0.0, 0.0]), velocities=np.array([0.5, 0.0]), time=1.65)
+    more = planning.plan_scaled(
+        context(follow), again, sharper, first=False, min_scale=1.0, bounded=True, stopped_dry=None
+    )
+    assert [level for level, _ in more.messages] == [logging.INFO] and "the most so far" in more.messages[0][1]
+    # a segment beyond the velocity limit between its points is slowed down even when followed: 1.5 rad
+    # in 1 s between two points at 0.5 rad/s peaks at about 2 rad/s for 1; slowed down for its speed,
+    # its acceleration is within the limit too, and nothing is said of it
     fast = Point(np.array([1.6, 0.0]), velocities=np.array([0.5, 0.0]), time=2.0)
-    far = planning.plan(context(follow), base, fast, first=False, bounded=True, defer=False, stopped_dry=None)
+    far = planning.plan_scaled(context(follow), base, fast, first=False, min_scale=1.0, bounded=True, stopped_dry=None)
     assert far.scale > 1.5 and checks.speed_excess(follow, far.pending[-1]) <= 1.0
+    assert [text for _, text in far.messages if "run as given" in text] == []
     assert any("too fast" in text for _, text in far.messages)
+
+
+def test_a_transient_after_the_queue_ran_dry_is_met_locally_even_on_motoros() -> None:
+    """Only segments that start where the client's points lead (or at the trajectory's start) are
+    run as given: a restart from rest mid-trajectory is no state MotoROS would be in."""
+    follow = Settings(LIMITS, policy("blend"), follow_given_acceleration=True)
+    given = Knot(np.array([0.05, 0.0]), 0.05, Kind.GIVEN, 1, 5, np.array([0.9, 0.0]))
+    restart = building.given(Entry(given, ZERO, 0.05, State.rest(ZERO), 0.05).marked(Phase.TRANSIENT), 1.0)
+    assert not checks.follows(follow, restart)
+    assert building.stretched(follow, restart).segment is not restart.segment  # ruckig's, within the limits
+    first = building.given(
+        Entry(replace_index(given, 1), ZERO, 0.05, State.rest(ZERO), 0.05).marked(Phase.TRANSIENT), 1.0
+    )
+    assert checks.follows(follow, first) and building.stretched(follow, first) is first
+
+
+def replace_index(point: Knot, index: int) -> Knot:
+    return Knot(point.position, point.duration, point.kind, point.trajectory, index, point.velocity)
+
+
+@pytest.mark.parametrize("follow", [False, True])
+def test_a_download_whose_points_are_within_the_limits_is_checked_between_them_too(follow: bool) -> None:
+    """A downloaded trajectory is slowed down once, at its end, for what its points' states ask;
+    points within the limits do not make the segments between them so: a cubic that passes the
+    speed limit between two points slows the download down too (on MotoROS as well)."""
+    from robot_server.control.motion import MotionQueue
+
+    queue = MotionQueue(LIMITS, policy("blend"), State.rest(ZERO), follow_given_acceleration=follow)
+    points = [
+        Point(ZERO.copy(), velocities=ZERO.copy(), time=0.0),
+        Point(np.array([0.1, 0.0]), velocities=np.array([0.5, 0.0]), time=1.0),
+        Point(np.array([1.6, 0.0]), velocities=np.array([0.5, 0.0]), time=2.0),  # peaks at about 2 rad/s (limit 1)
+        Point(np.array([1.7, 0.0]), velocities=ZERO.copy(), time=3.0),
+    ]
+    queue.add_all(points)
+    assert queue.scale > 1.5
+    assert all(checks.speed_excess(queue.settings, e) <= 1.0 for e in queue._pending if e.segment is not None)

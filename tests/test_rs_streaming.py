@@ -179,6 +179,25 @@ async def test_motoros_runs_a_stream_too_fast_for_the_acceleration_limit_as_give
     assert not [line for line in lines if "too fast" in line], lines
 
 
+async def test_motoros_drives_follow_the_increments_of_points_sent_without_velocities() -> None:
+    """Points 4 ms apart with zero velocities (a rest-to-rest cubic each, hundreds of times the
+    acceleration limit between instants that fall on the points): MotoROS sends the drives the
+    increments only, 6 mrad every 4 ms, a steady 1.5 rad/s; the emulator's drives take their
+    velocity from the increments too (``increment_feedforward``), so they follow without a
+    following-error alarm, in the points' time."""
+    n, step = 100, 0.006
+    time = np.arange(n) * 0.004
+    position = np.zeros((n, 6))
+    position[:, 0] = np.arange(n) * step
+    plan = Plan(float(time[-1]), n, np.zeros(6), time, position, np.zeros((n, 6)), np.zeros((n, 6)))
+    record, accepted, _busy = await stream_motoros(plan)  # every point SUCCESS: no alarm refused one
+    assert accepted == n
+    assert float(np.max(np.abs(record.get("following_error")))) < 0.01
+    command = record.get("command_position")
+    moving = np.flatnonzero(np.any(np.abs(np.diff(command, axis=0)) > 1e-12, axis=1))
+    assert (moving[-1] - moving[0] + 1) * 0.001 == pytest.approx(plan.duration, abs=0.005)
+
+
 def test_motoros_milliseconds_truncate_as_motoros_and_are_exact_on_a_grid() -> None:
     """(int)(time * 1000) with a float time truncates; a time on a clean grid, rounded to float32 on
     the wire, is its whole millisecond, neither short nor long, up to MotoROS's 14400 s (MotoROS

@@ -169,8 +169,8 @@ def stretched(settings: Settings, entry: Entry) -> Entry:
     velocity and acceleration too, however long it takes: the plan is not too fast, the robot
     is late. So does a polynomial that would swing beyond its points by more than the robot
     needs to brake (a fast start over a long segment): ruckig's motion stays within that. A given
-    segment under :attr:`.Settings.follow_given_acceleration` is run as given, transient or not, as
-    MotoROS runs its cubics."""
+    segment under :attr:`.Settings.follow_given_acceleration` is run as given, as MotoROS runs its
+    cubics (:func:`.checks.follows`)."""
     if follows(settings, entry):
         return entry
     over = excess(settings, entry)

@@ -56,8 +56,27 @@ def speed_excess(settings: Settings, entry: Entry) -> float:
 
 
 def follows(settings: Settings, entry: Entry) -> bool:
-    """The segment is run as given beyond the acceleration limit (MotoROS's way)."""
-    return settings.follow_given_acceleration and entry.is_kind(Kind.GIVEN)
+    """The segment is run as given beyond the acceleration limit (MotoROS's way): a given segment
+    that starts where the client's points lead, or from the trajectory's start point. A transient
+    later in a trajectory (after the queue ran dry, or a re-scale's hand-over) starts from a state
+    MotoROS would never be in: it is met locally as on any controller."""
+    return (
+        settings.follow_given_acceleration and entry.is_kind(Kind.GIVEN) and (not entry.transient or entry.index == 1)
+    )
+
+
+def acceleration_ratio(settings: Settings, entry: Entry) -> tuple[float, int]:
+    """The segment's largest |acceleration| / limit and its joint (0-based); kept with the segment."""
+    segment = entry.segment
+    assert segment is not None
+    key = ("acceleration ratio", settings)
+    cached = segment.memo.get(key)
+    if cached is None:
+        lo, hi = segment.extremes(2)
+        ratio = np.maximum(-lo, hi) / settings.limits.max_acceleration
+        j = int(np.argmax(ratio))
+        cached = segment.memo[key] = (float(ratio[j]), j)
+    return cached  # type: ignore[return-value]
 
 
 def orders(settings: Settings, entry: Entry) -> tuple[float, float, float]:

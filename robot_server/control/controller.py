@@ -112,6 +112,10 @@ class ControllerConfig:
     #: points are run as given (reported once per trajectory) instead of slowing the trajectory
     #: down: MotoROS checks the points' speeds only (the MotoROS profile sets it)
     follow_given_acceleration: bool = False
+    #: the drives' velocity feedforward is the setpoint's change over each interpolation period, as
+    #: a drive fed position increments only works it out (MotoROS: mpExRcsIncrementMove), instead of
+    #: the planned velocity (the two differ where a cubic run as given turns within the period)
+    increment_feedforward: bool = False
     #: in_motion stays TRUE until every joint is this close to the command (rad or m; at most half
     #: ``start_tolerance``, so a trajectory can always start from the rest the robot reports) ...
     settle_position: float = 1e-3
@@ -599,7 +603,11 @@ class Controller:
         cmd_v = [g * x + f * y for x, y in zip(v0, v1, strict=True)]
         cmd_a = [g * x + f * y for x, y in zip(a0, a1, strict=True)]
         servo = self.servo
-        servo.step(cmd_p, cmd_v)
+        if self.config.increment_feedforward:
+            period = self.config.interpolation_period
+            servo.step(cmd_p, [(y - x) / period for x, y in zip(p0, p1, strict=True)])
+        else:
+            servo.step(cmd_p, cmd_v)
         actual = list(servo.position)
         error = [c - a for c, a in zip(cmd_p, actual, strict=True)]
         if i + 1 == self._sub:  # an interpolation instant: where the tool is, and is it allowed

@@ -138,8 +138,9 @@ class TrajectoryBook:
     #: the scale last logged (further slowing down is logged once per 10 %)
     logged_scale: float = 1.0
     warned_dry: bool = False
-    #: a given segment beyond the acceleration limit was reported (:attr:`Settings.follow_given_acceleration`)
-    warned_acceleration: bool = False
+    #: the largest acceleration (x the limit) reported of a given segment run beyond it
+    #: (:attr:`Settings.follow_given_acceleration`; 0: none)
+    reported_acceleration: float = 0.0
     #: controller time its first point was planned at
     opened: float = 0.0
 

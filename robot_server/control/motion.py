@@ -37,7 +37,11 @@ and jerk limits (exact extremes), and a segment beyond them is not refused:
   uniformly (velocities / k, accelerations / k^2) until everything fits, and one WARNING says by how
   much. The scale only grows within a trajectory; the next one starts at 1. (The running segment
   keeps its speed at the instant of the change, so the first re-planned segment absorbs the
-  difference.)
+  difference.) A downloaded trajectory is slowed down once, when it is complete, for its points'
+  states and the segments between them. One exception, MotoROS's: with
+  ``follow_given_acceleration`` a given segment beyond the acceleration limit only is run as given
+  (MotoROS checks its points' speeds only), and a WARNING says where and by how much
+  (:func:`.planning.report_acceleration`).
 * beyond the jerk limit only, the segment alone is replaced by ruckig's jerk-limited motion to the
   same state (when that takes at most 1.5x the segment plus 10 ms and stays within the position
   limits; otherwise the segment keeps its jerk, beyond the limit). Time-optimal planners
@@ -88,6 +92,7 @@ from ..arrays import Array
 from . import planning
 from .braking import start_next
 from .building import stop_entry, to_rest
+from .checks import uniform_need
 from .entries import Context, Entry, Plan, Settings, TrajectoryBook, at_rest, connect, knot_of, log, moving
 from .points import Limits, Point, PointRejected, Reason, State, check_point
 from .policies import Policy
@@ -243,6 +248,10 @@ class MotionQueue:
             )
             self.commit(plan)
             needed = max(needed, plan.needed)
+        if needed <= 1.0:  # the points' states are within the limits: the segments between them may not be
+            number = self._trajectory.number
+            mine = [e for e in (self._running, *self._pending) if e is not None and e.segment is not None]
+            needed = max([1.0, *(uniform_need(self.settings, e) for e in mine if e.trajectory == number)])
         if needed > 1.0:
             messages: list[tuple[int, str]] = []
             running, started, pending, trajectory = rescale(
@@ -256,6 +265,7 @@ class MotionQueue:
                 messages=messages,
             )
             self.commit(Plan(running, started, tuple(pending), trajectory, tuple(messages), self._t))
+        self.commit(planning.report_acceleration(self.settings, self._snapshot()))
 
     def check_start(self, point: Point) -> None:
         """Refuse ``point`` as the first point of a trajectory starting now (PointRejected)."""

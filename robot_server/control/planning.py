@@ -18,7 +18,7 @@ import numpy as np
 from ..arrays import Array
 from .braking import unbraked
 from .building import determine, given, knot, replan_running, rest_segment, stretched, to_rest
-from .checks import check_duration, check_position, end_need, follows, orders, uniform_need
+from .checks import acceleration_ratio, check_duration, check_position, end_need, follows, orders, uniform_need
 from .entries import (
     Context,
     Entry,
@@ -106,7 +106,7 @@ def plan_scaled(
             messages=(messages := list(planned.messages)),
         )
         planned = Plan(running, started, tuple(pending), trajectory, tuple(messages), context.at)
-    return planned
+    return report_acceleration(context.settings, planned)
 
 
 def check_start(settings: Settings, positions: Array, origin: State) -> None:
@@ -317,11 +317,6 @@ def _fit(context: Context, point: Knot, draft: Plan, built: list[Entry], *, defe
         check_position(settings, e)
     running, started, pending, trajectory = draft.running, draft.started, list(draft.pending), draft.trajectory
     messages = list(draft.messages)
-    if settings.follow_given_acceleration and not trajectory.warned_acceleration:
-        report = next((r for e in built if (r := _followed_acceleration(settings, e)) is not None), None)
-        if report is not None:
-            messages.append((logging.WARNING, f"trajectory {trajectory.number}: {report}"))
-            trajectory = replace(trajectory, warned_acceleration=True)
     if defer:  # what the points' states ask for; the re-scale at the end settles the segments
         needed = max((end_need(settings, e) for e in built), default=1.0)
         return Plan(running, started, tuple(pending), trajectory, tuple(messages), context.at, needed)
@@ -333,19 +328,37 @@ def _fit(context: Context, point: Knot, draft: Plan, built: list[Entry], *, defe
     return Plan(running, started, tuple(pending), trajectory, tuple(messages), context.at)
 
 
-def _followed_acceleration(settings: Settings, entry: Entry) -> str | None:
-    """What to say when a given segment run as given passes the acceleration limit (None: it does
-    not, or it is not followed)."""
-    if not follows(settings, entry) or orders(settings, entry)[1] <= 1.0:
-        return None
-    assert entry.segment is not None
-    lo, hi = entry.segment.extremes(2)
-    ratio = np.maximum(-lo, hi) / settings.limits.max_acceleration
-    j = int(np.argmax(ratio))
-    return (
-        f"the segment to point {entry.index} accelerates joint {j + 1} at {float(ratio[j]):.3g} x its limit: run "
-        "as given, as MotoROS runs its points' cubics (it checks their speeds only); the drives lag where "
-        "they cannot follow"
+def report_acceleration(settings: Settings, planned: Plan) -> Plan:
+    """``planned`` with a line saying which given segment of its trajectory is run beyond the
+    acceleration limit (:attr:`.Settings.follow_given_acceleration`), once the trajectory's time
+    scale is settled: a WARNING the first time, then at INFO when one asks 10 % more than the
+    largest said so far (no flood)."""
+    if not settings.follow_given_acceleration:
+        return planned
+    book = planned.trajectory
+    entries = [planned.running, *planned.pending] if planned.running is not None else list(planned.pending)
+    worst: tuple[float, int, int] | None = None
+    for e in entries:
+        if e.trajectory != book.number or e.segment is None or not follows(settings, e):
+            continue
+        if orders(settings, e)[1] <= 1.0:
+            continue
+        ratio, joint = acceleration_ratio(settings, e)
+        if worst is None or ratio > worst[0]:
+            worst = (ratio, e.index, joint)
+    if worst is None or worst[0] < 1.1 * book.reported_acceleration:
+        return planned
+    ratio, index, joint = worst
+    first = book.reported_acceleration == 0.0
+    text = (
+        f"trajectory {book.number}: the segment to point {index} accelerates joint {joint + 1} at {ratio:.3g} x its "
+        f"limit{'' if first else ', the most so far'}: run as given, as MotoROS runs its points' cubics (it checks "
+        "their speeds only); the drives lag where they cannot follow"
+    )
+    return replace(
+        planned,
+        messages=(*planned.messages, (logging.WARNING if first else logging.INFO, text)),
+        trajectory=replace(book, reported_acceleration=ratio),
     )
 
 

@@ -18,11 +18,14 @@ MOTO_MOTION_REPLY (2002), header SUCCESS, the outcome in ``result``/``subcode`` 
   give 3013, other refusals their data subcode (position 3012, time 3016, anything else 3010);
   MotoROS never refuses a point for its acceleration (3014 is defined and never sent), and neither
   does the emulator. MotoROS checks the points' speeds only (MotionServer.c:1313, motoman_driver
-  1.9.12) and runs the cubic between two points as it is, whatever it asks of the joints' acceleration
-  (MotionServer.c:1414-1468: the increments go to the drives unchecked); so does the emulator
-  (``ControllerConfig.follow_given_acceleration``: one WARNING per trajectory says where and by how
-  much, and the drive models lag where they cannot follow). A segment whose cubic passes a joint's
-  speed limit between its points is slowed down (``control.scaling``); MotoROS would run it too.
+  1.9.12) and runs the cubic between two points as it is, whatever it asks of the joints'
+  acceleration (MotionServer.c:1414-1468 samples it, 1487-1505 queues the increments, and
+  mpExRcsIncrementMove sends them at 2004, unchecked); so does the emulator
+  (``ControllerConfig.follow_given_acceleration``: a WARNING says where the first such segment is and
+  by how much, INFO a later one 10 % worse; a segment from rest after the queue ran dry is no state
+  MotoROS would be in and is met locally), and its drives take their velocity from the increments
+  as MotoROS's do (``increment_feedforward``). A segment whose cubic passes a joint's speed limit
+  between its points is slowed down (``control.scaling``); MotoROS would run it too.
   The time becomes whole milliseconds as MotoROS truncates it, except that a time within float32
   precision of a whole millisecond is that millisecond (:func:`motoros_milliseconds`: a client's
   grid time is never a millisecond short, where MotoROS loses one on some), segments are
@@ -630,6 +633,7 @@ MOTOROS_PROFILE = register_profile(
         },
         start_tolerance=MOTOROS_START_TOLERANCE,
         follow_given_acceleration=True,
+        increment_feedforward=True,
         description="Yaskawa MotoROS: trajectory mode, JOINT_TRAJ_PT_FULL(_EX), MOTO_MOTION_REPLY, IO port",
     )
 )

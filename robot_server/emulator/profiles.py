@@ -152,6 +152,8 @@ class EmulatorProfile:
     #: given segments beyond the acceleration limit are run as given, not slowed down for
     #: (:attr:`.ControllerConfig.follow_given_acceleration`: MotoROS's way)
     follow_given_acceleration: bool = False
+    #: the drives take position increments only (:attr:`.ControllerConfig.increment_feedforward`)
+    increment_feedforward: bool = False
     description: str = ""
     #: state rounds per second of the controller played (``robot-server --state-rate`` overrides it)
     state_rate: float = 40.0

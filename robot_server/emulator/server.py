@@ -334,6 +334,7 @@ class Emulator:
             supervision=None if config.cell is None else load_supervision(config.cell),
             initial_position=config.initial_position,
             follow_given_acceleration=profile.follow_given_acceleration,
+            increment_feedforward=profile.increment_feedforward,
         )
         if profile.start_tolerance is not None:
             controller_config = dataclasses.replace(controller_config, start_tolerance=profile.start_tolerance)
