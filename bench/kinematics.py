@@ -9,7 +9,7 @@ Targets on the CI machine class (2 cores): single FK <= 20 us, batch FK >= 2,000
 passes over them (``perf_counter_ns``, after a warm-up): that takes out most of this VM's stolen
 time, which otherwise moves a median by up to 1.5x between runs; batch rates are the best of
 five runs. Bursts of stolen time can still last seconds: run it more than once. Numeric IK
-starts from a random seed inside the limits, like the docs' reference measurements (motion.md
+starts from a random seed inside the limits, like the docs' reference measurements (docs/reference/motion.md
 §2); each of its three timings of a pose draws the same restarts.
 """
 

@@ -1,6 +1,6 @@
 """The robot driver: the PC side of a simple_message controller, done right.
 
-The reference client's defects (simple-message.md §4, §7, §10) are what this driver must not do:
+The reference client's defects (docs/reference/protocol.md §4, §7, §10) are what this driver must not do:
 it checks every reply, never waits without a timeout, can stop at any moment (also with a point
 pending, also when idle), computes a real duration for every JOINT_TRAJ_PT (no 10 s first segment),
 and never skips or repeats a point silently.

@@ -198,7 +198,7 @@ class Motion:
         accelerations: what a planner hands to a controller.
 
         With ``rest_to_rest`` the knots are retimed for a controller that joins points at rest
-        (JOINT_TRAJ_PT, simple-message.md §4.3): each segment lasts at least as long as a
+        (JOINT_TRAJ_PT, docs/reference/protocol.md §4.3): each segment lasts at least as long as a
         rest-to-rest cubic or quintic needs to stay within the planner's velocity and acceleration
         limits, and the points carry no velocities (the controller would not use them)."""
         times = [0.0]

@@ -4,7 +4,7 @@ The core is sans-I/O (after h11): :mod:`.messages` turns messages into bytes and
 :mod:`.framing` cuts any chunking of a byte stream into frames, :mod:`.header` applies the C++
 library's header rules. Nothing in it opens a socket, so every rule is tested synchronously and the
 same code serves TCP, serial links and tests. Protocol references ("§4.2") point into
-``docs/simple-message.md`` of the project's shared documentation.
+``docs/reference/protocol.md``.
 
 Every public name is here, imported from its module on first use (:mod:`._lazy`): importing the
 core (``simple_message.messages``, ``.framing``, ``.link``) loads no asyncio, endpoints or capture

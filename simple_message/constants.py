@@ -2,7 +2,7 @@
 
 Values come from the reference C++ library (``simple_message.h``, ``joint_traj_pt.h``,
 ``robot_status.h``), REP-I0004/I0006 and the Yaskawa MotoROS sources; see
-``simple-message.md`` §2.1, §3, §4.1, §5 and §8.1. The project's own extension messages
+``docs/reference/protocol.md`` §2.1, §3, §4.1, §5 and §8.1. The project's own extension messages
 (CARTESIAN_LINE, TOOL_POSE and :class:`LineResult`) use numbers of the range REP-I0004 leaves
 freely assignable (65001-65535); ``docs/protocol.md`` describes them. No other module of the
 project writes a protocol number as a literal.

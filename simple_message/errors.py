@@ -9,7 +9,7 @@ As in h11, every error says whose fault it is:
   MotoROS peers :attr:`RemoteProtocolError.moto_result` / :attr:`RemoteProtocolError.moto_subcode`).
 
   - :class:`FrameError`: the byte stream itself is broken (a length prefix below 12, negative or
-    above the maximum). Framing is by byte count only (simple-message.md §1.1), so the stream
+    above the maximum). Framing is by byte count only (docs/reference/protocol.md §1.1), so the stream
     cannot be resynchronised: the connection must be closed. :attr:`FrameError.fatal` is ``True``.
   - :class:`IncompleteFrame`: a frame was begun and its remaining bytes never came (a server's
     ``frame_timeout``); the connection is closed.
@@ -78,7 +78,7 @@ class RemoteProtocolError(SimpleMessageError):
 
 
 class FrameError(RemoteProtocolError):
-    """The length prefix is impossible; the connection must be closed (simple-message.md §12 test 4)."""
+    """The length prefix is impossible; the connection must be closed (docs/reference/protocol.md §12 test 4)."""
 
     fatal = True
 
@@ -121,7 +121,7 @@ class MalformedMessage(RemoteProtocolError):
 
 
 class HeaderError(RemoteProtocolError):
-    """The header fails the C++ library's ``validateMessage`` rules (simple-message.md §1.2)."""
+    """The header fails the C++ library's ``validateMessage`` rules (docs/reference/protocol.md §1.2)."""
 
     def __init__(self, message: str, *, msg_type: int, comm_type: int, reply_code: int) -> None:
         super().__init__(

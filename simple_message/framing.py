@@ -1,7 +1,7 @@
 """The frame decoder: bytes in any chunking, complete frames out.
 
 simple_message frames by byte count only: a 4-byte length prefix that counts the header and body
-but not itself, no magic bytes and no checksum (simple-message.md §1.1). So a frame decoder can
+but not itself, no magic bytes and no checksum (docs/reference/protocol.md §1.1). So a frame decoder can
 realign after a bad *body* but never after a bad *length*: a prefix below 12, negative or above the
 configured maximum raises :class:`~.errors.FrameError`, after which the connection must be closed
 (§12 test 4). The default maximum, 64 KiB, is far above any standard message (the largest,

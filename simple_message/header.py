@@ -1,7 +1,7 @@
 """Header validation: the rules of the C++ library's ``SimpleMessage::validateMessage``.
 
 Decoding never applies these rules (a capture must decode whatever was on the wire); servers and
-clients apply them explicitly. The rules (simple-message.md §1.2):
+clients apply them explicitly. The rules (docs/reference/protocol.md §1.2):
 
 * ``msg_type`` 0 is invalid;
 * ``comm_type`` 0 is invalid;

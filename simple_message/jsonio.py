@@ -2,7 +2,7 @@
 
 One message is ``{"msg_type": int, "name": str, "comm_type": int, "reply_code": int, "body": {...}}``.
 Body keys are the field names of the message's class: for the standard and MotoROS messages those of
-simple-message.md §2.2 and §8.1 in snake_case (``sequence``, ``joint_data``, ``velocity``,
+docs/reference/protocol.md §2.2 and §8.1 in snake_case (``sequence``, ``joint_data``, ``velocity``,
 ``duration``, ``robot_id``, ``valid_fields``, ``time``, ``positions``, ...). Every type in the
 message registry (:func:`~.messages.register`) has this form, vendor types included: names and
 classes come from the registry, and a class is built from its body by calling it with the body's

@@ -1,6 +1,6 @@
 """Wire formats: byte order and the size of ``shared_real``.
 
-simple_message has no negotiation (simple-message.md §1.3, §10 pitfall 2): both peers must be built
+simple_message has no negotiation (docs/reference/protocol.md §1.3, §10 pitfall 2): both peers must be built
 alike. Ints and the length prefix are always int32; reals are float32, or float64 in the FLOAT64
 build. The reference library's default build writes host order, little-endian on every PC, which
 is this module's default; Fanuc and the Motoman FS100 speak big-endian.

@@ -1,7 +1,7 @@
 """A raw-bytes simple_message peer for end-to-end tests of the emulator.
 
 It deliberately does not use the project's codec or client: requests are the reference vectors'
-bytes with fields patched in place at their documented offsets (simple-message.md §2.2), and
+bytes with fields patched in place at their documented offsets (docs/reference/protocol.md §2.2), and
 replies are cut and read with :mod:`struct`. A bug shared by our encoder and our server cannot hide.
 """
 

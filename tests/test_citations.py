@@ -34,8 +34,6 @@ from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 
-import pytest
-
 ROOT = Path(__file__).resolve().parent.parent
 REFERENCE = ROOT / "docs" / "reference"
 #: the document a bare mark means, unless it continues a citation named in _CONTINUED
@@ -172,7 +170,6 @@ def broken_citations() -> list[tuple[Citation, str]]:
     return broken
 
 
-@pytest.mark.xfail(strict=True, reason="citations still point at ../shared until the sweep (issue 37)")
 def test_every_cited_document_and_section_is_in_the_repository() -> None:
     broken = broken_citations()
     assert not broken, f"{len(broken)} citations point at nothing in the repository:\n" + "\n".join(

@@ -59,7 +59,7 @@ def test_boundary_conditions(duration: float) -> None:
 
 
 def test_rest_to_rest_shapes_match_the_closed_forms() -> None:
-    """motion.md §4: the correct cubic (h2 = 3D/T^2, h3 = -2D/T^3) and the paper's quintic."""
+    """docs/reference/motion.md §4: the correct cubic (h2 = 3D/T^2, h3 = -2D/T^3) and the paper's quintic."""
     p0, p1 = np.full(N, 0.3), np.full(N, 1.3)
     tf, delta = 2.0, 1.0
     c = cubic(p0, p1, tf).coefficients
@@ -70,7 +70,7 @@ def test_rest_to_rest_shapes_match_the_closed_forms() -> None:
     paper = PolynomialSegment([[0.0], [0.0], [-3 * delta / tf**2], [-2 * delta / tf**3]], tf)
     close(paper.end().position, [-5 * delta])
     close(paper.end().velocity, [-12 * delta / tf])
-    # peaks (motion.md §4): cubic 1.5 D/T and 6 D/T^2 at the ends; quintic 1.875 D/T, 5.774 D/T^2
+    # peaks (docs/reference/motion.md §4): cubic 1.5 D/T and 6 D/T^2 at the ends; quintic 1.875 D/T, 5.774 D/T^2
     assert math.isclose(cubic(p0, p1, tf).peak(1)[0], 1.5 * delta / tf, rel_tol=1e-12)
     assert math.isclose(cubic(p0, p1, tf).peak(2)[0], 6 * delta / tf**2, rel_tol=1e-12)
     assert math.isclose(quintic(p0, p1, tf).peak(1)[0], 1.875 * delta / tf, rel_tol=1e-12)
@@ -222,7 +222,7 @@ def test_ruckig_minimum_duration_and_stop() -> None:
 
 
 def test_ruckig_ignores_position_limits_so_we_check_extremes() -> None:
-    """motion.md §3.2: the PyPI build accepts max_position and ignores it; extremes(0) is what
+    """docs/reference/motion.md §3.2: the PyPI build accepts max_position and ignores it; extremes(0) is what
     the planner checks instead."""
     inp = ruckig.InputParameter(1)
     inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0], [1.0], [0.0]

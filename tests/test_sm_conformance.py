@@ -82,7 +82,7 @@ def test_unknown_type_failure_reply_is_header_only_raw() -> None:
     assert (msg.msg_type, msg.comm_type, msg.reply_code, msg.body) == (9999, 3, 2, b"")
 
 
-# simple-message.md §12: the hand-made vectors V1-V20 (hex in 4-byte words).
+# docs/reference/protocol.md §12: the hand-made vectors V1-V20 (hex in 4-byte words).
 def words(text: str) -> bytes:
     return bytes.fromhex(text.replace(" ", ""))
 
@@ -148,7 +148,7 @@ def test_doc_vectors_v1_to_v20() -> None:
     assert v20 == MotoMotionReply(-1, -1, 1234, 3, 3003)
 
 
-# simple-message.md §9: the real FS100 capture, 164 messages.
+# docs/reference/protocol.md §9: the real FS100 capture, 164 messages.
 def test_fs100_capture_counts_and_reencodes() -> None:
     decoders: dict[tuple[int, int], FrameDecoder] = {}
     counts: Counter[tuple[int, int, int | None]] = Counter()

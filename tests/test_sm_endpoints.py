@@ -368,7 +368,7 @@ async def test_malformed_body_gets_failure_and_the_connection_stays(link_kind: s
 
 
 async def test_on_arrival_hook_runs_before_queued_requests_finish(link_kind: str) -> None:
-    """A STOP must act while an earlier request still waits (simple-message.md §10 pitfall 5)."""
+    """A STOP must act while an earlier request still waits (docs/reference/protocol.md §10 pitfall 5)."""
     server = echo_server()
     released = asyncio.Event()
     waiting = asyncio.Event()

@@ -1,4 +1,4 @@
-"""Frame decoder: fragmentation, coalescing, bad lengths and byte-order detection (simple-message.md §12)."""
+"""Frame decoder: fragmentation, coalescing, bad lengths and byte-order detection (docs/reference/protocol.md §12)."""
 
 from __future__ import annotations
 

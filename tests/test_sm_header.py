@@ -1,4 +1,4 @@
-"""Header validation mirrors the C++ library's validateMessage (simple-message.md §1.2, §12 test 3)."""
+"""Header validation mirrors the C++ library's validateMessage (docs/reference/protocol.md §1.2, §12 test 3)."""
 
 from __future__ import annotations
 

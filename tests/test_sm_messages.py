@@ -116,7 +116,7 @@ def test_decoded_constants_come_back_as_enums() -> None:
     ],
 )
 def test_frame_sizes(msg: object, length32: int, length64: int) -> None:
-    """simple-message.md §12 frame size table; FLOAT64 doubles every real."""
+    """docs/reference/protocol.md §12 frame size table; FLOAT64 doubles every real."""
     assert len(encode(msg, LE32)) - 4 == length32  # type: ignore[arg-type]
     assert len(encode(msg, LE64)) - 4 == length64  # type: ignore[arg-type]
 

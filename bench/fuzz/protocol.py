@@ -1,4 +1,4 @@
-"""The protocol as far as the fuzzer needs it (simple-message.md §1-§4, §8.1): the header, the
+"""The protocol as far as the fuzzer needs it (docs/reference/protocol.md §1-§4, §8.1): the header, the
 types and their body layouts, which types move a robot, and frames built and read with
 :mod:`struct` only, not with the project's decoder, so that a bug shared by our decoder and our
 server cannot hide from the tool.

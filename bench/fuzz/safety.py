@@ -13,7 +13,7 @@ server holds then is never completed. The check reads the frame with :mod:`struc
 not with the project's decoder, so that a bug shared by our decoder and our server cannot hide. It
 reads msg_type in both byte orders; for the motion types below it reads the body in that order under
 every layout with both real sizes (float32 and float64), at the start of the body *and* aligned to
-its end (the C++ library accepts a longer body, reading fields from the end, simple-message.md
+its end (the C++ library accepts a longer body, reading fields from the end, docs/reference/protocol.md
 §1.5); a layout the body is too short for does not apply (so a header-only or truncated body is
 invalid). A position is *plausible* if it is finite and at most 1e3 in magnitude (1e3 rad or m is
 beyond any joint's limit). The frame may be sent only if, under every layout that applies:

@@ -7,7 +7,7 @@ at its interpolation instants (:meth:`MotionQueue.sample`). In between, the queu
 **Trajectories.** :meth:`MotionQueue.plan` with ``first=True`` starts a trajectory. Its first point
 is the start itself, whatever its duration or time (industrial_robot_client gives it 10 s): it
 must lie within ``start_tolerance`` of where everything queued ends (MotoROS refuses it
-otherwise, simple-message.md §8.1), and the motion goes on from that state, never with a jump. A
+otherwise, docs/reference/protocol.md §8.1), and the motion goes on from that state, never with a jump. A
 JOINT_TRAJ_PT_FULL first point's time is the origin of the times after it. After a stop or an
 alarm, the next point starts a trajectory whatever it says.
 
@@ -15,7 +15,7 @@ alarm, the next point starts a trajectory whatever it says.
 
 * *Given*: a JOINT_TRAJ_PT_FULL point with velocities (and maybe accelerations): its end state is
   what it says. Segments follow the fields both ends have, as ros2_control's joint trajectory
-  controller and MotoROS do (motion.md §3.3, §3.5): velocities give a cubic Hermite (C1), velocities
+  controller and MotoROS do (docs/reference/motion.md §3.3, §3.5): velocities give a cubic Hermite (C1), velocities
   and accelerations a quintic (C2).
 * *Estimated*: positions only, under a policy that passes through points (``blend``). The point's
   velocity and acceleration come from its neighbours (:mod:`.blend`), so **its state is fixed when

@@ -14,7 +14,7 @@ acceleration, whatever ``D`` and ``T``. With ``u = t / T`` and ``p = p0 + D s(u)
 So the shortest segment time within a speed ``v`` and an acceleration ``a`` is
 ``max(PEAK_VELOCITY x D / v, sqrt(PEAK_ACCELERATION x D / a))``: what the ``cubic`` and ``quintic``
 policies compute when a point has no duration (:mod:`.policies`), and what a client needs to time
-points for them (motion.md §4).
+points for them (docs/reference/motion.md §4).
 """
 
 from __future__ import annotations

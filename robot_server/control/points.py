@@ -9,7 +9,7 @@ JOINT_TRAJ_PT) with a ``velocity_ratio`` (the fraction of the maximum joint spee
 duration is 0), or a ``time`` from the trajectory's start (JOINT_TRAJ_PT_FULL) with optional
 ``velocities`` and ``accelerations``.
 
-:func:`check_point` refuses only what a real controller refuses (simple-message.md §8.1 for
+:func:`check_point` refuses only what a real controller refuses (docs/reference/protocol.md §8.1 for
 MotoROS's checks): the wrong number of joints, NaN or infinity, positions outside the limits,
 explicit velocities above the maximum (a velocity ratio above 1 included), a negative duration or
 time, a segment shorter than :data:`MIN_DURATION` (1 us) or longer than the documented maximum

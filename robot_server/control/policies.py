@@ -125,7 +125,7 @@ class Cubic(_PeakShape):
 class Quintic(_PeakShape):
     name = "quintic"
     summary = "the paper's rest-to-rest quintic (zero velocity and acceleration at each point)"
-    # peak speed 1.875 D/T, peak acceleration (10 / sqrt 3) D/T^2 (motion.md §4)
+    # peak speed 1.875 D/T, peak acceleration (10 / sqrt 3) D/T^2 (docs/reference/motion.md §4)
     speed_factor, accel_factor = QUINTIC_PEAK_VELOCITY, QUINTIC_PEAK_ACCELERATION
 
     @staticmethod

@@ -388,7 +388,7 @@ def cubic(start: ArrayLike, end: ArrayLike, duration: float) -> PolynomialSegmen
 
     The paper (its eq. 5) prints h0 = 0 and h2 = -3 D / T^2. Those coefficients reach p(T) = -5 D
     (from 0) with a velocity of -12 D / T at the end: they meet neither boundary condition
-    (motion.md §4). These are the correct ones. The acceleration steps from 0 to 6 D / T^2 at both
+    (docs/reference/motion.md §4). These are the correct ones. The acceleration steps from 0 to 6 D / T^2 at both
     ends, which is the jitter that the quintic removes.
     """
     p0 = _vector(start, "start")
@@ -430,9 +430,10 @@ def quintic_hermite(
     ``h4 = (-30 D + (14 v1 + 16 v0) T + (3 a0 - 2 a1) T^2) / (2 T^4)``,
     ``h5 = (12 D - 6 (v1 + v0) T - (a0 - a1) T^2) / (2 T^5)``.
 
-    These solve p(T) = p1, p'(T) = v1, p''(T) = a1 for h3..h5. Note the sign of the acceleration
-    term of h5: motion.md §4 prints ``- (af - a0) T^2``, which misses p(T) by ``(a0 - a1) T^2``
-    whenever the boundary accelerations differ (the tests check all six boundary conditions).
+    These solve p(T) = p1, p'(T) = v1, p''(T) = a1 for h3..h5, as docs/reference/motion.md §4
+    gives them (its erratum: the fact sheet it replaces printed h5's acceleration term as
+    ``- (af - a0) T^2``, which misses p(T) by ``(a0 - a1) T^2`` whenever the boundary accelerations
+    differ; the tests check all six boundary conditions).
     """
     p0 = _vector(start[0], "start")
     n = p0.size

@@ -3,7 +3,7 @@
 :class:`RobotCell` is what the protocol servers talk to. It owns one :class:`~..control.Controller`
 per motion group (a robot, a positioner...), stepped together by one control loop, and the state a
 real controller adds around them: the emergency stop, drive power, the operating mode and alarms.
-It computes STATUS (simple-message.md §5) from that state at the moment it is asked, so STATUS is
+It computes STATUS (docs/reference/protocol.md §5) from that state at the moment it is asked, so STATUS is
 never stale. The fault injector of the tests and of the ``robot-server`` command drives it:
 
 ========================  =========================================================================

@@ -1,6 +1,6 @@
 """The generic profile: what the ROS-Industrial generic nodes, ABB and the reference library speak.
 
-**Motion port** (simple-message.md §3, §4):
+**Motion port** (docs/reference/protocol.md §3, §4):
 
 * JOINT_TRAJ_PT and JOINT_TRAJ_PT_FULL (``robot_id`` picks the motion group) as SERVICE_REQUEST:
   streaming, stop-and-wait. Each point is answered once, in order, SUCCESS when it was queued and

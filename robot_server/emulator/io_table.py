@@ -1,6 +1,6 @@
 """An emulated Yaskawa IO table: the addresses and result codes of the MotoROS IO server.
 
-MotoROS (``IoServer.c``/``IoServer.h`` of ros-industrial/motoman, simple-message.md §8.1) reads and
+MotoROS (``IoServer.c``/``IoServer.h`` of ros-industrial/motoman, docs/reference/protocol.md §8.1) reads and
 writes the controller's IO through MotoPlus. Addresses are decimal with the bit number as the last
 digit, which must be 0-7 (so 10017 is bit 7 of byte 1001); a group (byte) address is the bit address
 divided by ten. M registers are M000-M999, given as 1000000 + n (or just n). Readable: the ranges

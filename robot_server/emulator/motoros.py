@@ -1,4 +1,4 @@
-"""The MotoROS profile: a Yaskawa controller running MotoROS 1.9 (simple-message.md §8.1).
+"""The MotoROS profile: a Yaskawa controller running MotoROS 1.9 (docs/reference/protocol.md §8.1).
 
 **Motion port** (50240). Every message that is not a SERVICE_REPLY is answered with
 MOTO_MOTION_REPLY (2002), header SUCCESS, the outcome in ``result``/``subcode`` (0 = success):

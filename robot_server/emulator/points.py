@@ -3,7 +3,7 @@
 The controller takes points in SI units and knows no sequence numbers (:mod:`..control.points`).
 This module reads JOINT_TRAJ_PT, the points of a JOINT_TRAJ and JOINT_TRAJ_PT_FULL into
 :class:`~..control.Point` values, and :func:`dispatch` says what a sequence number asks for
-(simple-message.md §4.1):
+(docs/reference/protocol.md §4.1):
 
 ========  ======================================================================================
   -4      STOP_TRAJECTORY: stop (decelerate to rest, drop the queue)

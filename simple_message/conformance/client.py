@@ -1,7 +1,7 @@
 """The client suite (``simple-message conformance client``): play a controller, judge the client.
 
 A PC-side client is only as good as what it does when the controller is *not* a happy path: the
-reference streamer blocks forever without a reply (simple-message.md §10 pitfall 5), ignores reply
+reference streamer blocks forever without a reply (docs/reference/protocol.md §10 pitfall 5), ignores reply
 codes (§3, industrial_core#118), may skip or repeat points across a reconnect (§7, PR #263), and a
 client that gives up on MotoROS's BUSY cannot drive MotoROS at all (§8.1: the FS100 trace has 48
 BUSY replies out of 58). So the suite does not just listen: it sits between the client and a real

@@ -112,64 +112,65 @@ def rule_findings(moto: bool) -> dict[str, Findings]:
         "client.byte-order": Findings(
             "client.byte-order",
             "every frame the client sends is in the controller's byte order",
-            "every peer is built for one byte order and cannot detect another (simple-message.md §1.3, "
+            "every peer is built for one byte order and cannot detect another (docs/reference/protocol.md §1.3, "
             "§10 pitfall 1: Fanuc and the FS100 big-endian, the rest little-endian)",
         ),
         "client.stop-and-wait": Findings(
             "client.stop-and-wait",
             "one point request (STOP included) awaits its reply at a time",
-            "industrial_robot_client JointTrajectoryStreamer: one request in flight (simple-message.md §4.2); "
+            "industrial_robot_client JointTrajectoryStreamer: one request in flight (docs/reference/protocol.md §4.2); "
             "replies carry no request id, and MotoROS and Fanuc keep a 1-point buffer (§8.1, §8.3)",
         ),
         "client.sequence": Findings(
             "client.sequence",
             "sequence numbers count 0, 1, 2... per trajectory; special values used as real peers do",
             "REP-I0006 (out-of-order points abort) and the reference streamer and downloader "
-            "(simple-message.md §4.1, §4.2, §4.4)"
+            "(docs/reference/protocol.md §4.1, §4.2, §4.4)"
             + ("; MotoROS refuses negative sequences with INVALID/3005 (§8.1)" if moto else ""),
         ),
         "client.point-fields": Findings(
             "client.point-fields",
             "point fields are finite and in range",
-            "JOINT_TRAJ_PT: a velocity ratio in [0, 1] and a segment duration (simple-message.md §4.3); "
+            "JOINT_TRAJ_PT: a velocity ratio in [0, 1] and a segment duration (docs/reference/protocol.md §4.3); "
             "JOINT_TRAJ_PT_FULL: MotoROS requires valid_fields 0x07 and time < 14400 s (§8.1, motoman#244)",
         ),
         "client.first-point": Findings(
             "client.first-point",
             "each trajectory starts where the robot is",
-            "MotoROS refuses a start more than 30 pulses away (INVALID/3011, simple-message.md §8.1, §10 pitfall "
-            "10); motoman_driver and the reference action start from the current joint state",
+            "MotoROS refuses a start more than 30 pulses away (INVALID/3011, docs/reference/protocol.md §8.1, "
+            "§10 pitfall 10); motoman_driver and the reference action start from the current joint state",
         ),
         "client.stop": Findings(
             "client.stop",
             "a STOP is well formed, answered before the next point, and followed by a new trajectory",
             (
-                "motoman_driver: stop is MOTO_MOTION_CTRL STOP_MOTION as a request (simple-message.md §8.1)"
+                "motoman_driver: stop is MOTO_MOTION_CTRL STOP_MOTION as a request (docs/reference/protocol.md §8.1)"
                 if moto
                 else "JointTrajectoryInterface::trajectoryStop: JOINT_TRAJ_PT sequence -4 as a SERVICE_REQUEST, "
-                "acknowledged (simple-message.md §4.2, §11 item 8; ros-industrial/abb#42)"
+                "acknowledged (docs/reference/protocol.md §4.2, §11 item 8; ros-industrial/abb#42)"
             ),
         ),
         "client.busy-reaction": Findings(
             "client.busy-reaction",
             "after MotoROS's BUSY, the same point is sent again",
-            "motoman_driver retries a point answered BUSY (simple-message.md §8.1; the FS100 trace: 48 BUSY "
+            "motoman_driver retries a point answered BUSY (docs/reference/protocol.md §8.1; the FS100 trace: 48 BUSY "
             "replies out of 58)",
         ),
         "client.failure-reaction": Findings(
             "client.failure-reaction",
             "after a refused point, no later point of that trajectory",
             (
-                "motoman_driver aborts on any result but SUCCESS and BUSY (simple-message.md §8.1)"
+                "motoman_driver aborts on any result but SUCCESS and BUSY (docs/reference/protocol.md §8.1)"
                 if moto
                 else "a refused point is not queued (REP-I0006: reply_code says whether it was enqueued); "
-                "the reference streamer ignores reply codes (industrial_core#118, simple-message.md §10 pitfall 6)"
+                "the reference streamer ignores reply codes (industrial_core#118, "
+                "docs/reference/protocol.md §10 pitfall 6)"
             ),
         ),
         "client.reconnect": Findings(
             "client.reconnect",
             "after a reconnect, nothing of the interrupted trajectory is sent again",
             "industrial_core PR #263: after a reconnect, streamed points may be skipped or repeated "
-            "(simple-message.md §7, §10 pitfall 11, §12 test 7)",
+            "(docs/reference/protocol.md §7, §10 pitfall 11, §12 test 7)",
         ),
     }

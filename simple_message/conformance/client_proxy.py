@@ -135,7 +135,7 @@ class ProxyLink:
 
     def _answered(self, frame: bytes, msg: Message | MalformedMessage) -> bool:
         """Whether the controller owes a reply: a SERVICE_REQUEST, or for MotoROS anything but a reply and
-        the types that close its motion connection (simple-message.md §3, §8.1)."""
+        the types that close its motion connection (docs/reference/protocol.md §3, §8.1)."""
         _, msg_type, comm, _ = self.suite.wire.header.unpack_from(frame, 0)
         if not self.suite.profile.dialect.motion_control:
             return bool(comm == CommType.SERVICE_REQUEST)

@@ -5,7 +5,7 @@ feeds it as the bytes pass (each connection opened and closed, every frame the c
 reply once it reached the client, each injection, the robot's joint state) and asks it for the
 verdicts at the end; the observer touches no socket and never waits (it runs, synchronous, on the
 proxy's event loop). A client is judged by what the controllers it will meet do with its frames,
-not by what the protocol would allow (the sections cited are simple-message.md's):
+not by what the protocol would allow (the sections cited are docs/reference/protocol.md's):
 
 * ``client.byte-order``: every frame in the controller's byte order. Every peer is built for one
   byte order and cannot detect another (§1.3, §10 pitfall 1: Fanuc and the FS100 big-endian, the

@@ -3,7 +3,7 @@
 The project's own framing (:class:`~simple_message.framing.FrameDecoder`) is made to *speak* the
 protocol: a bad length prefix ends the stream with an error. A conformance suite must instead
 *describe* what a peer sent. So a frame whose length prefix is a plausible length only in the other
-byte order is cut in that order and handed on as such (simple-message.md §10 pitfall 1, the
+byte order is cut in that order and handed on as such (docs/reference/protocol.md §10 pitfall 1, the
 dissector's heuristic): every length a frame can have (12..0xFFFF) reads as at least 0x10000 the
 other way round, so the byte order of a plausible prefix is never in doubt. A prefix plausible in
 neither order ends the cutting: the rest of the stream is handed on as it is, uncut.

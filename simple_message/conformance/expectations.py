@@ -2,7 +2,7 @@
 
 What a profile's real servers do differently where the protocol leaves it open (which port answers
 a PING, how an unknown type is answered, which topics the state port sends at what rate) is in
-:data:`EXPECTATIONS`, from the project's protocol notes (simple-message.md §3, §5, §8).
+:data:`EXPECTATIONS`, from the project's protocol notes (docs/reference/protocol.md §3, §5, §8).
 :data:`SERVER_RULES` lists every rule of the suite, in report order, with what it checks and the
 real peer behaviour it comes from; the rules and their sources are listed in docs/conformance.md
 too. The groups the suite runs (or skips) together are named here as well: the requests that cannot
@@ -59,7 +59,7 @@ class Expectations:
 
 EXPECTATIONS: dict[str, Expectations] = {
     "generic": Expectations(
-        GENERIC, True, True, MsgType.JOINT_POSITION, {}, "the reference C++ library (simple-message.md §3, §6)"
+        GENERIC, True, True, MsgType.JOINT_POSITION, {}, "the reference C++ library (docs/reference/protocol.md §3, §6)"
     ),
     "abb": Expectations(
         ABB,
@@ -67,7 +67,7 @@ EXPECTATIONS: dict[str, Expectations] = {
         False,
         MsgType.JOINT_POSITION,
         {MsgType.JOINT_POSITION: 10.0, MsgType.STATUS: 10.0},
-        "abb_driver's RAPID servers (simple-message.md §8.2)",
+        "abb_driver's RAPID servers (docs/reference/protocol.md §8.2)",
         no_malformed="RAPID's motion server stops on a message it cannot read, unanswered, until its program is "
         "restarted (ROS_messages.sys:111-124, ROS_motionServer.mod:51): not sent",
         one_client=True,
@@ -78,7 +78,7 @@ EXPECTATIONS: dict[str, Expectations] = {
         False,
         MsgType.JOINT_POSITION,
         {MsgType.JOINT_POSITION: 1000.0 / 24.0, MsgType.STATUS: 1000.0 / 24.0 / 11.0},
-        "fanuc_driver's KAREL servers (simple-message.md §8.3)",
+        "fanuc_driver's KAREL servers (docs/reference/protocol.md §8.3)",
         stop_stops_nothing="Fanuc's relay answers STOP SUCCESS, but its CANCEL stops nothing: the TP program runs "
         "the points it has taken (ros_relay.kl:309-318, ros-industrial/fanuc#93)",
         acks_before_checking=True,
@@ -99,7 +99,7 @@ EXPECTATIONS: dict[str, Expectations] = {
         True,
         MsgType.JOINT_FEEDBACK,
         {MsgType.JOINT_FEEDBACK: 40.0, MsgType.STATUS: 40.0},
-        "MotoROS (simple-message.md §8.1)",
+        "MotoROS (docs/reference/protocol.md §8.1)",
     ),
 }
 

@@ -6,7 +6,7 @@ it closes a link on a bad length and hides a frame in the wrong byte order behin
 conformance probe must instead *describe* what the peer did, so a link cuts what it reads with the
 suites' tolerant :class:`~.cutter.FrameCutter`: a frame whose length prefix reads as a plausible
 length only in the other byte order is kept, marked ``swapped`` and decoded in that order
-(simple-message.md §10 pitfall 1, the dissector's heuristic); a prefix plausible in neither order
+(docs/reference/protocol.md §10 pitfall 1, the dissector's heuristic); a prefix plausible in neither order
 ends the link with the bytes shown. What is wrong with a frame or with how a link ended is a
 :class:`Fault`, beside the text shown. Nothing here judges: the server suite's rules do
 (:mod:`.server`, :mod:`.server_checks`, :mod:`.server_probes`, :mod:`.server_motion`).

@@ -1,6 +1,6 @@
 """The malformed frames a server must survive: those the reference C++ library rejects.
 
-The list follows the reference peer's own rules (simple-message.md §1.2 ``validateMessage``, §1.5
+The list follows the reference peer's own rules (docs/reference/protocol.md §1.2 ``validateMessage``, §1.5
 parse and size quirks): what the C++ library drops (a header it does not validate, a body shorter
 than the type needs), what makes it drop the connection (a length ≤ 0), what it cannot take (a
 length beyond its 1024-byte buffer), plus what a byte stream can always bring: a frame cut short,

@@ -13,7 +13,7 @@ what each group of them needs first. The rest is composed from:
 
 * :mod:`.expectations`: the catalogue. What a profile's real servers do differently (which port
   answers a PING, how an unknown type is answered, which topics the state port sends at what rate),
-  :data:`EXPECTATIONS`, from the project's protocol notes (simple-message.md §3, §5, §8), and every
+  :data:`EXPECTATIONS`, from the project's protocol notes (docs/reference/protocol.md §3, §5, §8), and every
   rule with its source, :data:`SERVER_RULES` (the rules and their sources are listed in
   docs/conformance.md), in the groups the run takes them in;
 * :mod:`.server_runner`: the rule runner (each rule judged once, SKIPs and aborts, the report in

@@ -1,7 +1,7 @@
 """Servers and reconnecting clients over TCP and serial links.
 
 :class:`Server` (:mod:`.server`) is what every emulated controller port is built on: per connection
-it reads in arrival order and answers every SERVICE_REQUEST exactly once, in order (simple-message.md
+it reads in arrival order and answers every SERVICE_REQUEST exactly once, in order (docs/reference/protocol.md
 §11 item 4), whatever the handler does; :mod:`.server` states its rules. Its handlers work with the
 connection's :class:`Session` and return what :mod:`.sessions` describes. :class:`Client`
 (:mod:`.client`) keeps one connection to a server and reconnects when it is lost. :func:`run` runs a

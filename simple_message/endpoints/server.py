@@ -1,7 +1,7 @@
 """The simple_message server: handlers per message type, over any number of links.
 
 :class:`Server` is what every emulated controller port is built on. Per connection it reads in
-arrival order and answers every SERVICE_REQUEST exactly once, in order (simple-message.md §11 item
+arrival order and answers every SERVICE_REQUEST exactly once, in order (docs/reference/protocol.md §11 item
 4), whatever the handler does:
 
 * handlers are registered per message type: ``server.handle(MsgType.JOINT_TRAJ_PT, fn)``. A handler

@@ -1,7 +1,7 @@
 """Typed, immutable simple_message messages and their exact wire encoding.
 
 Each message type is a frozen dataclass whose fields are its body fields in wire order (names as in
-simple-message.md §2.2 and §8.1, in snake_case), followed by the keyword-only header fields
+docs/reference/protocol.md §2.2 and §8.1, in snake_case), followed by the keyword-only header fields
 ``comm_type`` and ``reply_code``. The class knows its ``MSG_TYPE``; the length prefix is computed.
 Besides the standard and MotoROS messages there are the project's own two extension messages,
 CARTESIAN_LINE (65001) and TOOL_POSE (65002), in the range REP-I0004 leaves freely assignable
@@ -43,7 +43,7 @@ numpy array) and pad it with zeros.
 This module is the catalogue: every name is imported from here, and the package's modules hold the
 parts, by family. The machinery every type shares is :mod:`.base` (the :class:`Message` class, the
 shapes, :func:`encode` and :func:`decode`), :mod:`.codec` (the precompiled structs of the fixed
-layouts) and :mod:`.registry`; the messages themselves are :mod:`.standard` (simple-message.md
+layouts) and :mod:`.registry`; the messages themselves are :mod:`.standard` (docs/reference/protocol.md
 §2.2), :mod:`.motoros` (§8.1) and :mod:`.extensions` (the project's own).
 """
 

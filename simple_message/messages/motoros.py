@@ -1,4 +1,4 @@
-"""Yaskawa MotoROS's messages (simple-message.md §8.1): 2001 to 2020.
+"""Yaskawa MotoROS's messages (docs/reference/protocol.md §8.1): 2001 to 2020.
 
 Motion control and its reply (MOTO_MOTION_CTRL, MOTO_MOTION_REPLY), the IO and M-register reads and
 writes, the multi-group points and feedback (JOINT_TRAJ_PT_FULL_EX, JOINT_FEEDBACK_EX, each group an

@@ -1,4 +1,4 @@
-"""The standard ROS-Industrial messages (simple-message.md §2.2): PING to JOINT_FEEDBACK.
+"""The standard ROS-Industrial messages (docs/reference/protocol.md §2.2): PING to JOINT_FEEDBACK.
 
 PING, GET_VERSION, JOINT_POSITION, JOINT_TRAJ_PT, JOINT_TRAJ (and its :class:`TrajPoint`), STATUS,
 JOINT_TRAJ_PT_FULL and JOINT_FEEDBACK, in the layouts of the C++ library, which every peer follows.
