@@ -30,7 +30,7 @@ from ..wire import ByteOrder, WireFormat
 from .cutter import MAX_FRAME, FrameCutter, other_order, prefix_order, read_length
 from .report import Evidence
 
-__all__ = ["Seen", "Link", "Fault", "MAX_FRAME", "other_order", "prefix_order"]
+__all__ = ["Seen", "ProbeLink", "Fault", "MAX_FRAME", "other_order", "prefix_order"]
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +45,7 @@ _SHOWN_AFTER_BAD_PREFIX = 60
 
 class Fault(enum.Enum):
     """What is wrong with what the server sent, as the framing rules tell it apart (a frame's
-    :attr:`Seen.fault`, a link's :attr:`Link.fault`); the text shown is beside it."""
+    :attr:`Seen.fault`, a link's :attr:`ProbeLink.fault`); the text shown is beside it."""
 
     #: a length prefix that is no length in either byte order: the link could not be cut further
     PREFIX = "prefix"
@@ -82,7 +82,7 @@ class Seen:
         return ev
 
 
-class Link:
+class ProbeLink:
     """One TCP connection to a port of the server under test.
 
     Frames are read by a background task into :attr:`frames`; :meth:`next_frame` waits for the
@@ -109,7 +109,7 @@ class Link:
         self._read = 0  # frames handed out by next_frame
         self._bytes = 0  # in self.frames
 
-    async def open(self, host: str, port: int, timeout: float) -> Link:
+    async def open(self, host: str, port: int, timeout: float) -> ProbeLink:
         self._reader, self._writer = await asyncio.wait_for(asyncio.open_connection(host, port), timeout)
         self._task = asyncio.get_running_loop().create_task(self._run(), name=f"conformance {self.role} reader")
         return self

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 from ..messages import message_class
 from .expectations import EXPECTATIONS, MOTION_RULES, REQUEST_RULES, SERVER_RULES, STATE_RULES, Expectations
-from .links import Link
+from .links import ProbeLink
 from .report import Report
 from .server_checks import (
     framing_body,
@@ -153,7 +153,7 @@ class ServerSuite:
         self.motion_started: float | None = None  # when the first motion was sent (state rules stop there)
 
     @property
-    def links(self) -> list[Link]:
+    def links(self) -> list[ProbeLink]:
         """The links whose frames the framing rules judge."""
         return self.session.links
 

@@ -41,7 +41,7 @@ from ..messages import (
 )
 from ..wire import WireFormat
 from .expectations import Expectations
-from .links import Fault, Link, Seen
+from .links import Fault, ProbeLink, Seen
 from .report import Evidence, Verdict
 
 if TYPE_CHECKING:
@@ -103,7 +103,7 @@ async def state_rate(
     options: ServerSuiteOptions,
     expect: Expectations,
     *,
-    state: Link | None,
+    state: ProbeLink | None,
     motion_started: float | None,
     real: int,
 ) -> _Verdict:
@@ -304,7 +304,7 @@ async def framing_float_size(frames: list[Seen], options: ServerSuiteOptions, de
     return _Verdict(Verdict.PASS, f"float{size * 8} ({len(sized)} frames with reals)", [])
 
 
-async def framing_length(frames: list[Seen], links: list[Link], real: int) -> _Verdict:
+async def framing_length(frames: list[Seen], links: list[ProbeLink], real: int) -> _Verdict:
     if not frames:
         raise _Skip("no frame was received")
     bad = [f for f in frames if f.fault is Fault.PREFIX]

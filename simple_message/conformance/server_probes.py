@@ -19,7 +19,7 @@ from __future__ import annotations
 from ..constants import CommType, InvalidSubcode, MotoCommand, MotoResult, MsgType, ReplyCode
 from ..dialects import ReplyStyle
 from ..messages import Message, MotoMotionCtrl, MotoMotionReply, Ping, RawMessage
-from .links import Link, Seen
+from .links import ProbeLink, Seen
 from .malformed import malformed_cases
 from .report import Evidence, Verdict
 from .server_checks import _Skip, _Verdict
@@ -177,7 +177,7 @@ class Probes:
             witness_before = len(self.session.state.frames) if self.session.state else 0
             # the state port is the witness only while it is sending (its silence is state.rate's)
             witnessing = self.robot.fresh()
-            link = Link("malformed", self.session.wire)
+            link = ProbeLink("malformed", self.session.wire)
             try:
                 await link.open(o.host, port, o.reply_timeout)
             except (OSError, TimeoutError) as exc:
@@ -194,7 +194,7 @@ class Probes:
             # another connection stays served: the state port kept sending, and a new motion
             # connection is answered
             witness_ok = not witnessing or await self.robot.witness(witness_before)
-            probe = Link("motion", self.session.wire)
+            probe = ProbeLink("motion", self.session.wire)
             alive = False
             try:
                 await probe.open(o.host, port, o.reply_timeout)

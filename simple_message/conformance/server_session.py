@@ -24,7 +24,7 @@ from ..constants import MotoCommand, SpecialSeq, TriState
 from ..messages import JointTrajPt, Message, MotoMotionCtrl, Ping, Status
 from ..wire import ByteOrder, WireFormat
 from .expectations import EXPECTATIONS
-from .links import Link, Seen
+from .links import ProbeLink, Seen
 from .report import Verdict
 from .server_checks import STILL, _joints_of, _real_size, _Verdict
 
@@ -43,7 +43,7 @@ class RobotView:
     """What the state link says of the robot (nothing while there is no state link)."""
 
     def __init__(self) -> None:
-        self.link: Link | None = None
+        self.link: ProbeLink | None = None
         #: a STATUS said in_motion TRUE (reset before each move)
         self.saw_in_motion = False
         self._event = asyncio.Event()
@@ -133,9 +133,9 @@ class Session:
         #: the server was found speaking (None: it sent nothing to tell)
         self.wire: WireFormat | None = None
         self.detected: WireFormat | None = None
-        self.state: Link | None = None
-        self.motion: Link | None = None
-        self.links: list[Link] = []  # links whose frames the framing rules judge
+        self.state: ProbeLink | None = None
+        self.motion: ProbeLink | None = None
+        self.links: list[ProbeLink] = []  # links whose frames the framing rules judge
         self.robot = RobotView()
 
     @property
@@ -146,7 +146,7 @@ class Session:
     async def connect(self, role: str, port: int) -> _Verdict:
         """Open the ``role`` link (the verdict of its ``connect.*`` rule)."""
         o = self.options
-        link = Link(role, None, self.robot.on_frame if role == "state" else None)
+        link = ProbeLink(role, None, self.robot.on_frame if role == "state" else None)
         try:
             await link.open(o.host, port, o.reply_timeout)
         except (OSError, TimeoutError) as exc:
@@ -196,7 +196,7 @@ class Session:
         return JointTrajPt(SpecialSeq.STOP_TRAJECTORY)
 
     async def exchange(
-        self, link: Link, message: Message, timeout: float | None = None, *, keep: bool = False
+        self, link: ProbeLink, message: Message, timeout: float | None = None, *, keep: bool = False
     ) -> tuple[Seen, Seen | None]:
         """Send ``message`` and take the next frame as its reply, within ``timeout`` (default the
         reply timeout). Frames received before it are forgotten first, unless ``keep``: an extra
@@ -220,7 +220,7 @@ class Session:
         if self.motion is None or self.wire is None:
             return
         if not self.expect.one_client:  # the new link first: a server that takes over keeps serving
-            link = Link("motion", self.wire)
+            link = ProbeLink("motion", self.wire)
             try:
                 await link.open(self.options.host, self.options.ports["motion"], self.options.reply_timeout)
             except (OSError, TimeoutError):
@@ -231,7 +231,7 @@ class Session:
             return
         await self.motion.close()
         for _ in range(_REOPENS):
-            link = Link("motion", self.wire)
+            link = ProbeLink("motion", self.wire)
             try:
                 await link.open(self.options.host, self.options.ports["motion"], self.options.reply_timeout)
             except (OSError, TimeoutError):
