@@ -62,7 +62,7 @@ from ..messages import Message
 from ..transport import StreamPair, set_nodelay, take_over, unread_by_peers
 from ..wire import DEFAULT_FORMAT, WireFormat
 from .inbound import Inbound, hung_up
-from .outbound import Outbound, frames_log
+from .outbound import Outbound
 from .requests import Requests, expire
 from .subscriptions import Subscribers, Subscription
 from .taps import Tap, TapLink, TapPoint, TapTee, socket_addresses
@@ -70,6 +70,8 @@ from .taps import Tap, TapLink, TapPoint, TapTee, socket_addresses
 __all__ = ["Connection", "ConnectionState", "Subscription", "MessageHandler", "Tap", "TapLink", "TapTee"]
 
 log = logging.getLogger(__name__)
+#: every frame as hex at DEBUG (sent ones are logged by :mod:`.outbound`)
+frames_log = logging.getLogger(__name__ + ".frames")
 
 #: Called by the reader for every message that is not a SERVICE_REPLY, in arrival order (a body
 #: that does not decode: the MalformedMessage). It may return an awaitable, which the reader

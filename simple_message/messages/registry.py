@@ -22,8 +22,15 @@ from typing import Any, TypeAlias
 
 from ..constants import CommType, MsgType
 from ..errors import SimpleMessageError
-from .base import _NAMES, DummyReply, HeaderOnly, Message, RawMessage
-from .codec import _CLASS_CONVERTERS, MESSAGE_CLASSES, _clear_fast, _refresh_codecs
+from . import base as base_module
+from . import codec as codec_module
+from .base import DummyReply, HeaderOnly, Message, RawMessage
+from .codec import _clear_fast, _refresh_codecs
+
+# The tables whose methods are called here, bound by assignment for the reason base.py gives.
+MESSAGE_CLASSES = codec_module.MESSAGE_CLASSES
+_CLASS_CONVERTERS = codec_module._CLASS_CONVERTERS
+_NAMES = base_module._NAMES
 
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
 
