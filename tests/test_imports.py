@@ -142,3 +142,13 @@ def test_the_lazy_table_agrees_with_the_typed_imports_and_all(package: object) -
     declared = _declared(package)
     assert declared == package._EXPORTS.origin  # type: ignore[attr-defined]
     assert sorted(declared) == sorted(package.__all__)  # type: ignore[attr-defined]
+
+
+def test_the_paths_that_moved_still_import() -> None:
+    """Issue 37 moved the capture writer into the capture package and renamed the server suite's
+    link: the old import paths give the same objects."""
+    from simple_message.capture import CaptureWriter
+    from simple_message.capture_writer import CaptureWriter as OldWriter
+    from simple_message.conformance.links import Link, ProbeLink
+
+    assert OldWriter is CaptureWriter and Link is ProbeLink

@@ -37,7 +37,7 @@ T = 10.0  # every wait in these tests is bounded by this many seconds
 
 
 @dataclass
-class Link:
+class Served:
     """A running server and a way to open raw client streams to it."""
 
     kind: str
@@ -59,16 +59,16 @@ def echo_server(**kwargs: object) -> Server:
 
 
 @contextlib.asynccontextmanager
-async def tcp_link(server: Server) -> AsyncIterator[Link]:
+async def tcp_link(server: Server) -> AsyncIterator[Served]:
     port = await server.serve_tcp("127.0.0.1", 0)
     try:
-        yield Link("tcp", server, lambda: open_tcp("127.0.0.1", port))
+        yield Served("tcp", server, lambda: open_tcp("127.0.0.1", port))
     finally:
         await server.close()
 
 
 @contextlib.asynccontextmanager
-async def pty_link(server: Server) -> AsyncIterator[Link]:
+async def pty_link(server: Server) -> AsyncIterator[Served]:
     """The server on the pty master, the client through pyserial on the slave device."""
     master, slave = os.openpty()
     path = os.ttyname(slave)
@@ -85,7 +85,7 @@ async def pty_link(server: Server) -> AsyncIterator[Link]:
         return streams
 
     try:
-        yield Link("pty", server, opener)
+        yield Served("pty", server, opener)
     finally:
         await server.close()
         if not opened:

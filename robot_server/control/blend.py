@@ -267,7 +267,7 @@ def _jerk_limited(
     there keeps the quintic's jerk within ``jerk`` (sampled at seven instants; the segment is
     checked exactly afterwards), into those values. Where none does (a start from rest that the
     plan wants faster than the jerk allows), the estimate stands: the segment is then replaced
-    by a jerk-limited one (motion.py) and should end in the state the data implies.
+    by a jerk-limited one (building.stretched) and should end in the state the data implies.
 
     The jerk never moves the acceleration beyond ``acceleration`` (nor beyond the estimate, when
     that is beyond it already): the jerk limit is met locally (a jerk-limited segment where the

@@ -1,10 +1,11 @@
 """The motion queue's data: queued points (knots), the segments ending at them (entries), the
 trajectory's book-keeping and the immutable snapshot of it all (:class:`Plan`).
 
-Everything here is a frozen value: the planning functions (:mod:`.building`, :mod:`.checks`,
-:mod:`.scaling`, :mod:`.braking`, :mod:`.planning`) take a snapshot and a point and return a new
-snapshot; :class:`.motion.MotionQueue` keeps the current one and samples it. :class:`Context` is what
-they need besides: the queue's fixed settings and the controller's clock and setpoint now.
+Everything here is a frozen value (compared by identity: they hold arrays, which the planning
+never writes into): the planning functions (:mod:`.building`, :mod:`.checks`, :mod:`.scaling`,
+:mod:`.braking`, :mod:`.planning`) take a snapshot and a point and return a new snapshot;
+:class:`.motion.MotionQueue` keeps the current one and samples it. :class:`Context` is what they
+need besides: the queue's fixed settings and the controller's clock and setpoint now.
 """
 
 from __future__ import annotations
@@ -52,7 +53,7 @@ class Phase(Flag):
     DRY = 4
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, eq=False)
 class Knot:
     """A queued point."""
 
@@ -72,7 +73,7 @@ class Knot:
     linear: bool = False
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, eq=False)
 class Entry:
     """A segment of the queue, ending at ``knot`` (None: a stop)."""
 
@@ -123,7 +124,7 @@ class Entry:
         return replace(self, phase=self.phase | phase if on else self.phase & ~phase, **changes)  # type: ignore[arg-type]
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, eq=False)
 class TrajectoryBook:
     """Book-keeping of the trajectory that points are added to."""
 
@@ -145,7 +146,7 @@ class TrajectoryBook:
     opened: float = 0.0
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, eq=False)
 class Plan:
     """The queue after accepting one point (:meth:`.MotionQueue.plan`), applied by :meth:`.MotionQueue.commit`."""
 

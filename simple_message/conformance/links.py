@@ -258,3 +258,7 @@ async def _read_some(reader: asyncio.StreamReader, n: int) -> bytes:
     with contextlib.suppress(Exception):
         return await asyncio.wait_for(reader.read(n), 0.05)
     return b""
+
+
+#: the name this link had before the suites named their links for what they are (issue 37)
+Link = ProbeLink
