@@ -270,19 +270,17 @@ def empty() -> Plan:
 def test_a_first_point_away_from_the_robot_is_refused_and_the_snapshot_untouched() -> None:
     snapshot = empty()
     with pytest.raises(PointRejected) as info:
-        planning.plan(
-            context(), snapshot, Point(np.array([0.5, 0.0])), first=True, bounded=True, defer=False, stopped_dry=None
-        )
+        planning.plan(context(), snapshot, Point(np.array([0.5, 0.0])), first=True, bounded=True, defer=False)
     assert info.value.reason is Reason.START_MISMATCH and info.value.joint == 0
     assert snapshot.trajectory.number == 0 and not snapshot.pending and snapshot.running is None
 
 
 def test_planning_a_point_returns_a_new_snapshot_and_changes_nothing() -> None:
     ctx = context()
-    start = planning.plan(ctx, empty(), Point(ZERO), first=True, bounded=True, defer=False, stopped_dry=None)
+    start = planning.plan(ctx, empty(), Point(ZERO), first=True, bounded=True, defer=False)
     assert start.trajectory.number == 1 and start.trajectory.open and not start.pending
     second = planning.plan(
-        ctx, start, Point(np.array([0.2, 0.0]), duration=0.5), first=False, bounded=True, defer=False, stopped_dry=None
+        ctx, start, Point(np.array([0.2, 0.0]), duration=0.5), first=False, bounded=True, defer=False
     )
     assert planning.fill(second) == 1 and planning.fill(start) == 0
     assert second.pending[0].transient  # the first segment of a trajectory from rest
@@ -292,25 +290,23 @@ def test_planning_a_point_returns_a_new_snapshot_and_changes_nothing() -> None:
 
 def test_a_full_queue_refuses_a_point_when_bounded() -> None:
     ctx = context(settings(capacity=1))
-    start = planning.plan(ctx, empty(), Point(ZERO), first=True, bounded=True, defer=False, stopped_dry=None)
-    one = planning.plan(
-        ctx, start, Point(np.array([0.1, 0.0]), duration=0.5), first=False, bounded=True, defer=False, stopped_dry=None
-    )
+    start = planning.plan(ctx, empty(), Point(ZERO), first=True, bounded=True, defer=False)
+    one = planning.plan(ctx, start, Point(np.array([0.1, 0.0]), duration=0.5), first=False, bounded=True, defer=False)
     later = Point(np.array([0.2, 0.0]), duration=0.5)
     with pytest.raises(PointRejected) as info:
-        planning.plan(ctx, one, later, first=False, bounded=True, defer=False, stopped_dry=None)
+        planning.plan(ctx, one, later, first=False, bounded=True, defer=False)
     assert info.value.reason is Reason.QUEUE_FULL
-    assert planning.fill(planning.plan(ctx, one, later, first=False, bounded=False, defer=False, stopped_dry=None)) == 2
+    assert planning.fill(planning.plan(ctx, one, later, first=False, bounded=False, defer=False)) == 2
 
 
 def test_a_deferred_plan_says_how_much_slower_instead_of_slowing_down() -> None:
     ctx = context()
-    start = planning.plan(ctx, empty(), Point(ZERO), first=True, bounded=True, defer=False, stopped_dry=None)
+    start = planning.plan(ctx, empty(), Point(ZERO), first=True, bounded=True, defer=False)
     # a given state accelerating at 8 rad/s² for a 2 rad/s² limit: the trajectory must take twice the time
     fast = Point(np.array([0.5, 0.0]), velocities=np.array([0.5, 0.0]), accelerations=np.array([8.0, 0.0]), time=1.0)
-    deferred = planning.plan(ctx, start, fast, first=False, bounded=True, defer=True, stopped_dry=None)
+    deferred = planning.plan(ctx, start, fast, first=False, bounded=True, defer=True)
     assert deferred.needed == pytest.approx(2.0) and deferred.scale == 1.0 and not deferred.messages
-    slowed = planning.plan(ctx, start, fast, first=False, bounded=True, defer=False, stopped_dry=None)
+    slowed = planning.plan(ctx, start, fast, first=False, bounded=True, defer=False)
     assert slowed.needed == 1.0 and slowed.scale >= 2.0
     assert any(level == logging.WARNING for level, _ in slowed.messages)
 
@@ -318,10 +314,8 @@ def test_a_deferred_plan_says_how_much_slower_instead_of_slowing_down() -> None:
 def test_a_point_after_the_robot_stopped_dry_is_a_transient_and_warned() -> None:
     ctx = context()
     book = TrajectoryBook(number=1, open=True, points=2, last_position=np.array([0.1, 0.0]))
-    base = Plan(None, 0.0, (), book)
-    after = planning.plan(
-        ctx, base, Point(np.array([0.2, 0.0]), duration=0.5), first=False, bounded=True, defer=False, stopped_dry=(1, 1)
-    )
+    base = Plan(None, 0.0, (), book, stopped_dry=(1, 1))
+    after = planning.plan(ctx, base, Point(np.array([0.2, 0.0]), duration=0.5), first=False, bounded=True, defer=False)
     assert after.pending[-1].transient and after.trajectory.warned_dry
     assert any("came after the robot stopped" in text for _, text in after.messages)
 
@@ -349,32 +343,25 @@ def test_motoros_runs_a_given_cubic_beyond_the_acceleration_limit_and_says_so() 
         first=False,
         min_scale=1.0,
         bounded=True,
-        stopped_dry=None,
     )
     assert generic.scale > 1.0 and any("too fast" in text for _, text in generic.messages)
-    planned = planning.plan_scaled(
-        context(follow), base, sharp, first=False, min_scale=1.0, bounded=True, stopped_dry=None
-    )
+    planned = planning.plan_scaled(context(follow), base, sharp, first=False, min_scale=1.0, bounded=True)
     assert planned.scale == 1.0 and checks.acceleration_ratio(follow, planned.pending[-1]) == (pytest.approx(2.0), 0)
     assert [level for level, _ in planned.messages] == [logging.WARNING]
     assert "the segment to point 2 accelerates joint 1 at 2 x its limit: run as given" in planned.messages[0][1]
     assert planned.trajectory.reported_acceleration == pytest.approx(2.0)
     # a later segment asking less says nothing; one asking 10 % more says so at INFO
     gentle = Point(np.array([0.0, 0.0]), velocities=np.array([-0.5, 0.0]), time=1.45)
-    again = planning.plan_scaled(
-        context(follow), planned, gentle, first=False, min_scale=1.0, bounded=True, stopped_dry=None
-    )
+    again = planning.plan_scaled(context(follow), planned, gentle, first=False, min_scale=1.0, bounded=True)
     assert not again.messages
     sharper = Point(np.array([0.0, 0.0]), velocities=np.array([0.5, 0.0]), time=1.65)
-    more = planning.plan_scaled(
-        context(follow), again, sharper, first=False, min_scale=1.0, bounded=True, stopped_dry=None
-    )
+    more = planning.plan_scaled(context(follow), again, sharper, first=False, min_scale=1.0, bounded=True)
     assert [level for level, _ in more.messages] == [logging.INFO] and "the most so far" in more.messages[0][1]
     # a segment beyond the velocity limit between its points is slowed down even when followed: 1.5 rad
     # in 1 s between two points at 0.5 rad/s peaks at about 2 rad/s for 1; slowed down for its speed,
     # its acceleration is within the limit too, and nothing is said of it
     fast = Point(np.array([1.6, 0.0]), velocities=np.array([0.5, 0.0]), time=2.0)
-    far = planning.plan_scaled(context(follow), base, fast, first=False, min_scale=1.0, bounded=True, stopped_dry=None)
+    far = planning.plan_scaled(context(follow), base, fast, first=False, min_scale=1.0, bounded=True)
     assert far.scale > 1.5 and checks.speed_excess(follow, far.pending[-1]) <= 1.0
     assert [text for _, text in far.messages if "run as given" in text] == []
     assert any("too fast" in text for _, text in far.messages)

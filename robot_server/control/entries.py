@@ -159,6 +159,9 @@ class Plan:
     at: float = 0.0
     #: by how much the trajectory must still slow down (plans made with the slowing down deferred)
     needed: float = 1.0
+    #: (trajectory, point) where the robot came to rest for want of the next point (the queue's
+    #: record, in the snapshot it plans from)
+    stopped_dry: tuple[int, int] | None = None
 
     @property
     def scale(self) -> float:

@@ -180,7 +180,9 @@ class MotionQueue:
         return planning.planned_end(self._snapshot(), self._state)
 
     def _snapshot(self) -> Plan:
-        return Plan(self._running, self._started, self._pending, self._trajectory, at=self._t)
+        return Plan(
+            self._running, self._started, self._pending, self._trajectory, at=self._t, stopped_dry=self._stopped_dry
+        )
 
     def _context(self) -> Context:
         return Context(self.settings, self._t, self._state)
@@ -200,7 +202,6 @@ class MotionQueue:
                 first=first,
                 min_scale=min_scale,
                 bounded=bounded,
-                stopped_dry=self._stopped_dry,
             )
 
     def commit(self, plan: Plan) -> None:
@@ -244,7 +245,6 @@ class MotionQueue:
                 first=i == 0,
                 bounded=False,
                 defer=True,
-                stopped_dry=self._stopped_dry,
             )
             self.commit(plan)
             needed = max(needed, plan.needed)

@@ -65,21 +65,26 @@ def plan(
     first: bool,
     bounded: bool,
     defer: bool,
-    stopped_dry: tuple[int, int] | None,
 ) -> Plan:
     """The queue ``snapshot`` with ``point`` added (``first``: it starts a trajectory; ``bounded``:
     refuse it when the queue is full; ``defer``: leave the slowing down to the caller, saying in
-    :attr:`.Plan.needed` how much it takes). ``stopped_dry``: (trajectory, point) where the robot
-    came to rest for want of the next point. Raises :class:`PointRejected`."""
+    :attr:`.Plan.needed` how much it takes). Raises :class:`PointRejected`."""
     settings = context.settings
     positions = check_point(point, settings.limits, settings.max_duration)
     trajectory = snapshot.trajectory
     if first or not trajectory.open:
-        return plan_start(context, snapshot, point, positions, stopped_dry=stopped_dry)
+        return plan_start(context, snapshot, point, positions)
     if bounded and fill(snapshot) >= settings.capacity:
         raise PointRejected(Reason.QUEUE_FULL, f"the point queue is full ({settings.capacity} points)")
-    base = Plan(snapshot.running, snapshot.started, snapshot.pending, trajectory, at=context.at)
-    return plan_point(context, point, positions, base, defer=defer, stopped_dry=stopped_dry)
+    base = Plan(
+        snapshot.running,
+        snapshot.started,
+        snapshot.pending,
+        trajectory,
+        at=context.at,
+        stopped_dry=snapshot.stopped_dry,
+    )
+    return plan_point(context, point, positions, base, defer=defer)
 
 
 def plan_scaled(
@@ -90,10 +95,9 @@ def plan_scaled(
     first: bool,
     min_scale: float,
     bounded: bool,
-    stopped_dry: tuple[int, int] | None,
 ) -> Plan:
     """:func:`plan`, slowed down to at least the time scale ``min_scale``."""
-    planned = plan(context, snapshot, point, first=first, bounded=bounded, defer=False, stopped_dry=stopped_dry)
+    planned = plan(context, snapshot, point, first=first, bounded=bounded, defer=False)
     if min_scale > planned.trajectory.scale * (1.0 + SLACK):
         running, started, pending, trajectory = rescale(
             context,
@@ -125,9 +129,7 @@ def check_start(settings: Settings, positions: Array, origin: State) -> None:
         )
 
 
-def plan_start(
-    context: Context, snapshot: Plan, point: Point, positions: Array, *, stopped_dry: tuple[int, int] | None
-) -> Plan:
+def plan_start(context: Context, snapshot: Plan, point: Point, positions: Array) -> Plan:
     """A new trajectory, starting where everything queued ends."""
     settings = context.settings
     pending = list(snapshot.pending)
@@ -146,13 +148,21 @@ def plan_start(
         last_position=origin.position,
         opened=context.at,
     )
-    opened = Plan(snapshot.running, snapshot.started, tuple(pending), trajectory, tuple(messages), context.at)
+    opened = Plan(
+        snapshot.running,
+        snapshot.started,
+        tuple(pending),
+        trajectory,
+        tuple(messages),
+        context.at,
+        stopped_dry=snapshot.stopped_dry,
+    )
     if away:  # no start check: the robot goes to the first point from where it is
         if point.time is not None and point.time <= 0.0:
             raise PointRejected(
                 Reason.TIMING, "the first point is away from the robot and its time is 0: no time to get there"
             )
-        return plan_point(context, point, positions, opened, defer=False, stopped_dry=stopped_dry)
+        return plan_point(context, point, positions, opened, defer=False)
     return opened
 
 
@@ -163,13 +173,12 @@ def plan_point(
     base: Plan,
     *,
     defer: bool,
-    stopped_dry: tuple[int, int] | None,
 ) -> Plan:
     """A point after a trajectory's first added to ``base``."""
     queued = knot(context.settings, point, positions, base.trajectory)
     if queued is None:  # already there and no time to spend: nothing to do
         return replace(base, trajectory=replace(base.trajectory, points=base.trajectory.points + 1))
-    return plan_knot(context, queued, base, defer=defer, stopped_dry=stopped_dry)
+    return plan_knot(context, queued, base, defer=defer)
 
 
 @dataclass(frozen=True, slots=True)
@@ -183,12 +192,10 @@ class _Passed:
     transient: bool
 
 
-def plan_knot(
-    context: Context, point: Knot, base: Plan, *, defer: bool, stopped_dry: tuple[int, int] | None = None
-) -> Plan:
+def plan_knot(context: Context, point: Knot, base: Plan, *, defer: bool) -> Plan:
     """``point`` queued after ``base``: the point before passes through it, its own segment
     follows, and the trajectory slows down rather than refuse it."""
-    passed = _pass_previous(context, point, base, stopped_dry)
+    passed = _pass_previous(context, point, base)
     draft, built = passed.draft, list(passed.built)
     trajectory = draft.trajectory
     entry = _segment_to(context, point, draft, passed.transient)
@@ -213,7 +220,7 @@ def plan_knot(
     return _fit(context, point, draft, built, defer=defer)
 
 
-def _pass_previous(context: Context, point: Knot, base: Plan, stopped_dry: tuple[int, int] | None) -> _Passed:
+def _pass_previous(context: Context, point: Knot, base: Plan) -> _Passed:
     """Step 1: the point before ``point`` passes through it, now that it is known; or the robot,
     come to rest (or on its way to rest) for want of this point, goes on from where it is."""
     settings = context.settings
@@ -252,7 +259,7 @@ def _pass_previous(context: Context, point: Knot, base: Plan, stopped_dry: tuple
     elif running is not None and running.knot is None and not pending:
         running, started = None, context.at  # a dry stop is under way: go on from the current setpoint
         transient = True
-    elif running is None and not pending and stopped_dry == (point.trajectory, point.index - 1):
+    elif running is None and not pending and base.stopped_dry == (point.trajectory, point.index - 1):
         transient = True
         messages.append(dry_message(trajectory, f"point {point.index} came after the robot stopped"))
         trajectory = replace(trajectory, warned_dry=True)
