@@ -213,24 +213,16 @@ def test_a_trajectory_too_fast_is_slowed_down_uniformly_and_warned_once() -> Non
     # a given point at rest 2 rad away in 1 s: about twice too fast for 1 rad/s and 2 rad/s²
     reached = Entry(Knot(np.array([2.0, 0.0]), 1.0, Kind.GIVEN, 1, 1, ZERO), ZERO, 1.0, State.rest(ZERO), 1.0)
     pending = [building.given(reached, 1.0)]
-    messages: list[tuple[int, str]] = []
-    running, _, out, book = scaling.rescale(
-        ctx,
-        None,
-        0.0,
-        pending,
-        book,
-        needed=checks.uniform_need(ctx.settings, pending[0]),
-        knot=None,
-        messages=messages,
+    slowed = scaling.rescale(
+        ctx, Plan(None, 0.0, tuple(pending), book), needed=checks.uniform_need(ctx.settings, pending[0]), knot=None
     )
+    running, out, book, messages = slowed.running, list(slowed.pending), slowed.trajectory, list(slowed.messages)
     assert running is None and book.scale >= 1.875 and book.warned_scale
     assert max(checks.excess(ctx.settings, out[0])) == 1.0
     assert [level for level, _ in messages] == [logging.WARNING]
     assert "the trajectory is too fast" in messages[0][1]
-    messages.clear()
-    scaling.rescale(ctx, None, 0.0, out, book, needed=1.5, knot=None, messages=messages)
-    assert [level for level, _ in messages] == [logging.INFO]  # further slowing: once per 10 %
+    again = scaling.rescale(ctx, Plan(None, 0.0, tuple(out), book), needed=1.5, knot=None)
+    assert [level for level, _ in again.messages] == [logging.INFO]  # further slowing: once per 10 %
 
 
 # -- braking ---------------------------------------------------------------------------------------------

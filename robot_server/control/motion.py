@@ -253,18 +253,7 @@ class MotionQueue:
             mine = [e for e in (self._running, *self._pending) if e is not None and e.segment is not None]
             needed = max([1.0, *(uniform_need(self.settings, e) for e in mine if e.trajectory == number)])
         if needed > 1.0:
-            messages: list[tuple[int, str]] = []
-            running, started, pending, trajectory = rescale(
-                self._context(),
-                self._running,
-                self._started,
-                list(self._pending),
-                self._trajectory,
-                needed=needed,
-                knot=None,
-                messages=messages,
-            )
-            self.commit(Plan(running, started, tuple(pending), trajectory, tuple(messages), self._t))
+            self.commit(rescale(self._context(), self._snapshot(), needed=needed, knot=None))
         self.commit(planning.report_acceleration(self.settings, self._snapshot()))
 
     def check_start(self, point: Point) -> None:

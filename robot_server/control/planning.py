@@ -99,17 +99,7 @@ def plan_scaled(
     """:func:`plan`, slowed down to at least the time scale ``min_scale``."""
     planned = plan(context, snapshot, point, first=first, bounded=bounded, defer=False)
     if min_scale > planned.trajectory.scale * (1.0 + SLACK):
-        running, started, pending, trajectory = rescale(
-            context,
-            planned.running,
-            planned.started,
-            list(planned.pending),
-            planned.trajectory,
-            needed=min_scale / (planned.trajectory.scale * RESCALE_MARGIN),
-            knot=None,
-            messages=(messages := list(planned.messages)),
-        )
-        planned = Plan(running, started, tuple(pending), trajectory, tuple(messages), context.at)
+        planned = rescale(context, planned, needed=min_scale / (planned.trajectory.scale * RESCALE_MARGIN), knot=None)
     return report_acceleration(context.settings, planned)
 
 
@@ -329,8 +319,11 @@ def _fit(context: Context, point: Knot, draft: Plan, built: list[Entry], *, defe
         return Plan(running, started, tuple(pending), trajectory, tuple(messages), context.at, needed)
     needed = max((uniform_need(settings, e) for e in built), default=1.0)
     if needed > 1.0:
-        running, started, pending, trajectory = rescale(
-            context, running, started, pending, trajectory, needed=needed, knot=point, messages=messages
+        return rescale(
+            context,
+            Plan(running, started, tuple(pending), trajectory, tuple(messages), context.at),
+            needed=needed,
+            knot=point,
         )
     return Plan(running, started, tuple(pending), trajectory, tuple(messages), context.at)
 

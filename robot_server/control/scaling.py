@@ -21,6 +21,7 @@ from .entries import (
     Kind,
     Knot,
     Phase,
+    Plan,
     Settings,
     TrajectoryBook,
     connect,
@@ -37,7 +38,35 @@ _MAX_RESCALES = 12
 Scaled = tuple[Entry | None, float, list[Entry], TrajectoryBook]
 
 
-def rescale(
+def rescale(context: Context, planned: Plan, *, needed: float, knot: Knot | None) -> Plan:
+    """``planned`` with what is not yet executed of its trajectory time-scaled until it fits the
+    limits (``knot``: the point that asks for it; None: a download as a whole, or motion groups
+    that share one time scale), and the line that says so among its messages. Raises
+    :class:`PointRejected` when no scale makes it fit."""
+    messages = list(planned.messages)
+    running, started, pending, trajectory = _rescale(
+        context,
+        planned.running,
+        planned.started,
+        list(planned.pending),
+        planned.trajectory,
+        needed=needed,
+        knot=knot,
+        messages=messages,
+    )
+    return replace(
+        planned,
+        running=running,
+        started=started,
+        pending=tuple(pending),
+        trajectory=trajectory,
+        messages=tuple(messages),
+        at=context.at,
+        needed=1.0,
+    )
+
+
+def _rescale(
     context: Context,
     running: Entry | None,
     started: float,
