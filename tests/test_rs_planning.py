@@ -394,3 +394,54 @@ def test_a_download_whose_points_are_within_the_limits_is_checked_between_them_t
     queue.add_all(points)
     assert queue.scale > 1.5
     assert all(checks.speed_excess(queue.settings, e) <= 1.0 for e in queue._pending if e.segment is not None)
+
+
+def test_an_estimated_point_passes_through_with_its_neighbours_velocity() -> None:
+    """Three points on a line, 0.1 rad and 0.5 s apart: the middle one is passed at the line's
+    speed (0.2 rad/s), and the segment ends there in that state."""
+    s = settings()
+    entry = Entry(knot([0.1, 0.0], 0.5), ZERO, 0.5, State(ZERO, np.array([0.2, 0.0]), ZERO), 0.5)
+    out = building.determine(s, entry, np.array([0.2, 0.0]), 0.5)
+    assert out.end is not None and out.segment is not None
+    assert out.end.velocity[0] == pytest.approx(0.2, rel=1e-6) and out.end.velocity[1] == 0.0
+    assert np.allclose(out.segment.end().position, [0.1, 0.0])
+
+
+def test_a_transient_from_rest_passes_its_point_moving_within_the_limits() -> None:
+    """A trajectory's first segment from rest ends at its point moving on towards the next one (no
+    stop at the first point) and, a transient, is met locally within the limits."""
+    s = settings()
+    first = Entry(knot([0.02, 0.0], 0.2), ZERO, 0.2, State.rest(ZERO), 0.2).marked(Phase.TRANSIENT)
+    out = building.determine(s, first, np.array([0.06, 0.0]), 0.2)
+    assert out.transient and out.end is not None and out.end.velocity[0] > 0.05
+    assert max(checks.excess(s, out)) <= 1.0
+    assert out.segment is not None and np.allclose(out.segment.end().position, [0.02, 0.0])
+
+
+def test_swings_flags_a_segment_that_wanders_far_beyond_its_points() -> None:
+    s = settings()
+    start = State(ZERO, np.array([0.9, 0.0]), ZERO)
+    goal = State.rest(np.array([0.01, 0.0]))
+    long = Entry(knot([0.01, 0.0], 3.0), ZERO, 3.0, start, 3.0, goal, connect(start, 2, goal, 2, 3.0))
+    short = Entry(knot([0.01, 0.0], 0.02), ZERO, 0.02, start, 0.02, goal, connect(start, 2, goal, 2, 0.02))
+    assert checks.swings(s, long) and not checks.swings(s, short)
+
+
+def test_start_next_runs_an_undecided_last_point_to_rest() -> None:
+    """The robot sets off to a point whose state is still undecided (no next point): it ends at
+    rest there, and the pending entries after it are returned."""
+    s = settings()
+    undecided = Entry(knot([0.1, 0.0], 1.0), ZERO, 1.0, State.rest(ZERO), 1.0)
+    running, pending = braking.start_next(s, (undecided,), TrajectoryBook(number=1, open=True), at=0.0)
+    assert pending == () and running.dry and running.end is not None and at_rest(running.end)
+
+
+def test_rebuilt_keeps_a_dry_point_at_rest_and_leaves_a_last_estimated_one_undecided() -> None:
+    s = settings()
+    start = State.rest(ZERO)
+    dry = Entry(knot([0.1, 0.0], 1.0), ZERO, 2.0, start, 2.0).marked(Phase.DRY)
+    again = scaling.rebuilt(s, dry, None, 2.0)
+    assert again.end is not None and at_rest(again.end) and again.segment is not None
+    open_end = Entry(knot([0.1, 0.0], 1.0), ZERO, 2.0, start, 2.0, again.end, again.segment)
+    undecided = scaling.rebuilt(s, open_end, None, 2.0)
+    assert undecided.end is None and undecided.segment is None
