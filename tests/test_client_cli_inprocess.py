@@ -435,7 +435,9 @@ async def test_watching_commands_say_when_the_controller_closed_the_connection(
 ) -> None:
     async with controller() as (emu, ports):
         recording = asyncio.create_task(client("monitor", "--duration", "30", *ports))
-        await poll(lambda: bool(emu.state_server.sessions), 10.0)
+        # watching: the client connected, had its first state and asked for TOOL_POSE on the state port
+        # (a session alone may still be the client connecting, whose end reads as a refused connection)
+        await poll(lambda: any(s.data.get("tool_pose") for s in emu.state_server.sessions), 10.0)
         await emu.state_server.close()  # the controller goes away
         code, _ = await recording
     err = capsys.readouterr().err
