@@ -19,6 +19,7 @@ __all__ = [
     "check_limits",
     "within_speeds",
     "within_cubics",
+    "central_velocities",
     "cubic_accelerations",
     "path_deviation",
     "MEASURED_OVERSHOOT",
@@ -128,6 +129,16 @@ def within_speeds(trajectory: Trajectory, model: RobotModel, *, velocities: bool
     return dataclasses.replace(trajectory, times=times)
 
 
+def central_velocities(trajectory: Trajectory) -> Array:
+    """Waypoint velocities by central differences, zero at both ends: what the MotoROS sender
+    gives points that come without velocities."""
+    q, t = trajectory.positions, trajectory.times
+    v = np.zeros_like(q)
+    if len(trajectory) > 2:
+        v[1:-1] = (q[2:] - q[:-2]) / (t[2:] - t[:-2])[:, None]
+    return v
+
+
 def cubic_accelerations(times: Array, positions: Array, velocities: Array) -> Array:
     """The largest |acceleration| of each cubic through consecutive points' positions and velocities
     (``(segments, dof)``): at one of its ends, as a cubic's acceleration is linear. MotoROS joins its
@@ -157,11 +168,7 @@ def within_cubics(trajectory: Trajectory, model: RobotModel) -> Trajectory:
     if len(trajectory) < 2:
         return trajectory
     t, q = trajectory.times, trajectory.positions
-    v = trajectory.velocities
-    if v is None:
-        v = np.zeros_like(q)
-        if len(trajectory) > 2:
-            v[1:-1] = (q[2:] - q[:-2]) / (t[2:] - t[:-2])[:, None]
+    v = trajectory.velocities if trajectory.velocities is not None else central_velocities(trajectory)
     ratio = cubic_accelerations(t, q, v) / model.max_acceleration
     worst = float(ratio.max())
     if worst <= _CUBIC_MARGIN:

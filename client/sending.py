@@ -38,7 +38,7 @@ from simple_message.errors import ConnectionClosed, RequestFailed
 from simple_message.messages import JointTrajPt, JointTrajPtFull, MotoMotionReply, Ping
 
 from .errors import DriverError, ExecutionAborted, _InFlight, _NotSent, moto_reason
-from .limits import cubic_accelerations
+from .limits import central_velocities, cubic_accelerations
 from .trajectory import Trajectory
 
 if TYPE_CHECKING:
@@ -237,7 +237,7 @@ class MotorosSender(TrajectorySender):
 
     async def send(self, trajectory: Trajectory) -> int:
         await self._motion_ready()
-        velocities = trajectory.velocities if trajectory.velocities is not None else _differences(trajectory)
+        velocities = trajectory.velocities if trajectory.velocities is not None else central_velocities(trajectory)
         times, positions, velocities = _on_milliseconds(trajectory.times, trajectory.positions, velocities)
         if np.any(velocities[-1] != 0.0):
             # the goal is where the robot stops: a last point still moving (a recording cut off mid-motion)
@@ -326,15 +326,6 @@ def _in_flight(k: int, exc: DriverError) -> str:
         f"{exc} with point {k} awaiting its reply: the controller may or may not have it, so it is not "
         "resent (that could repeat it)"
     )
-
-
-def _differences(trajectory: Trajectory) -> Array:
-    """Waypoint velocities by central differences, zero at both ends."""
-    q, t = trajectory.positions, trajectory.times
-    v = np.zeros_like(q)
-    if len(trajectory) > 2:
-        v[1:-1] = (q[2:] - q[:-2]) / (t[2:] - t[:-2])[:, None]
-    return v
 
 
 def _on_milliseconds(times: Array, positions: Array, velocities: Array) -> tuple[Array, Array, Array]:
