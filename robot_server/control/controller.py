@@ -63,6 +63,7 @@ from .moves import JointMoves
 from .points import Limits, Point, PointRejected, Reason, State, check_point
 from .policies import DEFAULT_POLICY, policy
 from .recorder import Recorder
+from .rest import RestWatch
 from .servo import ServoDrives
 from .supervision import SLOWING_ROUNDS, SlowDown, Slowing, check_zones, path_slowing, tcp_path
 from .supervision import slowed as slowed_point
@@ -232,6 +233,11 @@ class Controller:
         self.points_accepted = 0
         self._powered = True
         self._settled = True
+        #: recognises a period at rest that changed nothing, and replays it (:mod:`.rest`)
+        self._rest = RestWatch()
+        #: the resting period replayed in the current interpolation period (None: stepped)
+        self._replaying: list[Tick] | None = None
+        self._replay_key: tuple[object, ...] = ()
 
     # -- state ---------------------------------------------------------------------------------
 
@@ -544,6 +550,8 @@ class Controller:
     def step(self) -> Tick:
         """Advance one servo period; returns the tick's command and actual state."""
         if not self._powered:
+            self._replaying = None
+            self._rest.forget()
             self._tick += 1
             p = list(self.servo.position)
             zeros = [0.0] * self.dof
@@ -563,38 +571,19 @@ class Controller:
             return tick
         i = self._tick % self._sub
         if i == 0:
-            self._previous = self._next
-            try:
-                at = (self._tick + self._sub) * self.config.servo_period
-                if self.lines.active:
-                    state = self.lines.sample(at)
-                    self.queue.sample(at)  # the joint queue's clock runs on
-                    if self.lines.fill == 0:  # the last line ended: joints start from there
-                        self.queue.abandon(state.position)
-                elif self.moves.active:
-                    moves = self.moves
-                    state = moves.sample(at)
-                    self.queue.sample(at)
-                    if not moves.active:  # the last move ended: trajectories start from there
-                        self.queue.abandon(state.position)
-                else:
-                    state = self.queue.sample(at)
-            except Exception:  # a defect must not end the control loop: the motion stops with an alarm
-                log.exception("the motion could not be sampled")
-                state = State.rest(np.array(self.servo.position))
-                self.raise_alarm(MOTION_ALARM, "internal motion planning failure (see the log)")
-            beyond = np.flatnonzero((state.position < self._lower) | (state.position > self._upper))
-            if self.in_error:
-                pass
-            elif beyond.size:
-                j = int(beyond[0])
-                self.raise_alarm(
-                    SOFT_LIMIT_ALARM + j + 1,
-                    f"soft limit: joint {j + 1} ({self.model.joints[j].name}) commanded to "
-                    f"{state.position[j]:.6g}, limits {self.limits.lower[j]:.6g}..{self.limits.upper[j]:.6g}",
-                )
-            else:
-                self._next = (state.position.tolist(), state.velocity.tolist(), state.acceleration.tolist())
+            state = self._sample((self._tick + self._sub) * self.config.servo_period)
+            self._replay_key = key = self._rest_key()
+            self._replaying = self._rest.replay(key, state, self.servo)
+            if self._replaying is None:
+                self._previous = self._next
+                self._command(state)
+                self._rest.begin(self._rest_key(), state, self._previous == self._next, self.servo)
+        replaying = self._replaying
+        if replaying is not None:  # at rest: the last period again (:mod:`.rest`)
+            if self._rest_key() == self._replay_key:
+                return self._replay(replaying[i], i)
+            self._replaying = None  # a verb between two ticks: step the rest of the period
+            self._rest.forget()
         self._tick += 1
         f = (i + 1) / self._sub
         g = 1.0 - f
@@ -635,6 +624,83 @@ class Controller:
                     f"following error of joint {j + 1} ({self.model.joints[j].name}) is {e:.4g}, limit {limit:g}",
                 )
                 break
+        rest = self._rest
+        rest.add(tick)
+        if i + 1 == self._sub:
+            rest.end(self._rest_key(), servo)
+        return tick
+
+    def _sample(self, at: float) -> State:
+        """The motion's setpoint at the next interpolation instant ``at``."""
+        try:
+            if self.lines.active:
+                state = self.lines.sample(at)
+                self.queue.sample(at)  # the joint queue's clock runs on
+                if self.lines.fill == 0:  # the last line ended: joints start from there
+                    self.queue.abandon(state.position)
+            elif self.moves.active:
+                moves = self.moves
+                state = moves.sample(at)
+                self.queue.sample(at)
+                if not moves.active:  # the last move ended: trajectories start from there
+                    self.queue.abandon(state.position)
+            else:
+                state = self.queue.sample(at)
+        except Exception:  # a defect must not end the control loop: the motion stops with an alarm
+            log.exception("the motion could not be sampled")
+            state = State.rest(np.array(self.servo.position))
+            self.raise_alarm(MOTION_ALARM, "internal motion planning failure (see the log)")
+        return state
+
+    def _command(self, state: State) -> None:
+        """Command the sampled setpoint from the next interpolation instant on, unless it is beyond
+        a joint's position limit (the soft-limit alarm) or an alarm holds the robot."""
+        beyond = np.flatnonzero((state.position < self._lower) | (state.position > self._upper))
+        if self.in_error:
+            pass
+        elif beyond.size:
+            j = int(beyond[0])
+            self.raise_alarm(
+                SOFT_LIMIT_ALARM + j + 1,
+                f"soft limit: joint {j + 1} ({self.model.joints[j].name}) commanded to "
+                f"{state.position[j]:.6g}, limits {self.limits.lower[j]:.6g}..{self.limits.upper[j]:.6g}",
+            )
+        else:
+            self._next = (state.position.tolist(), state.velocity.tolist(), state.acceleration.tolist())
+
+    def _rest_key(self) -> tuple[object, ...]:
+        """Everything besides the drives and the setpoint that a servo period's outcome depends on
+        (:mod:`.rest`): a verb called at rest changes one of these."""
+        return (
+            self.points_accepted,
+            self.error_code,
+            self._settled,
+            self._stopping,
+            self._zone_clear,
+            self.manual,
+            id(self.supervision),
+            self._download is None,
+            self._powered,
+        )
+
+    def _replay(self, resting: Tick, i: int) -> Tick:
+        """One tick of a resting period again, at its new time (:mod:`.rest`)."""
+        self._tick += 1
+        now = self._tick * self.config.servo_period
+        if i + 1 == self._sub:
+            self.tool = self.tool._replace(time=now)
+        tick = self.command = Tick(
+            now,
+            resting.command_position,
+            resting.command_velocity,
+            resting.command_acceleration,
+            resting.actual_position,
+            resting.actual_velocity,
+            resting.actual_acceleration,
+            resting.following_error,
+            resting.points,
+            self.tool,
+        )
         return tick
 
     def run_for(self, seconds: float, recorder: Recorder | None = None) -> None:

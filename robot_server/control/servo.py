@@ -95,6 +95,11 @@ class ServoDrives:
             velocity[i] = w_new
             position[i] = q + w_new * dt
 
+    @property
+    def integral(self) -> list[float]:
+        """The velocity loops' integrals (the drives' state besides position and velocity)."""
+        return self._integral
+
     def hold(self) -> None:
         """Forget the velocity-loop integral (after an abort, when the command jumps to the actual position)."""
         self._integral = [0.0] * len(self.motors)

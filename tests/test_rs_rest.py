@@ -1,0 +1,94 @@
+"""A controller at rest replays its last period (robot_server.control.rest): exactly what stepping gives.
+
+Two controllers run the same script of verbs side by side, tick by tick: one as shipped, one whose
+watch never replays. Every tick (command, actual, errors, points, the tool with its time) must be
+the same, bit for bit, through rests long enough to replay, and verbs called at rest between two
+interpolation instants and at them: points, moves, stops, alarms, resets, drives off and on, the
+mode, a supervision swapped.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from robot_server.control import Controller, ControllerConfig, Point, Tick
+from robot_server.control.rest import RestWatch
+from robot_server.loader import load_model
+from robot_server.workspace import Supervision
+
+
+class _NeverReplays(RestWatch):
+    def replay(self, *args: object, **kwargs: object) -> None:  # type: ignore[override]
+        return None
+
+
+def _pair(model: str = "jibot_zxs") -> tuple[Controller, Controller]:
+    robot = load_model(model)
+    fast, slow = Controller(robot, ControllerConfig()), Controller(robot, ControllerConfig())
+    slow._rest = _NeverReplays()
+    return fast, slow
+
+
+def _same(a: Tick, b: Tick) -> bool:
+    return a == b  # lists, floats, the tool (a NamedTuple): exact equality
+
+
+Verb = Callable[[Controller], object]
+
+
+def _run(fast: Controller, slow: Controller, ticks: int) -> None:
+    for k in range(ticks):
+        a, b = fast.step(), slow.step()
+        assert _same(a, b), f"tick {k} at t={b.time}: {a} != {b}"
+
+
+def _both(fast: Controller, slow: Controller, verb: Verb) -> None:
+    results = []
+    for ctl in (fast, slow):
+        try:
+            results.append(verb(ctl))
+        except Exception as exc:  # the same refusal on both
+            results.append(type(exc))
+    assert results[0] == results[1]
+
+
+SCRIPT: list[tuple[int, Verb]] = [
+    (3000, lambda c: c.add_move(np.full(6, 0.3), speed=0.5)),
+    (4002, lambda c: c.add_move(np.full(6, -0.2), speed=0.3)),  # between two interpolation instants
+    (5001, lambda c: c.raise_alarm(4999, "a test alarm at rest")),
+    (3003, lambda c: c.reset()),
+    (2500, lambda c: c.power_off()),
+    (1500, lambda c: c.power_on()),
+    (3000, lambda c: c.stop()),  # a stop at rest stops nothing
+    (3000, lambda c: setattr(c, "manual", True)),
+    (3000, lambda c: setattr(c, "manual", False)),
+    (2000, lambda c: setattr(c, "supervision", Supervision())),
+    (2000, lambda c: c.start(Point(np.array(c.command.command_position), duration=0.0, velocity_ratio=0.5))),
+    (2, lambda c: c.add(Point(np.full(6, 0.1), duration=2.0))),
+    (6000, lambda c: None),
+]
+
+
+def test_a_resting_controller_replays_exactly_what_stepping_gives() -> None:
+    fast, slow = _pair()
+    for ticks, verb in SCRIPT:
+        _run(fast, slow, ticks)
+        _both(fast, slow, verb)
+    _run(fast, slow, 3000)
+    assert fast.points_accepted == 4, "two moves and a trajectory of two points ran"
+    assert fast.trajectories == 1
+    assert fast._rest.periods > 3000, "the rests were long enough to replay"
+    assert slow._rest.periods == 0
+
+
+@pytest.mark.parametrize("model", ["puma560", "ur5", "kuka_kr6_r900_sixx"])
+def test_every_shipped_model_comes_to_an_exact_rest_after_a_move(model: str) -> None:
+    fast, slow = _pair(model)
+    n = fast.dof
+    _both(fast, slow, lambda c: c.add_move(np.linspace(-0.3, 0.4, n), speed=0.6))
+    _run(fast, slow, 8000)
+    assert not fast.in_motion
+    assert fast._rest.periods > 0
