@@ -29,7 +29,7 @@ if TYPE_CHECKING:
         Tick,
         submit_together,
     )
-    from .loop import ControlLoop, LoopStats, run_simulated
+    from .loop import ControlLoop, LoopStats, SharedLoop, run_simulated
     from .motion import MotionQueue
     from .peaks import (
         CUBIC_PEAK_ACCELERATION,
@@ -73,6 +73,7 @@ __all__ = [
     "Controller",
     "ControllerConfig",
     "LoopStats",
+    "SharedLoop",
     "Tick",
     "run_simulated",
     "submit_together",
@@ -127,7 +128,7 @@ _EXPORTS = LazyExports(
             "Tick",
             "submit_together",
         ),
-        ".loop": ("ControlLoop", "LoopStats", "run_simulated"),
+        ".loop": ("ControlLoop", "LoopStats", "SharedLoop", "run_simulated"),
         ".motion": ("MotionQueue",),
         ".peaks": (
             "CUBIC_PEAK_ACCELERATION",

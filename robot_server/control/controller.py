@@ -571,13 +571,40 @@ class Controller:
             return tick
         i = self._tick % self._sub
         if i == 0:
-            state = self._sample((self._tick + self._sub) * self.config.servo_period)
-            self._replay_key = key = self._rest_key()
-            self._replaying = self._rest.replay(key, state, self.servo)
-            if self._replaying is None:
-                self._previous = self._next
-                self._command(state)
-                self._rest.begin(self._rest_key(), state, self._previous == self._next, self.servo)
+            self._instant()
+        return self._servo_tick(i)
+
+    def step_period(self) -> Tick:
+        """The servo ticks up to the next interpolation instant at once (a whole interpolation
+        period from one); returns the last. At rest (:mod:`.rest`) only that one is made: the others
+        would be the same ticks, their times aside, and no one sees them (a recorder steps)."""
+        sub = self._sub
+        i = self._tick % sub
+        if i or not self._powered:
+            for _ in range(sub - i - 1):
+                self.step()
+            return self.step()
+        self._instant()
+        if self._replaying is not None and self._rest_key() == self._replay_key:
+            self._tick += sub - 1
+            return self._replay(self._replaying[-1], sub - 1)
+        for i in range(sub - 1):
+            self._servo_tick(i)
+        return self._servo_tick(sub - 1)
+
+    def _instant(self) -> None:
+        """At an interpolation instant: sample the motion for the next one, or find the coming
+        period the same as the last one (at rest, :mod:`.rest`)."""
+        state = self._sample((self._tick + self._sub) * self.config.servo_period)
+        self._replay_key = key = self._rest_key()
+        self._replaying = self._rest.replay(key, state, self.servo)
+        if self._replaying is None:
+            self._previous = self._next
+            self._command(state)
+            self._rest.begin(self._rest_key(), state, self._previous == self._next, self.servo)
+
+    def _servo_tick(self, i: int) -> Tick:
+        """Servo tick ``i`` of the interpolation period (0-based)."""
         replaying = self._replaying
         if replaying is not None:  # at rest: the last period again (:mod:`.rest`)
             if self._rest_key() == self._replay_key:

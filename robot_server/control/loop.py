@@ -4,7 +4,9 @@ A :class:`ControlLoop` wakes once per interpolation period at absolute deadlines
 (``origin + k x period``, k an integer) and runs that period's servo ticks; a late wake-up runs
 them at once and the next deadline is unchanged, so lateness never accumulates (no drift), however
 long the run. On a real-time clock every wake-up's lateness is measured (:class:`LoopStats`).
-This module is where the controllers meet the event loop and time; they know neither.
+A :class:`SharedLoop` gives the control loops of many controllers (a fleet in one process) one
+wake-up per period between them. This module is where the controllers meet the event loop and time;
+they know neither.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from .clock import Clock, SimulatedClock
 from .controller import Controller
 from .recorder import Recorder
 
-__all__ = ["ControlLoop", "LoopStats", "run_simulated"]
+__all__ = ["ControlLoop", "LoopStats", "SharedLoop", "run_simulated"]
 
 
 @dataclass
@@ -54,24 +56,62 @@ class ControlLoop:
     other_recorders: list[Recorder | None] = field(default_factory=list)
     #: called after every wake-up's ticks (e.g. to hand points over or to wake waiting replies)
     on_wake: Callable[[], None] | None = None
+    #: called when a period failed in a :class:`SharedLoop`, which has dropped the loop (a defect)
+    on_failure: Callable[[], None] | None = None
     _running: bool = field(default=False, init=False)
 
     def stop(self) -> None:
         self._running = False
 
+    def failed(self) -> None:
+        if self.on_failure is not None:
+            self.on_failure()
+
+    def check(self, period: float, sub: int) -> None:
+        """Every controller of this loop has the interpolation period ``period`` and ``sub`` servo
+        ticks per period (ValueError otherwise)."""
+        for ctl in (self.controller, *self.others):
+            if ctl.config.interpolation_period != period or ctl.servo_ticks_per_interpolation != sub:
+                raise ValueError("every controller of one loop must have the same interpolation and servo periods")
+
+    def wake(self) -> None:
+        """One interpolation period of every controller of the loop: its servo ticks, recorded,
+        then :attr:`on_wake`."""
+        ctl = self.controller
+        sub = ctl.servo_ticks_per_interpolation
+        recorder = self.recorder  # may be attached or detached between wake-ups
+        if self.others:
+            others = [
+                (c, self.other_recorders[i] if i < len(self.other_recorders) else None)
+                for i, c in enumerate(self.others)
+            ]
+            for _ in range(sub):
+                tick = ctl.step()
+                if recorder is not None:
+                    recorder.add(tick)
+                for other, other_recorder in others:
+                    other_tick = other.step()
+                    if other_recorder is not None:
+                        other_recorder.add(other_tick)
+        elif recorder is not None:
+            for _ in range(sub):
+                recorder.add(ctl.step())
+        else:  # no one sees the period's ticks but its last: at rest, only that one is made
+            ctl.step_period()
+        if self.on_wake is not None:
+            self.on_wake()
+        stats = self.stats
+        stats.ticks += sub
+        stats.wakes += 1
+
     async def run(self, duration: float | None = None) -> LoopStats:
         """Run for ``duration`` seconds of controller time (None: until :meth:`stop`)."""
         ctl, clock = self.controller, self.clock
         period = ctl.config.interpolation_period
-        sub = ctl.servo_ticks_per_interpolation
+        self.check(period, ctl.servo_ticks_per_interpolation)
         origin = clock.now()
         periods = None if duration is None else round(duration / period)
         stats = self.stats
-        controllers = [ctl, *self.others]
-        for other in self.others:
-            if other.config.interpolation_period != period or other.servo_ticks_per_interpolation != sub:
-                raise ValueError("every controller of one loop must have the same interpolation and servo periods")
-        on_wake = self.on_wake
         self._running = True
         wall0 = time.perf_counter()
         k = 0
@@ -80,27 +120,74 @@ class ControlLoop:
                 deadline = origin + k * period
                 await clock.sleep_until(deadline)  # returns at once when late: the loop catches up
                 if clock.realtime:
-                    lateness = clock.now() - deadline
-                    stats.final_lateness = lateness
-                    stats.max_lateness = max(stats.max_lateness, lateness)
-                    if lateness > period:
-                        stats.overruns += 1
-                recorder = self.recorder  # may be attached or detached between wake-ups
-                others = [
-                    (c, self.other_recorders[i] if i < len(self.other_recorders) else None)
-                    for i, c in enumerate(controllers[1:])
-                ]
-                for _ in range(sub):
-                    tick = ctl.step()
-                    if recorder is not None:
-                        recorder.add(tick)
-                    for other, other_recorder in others:
-                        other_tick = other.step()
-                        if other_recorder is not None:
-                            other_recorder.add(other_tick)
-                if on_wake is not None:
-                    on_wake()
-                stats.ticks += sub
+                    _late(stats, clock.now() - deadline, period)
+                self.wake()
+                k += 1
+        finally:
+            self._running = False
+            stats.simulated += k * period
+            stats.wall += time.perf_counter() - wall0
+        return stats
+
+
+def _late(stats: LoopStats, lateness: float, period: float) -> None:
+    stats.final_lateness = lateness
+    stats.max_lateness = max(stats.max_lateness, lateness)
+    if lateness > period:
+        stats.overruns += 1
+
+
+@dataclass
+class SharedLoop:
+    """Many control loops on one clock with one wake-up per interpolation period for all of them
+    (the controllers of a fleet, :mod:`robot_server.fleet`): every member's period is run at each
+    wake-up, in the order they joined. A loop joins (:meth:`add`) and leaves (:meth:`remove`)
+    between wake-ups; its first period is the next wake-up's. The members keep their own counts of
+    ticks and wake-ups; lateness and overruns are the shared wake-ups' (:attr:`stats`)."""
+
+    clock: Clock
+    #: the interpolation period every member runs at (s), and the servo ticks in it
+    period: float
+    sub: int
+    stats: LoopStats = field(default_factory=LoopStats)
+    _members: list[ControlLoop] = field(default_factory=list, init=False)
+    _running: bool = field(default=False, init=False)
+
+    def add(self, loop: ControlLoop) -> None:
+        loop.check(self.period, self.sub)
+        self._members.append(loop)
+
+    def remove(self, loop: ControlLoop) -> None:
+        if loop in self._members:
+            self._members.remove(loop)
+
+    @property
+    def members(self) -> int:
+        return len(self._members)
+
+    def stop(self) -> None:
+        self._running = False
+
+    async def run(self) -> LoopStats:
+        """Wake every interpolation period until :meth:`stop`, running every member's period."""
+        clock, period, stats = self.clock, self.period, self.stats
+        origin = clock.now()
+        self._running = True
+        wall0 = time.perf_counter()
+        k = 0
+        try:
+            while self._running:
+                deadline = origin + k * period
+                await clock.sleep_until(deadline)
+                if clock.realtime:
+                    _late(stats, clock.now() - deadline, period)
+                for loop in tuple(self._members):  # a member may leave during another's period
+                    try:
+                        loop.wake()
+                    except Exception:  # pragma: no cover - a defect in one controller: that one stops
+                        self.remove(loop)
+                        loop.failed()
+                stats.ticks += self.sub
                 stats.wakes += 1
                 k += 1
         finally:

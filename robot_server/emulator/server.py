@@ -25,7 +25,6 @@ import contextlib
 import dataclasses
 import functools
 import logging
-import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -59,6 +58,8 @@ from .generic import GENERIC_PROFILE
 from .io_table import IoTable
 from .owner import MotionOwner, OnDisconnect
 from .profiles import ROLES, STATE_LINK, Behaviour, EmulatorProfile, ProfileContext, ReaderFactory, profile_named
+from .shared import Shared
+from .ticker import Ticker
 
 __all__ = ["Emulator", "EmulatorConfig", "PeriodStats"]
 
@@ -254,61 +255,6 @@ class PeriodStats:
         self.max_lateness = max(self.max_lateness, lateness)
 
 
-class _Ticker:
-    """Wakes a task at absolute ``time.monotonic()`` deadlines within tens of microseconds.
-
-    The event loop's own timers are not that precise: asyncio waits in epoll, whose timeout is in
-    whole milliseconds (rounded up), and uvloop's libuv timers count milliseconds too, so a 250 Hz
-    topic timed by ``asyncio.sleep`` comes up to a millisecond late, differently each period. Here a
-    helper thread sleeps until the deadline (the OS's own precise sleep) and hands the wake-up to the
-    loop (``call_soon_threadsafe``): one thread wake-up per period, portable, on any event loop.
-    """
-
-    def __init__(self) -> None:
-        self._loop = asyncio.get_running_loop()
-        self._cond = threading.Condition()
-        self._next: tuple[float, asyncio.Future[None]] | None = None
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="state-topics ticker", daemon=True)
-        self._thread.start()
-
-    async def sleep_until(self, deadline: float) -> None:
-        if deadline <= time.monotonic():
-            await asyncio.sleep(0)  # late: still let the others run
-            return
-        future: asyncio.Future[None] = self._loop.create_future()
-        with self._cond:
-            self._next = (deadline, future)
-            self._cond.notify()
-        await future
-
-    def _run(self) -> None:
-        while True:
-            with self._cond:
-                while self._next is None and not self._stop.is_set():
-                    self._cond.wait()
-                pending, self._next = self._next, None
-                if pending is None:
-                    return  # stopped
-                deadline, future = pending
-                while not self._stop.is_set() and (left := deadline - time.monotonic()) > 0.0:
-                    self._cond.wait(left)  # a precise timed wait, cut short by close()
-                if self._stop.is_set():
-                    return
-            self._loop.call_soon_threadsafe(_wake, future)
-
-    def close(self) -> None:
-        with self._cond:
-            self._stop.set()
-            self._cond.notify()
-        self._thread.join(1.0)
-
-
-def _wake(future: asyncio.Future[None]) -> None:
-    if not future.done():  # not cancelled meanwhile
-        future.set_result(None)
-
-
 class Emulator:
     """A robot controller emulator serving simple_message (see the module doc)."""
 
@@ -318,8 +264,16 @@ class Emulator:
         models: Sequence[RobotModel] | None = None,
         *,
         clock: Clock | None = None,
+        shared: Shared | None = None,
     ) -> None:
         self.config = config = config if config is not None else EmulatorConfig()
+        #: what this emulator shares with the others of its process (a fleet): then its clock,
+        #: servo wake-ups and state ticker are those, and the fleet sets the log ceiling
+        self.shared = shared
+        if shared is not None:
+            if clock is not None and clock is not shared.clock:
+                raise ValueError("an emulator that shares its process's clock takes no clock of its own")
+            clock = shared.clock
         if models is None:
             models = [load_model(m) for m in config.models]
         for model in models:
@@ -387,7 +341,13 @@ class Emulator:
             clock = SimulatedClock() if config.simulated else RealTimeClock(config.speedup)
         #: the controller's clock (a test may pass a ``SteppedClock`` and advance it itself)
         self.clock: Clock = clock
-        self.control = ControlLoop(self.cell.groups[0], self.clock, others=self.cell.groups[1:], on_wake=self.cell.tick)
+        self.control = ControlLoop(
+            self.cell.groups[0],
+            self.clock,
+            others=self.cell.groups[1:],
+            on_wake=self.cell.tick,
+            on_failure=self._control_failed,
+        )
         self.state_stats = PeriodStats(1.0 / config.rate)
         self.ports: dict[str, int] = {}
         self._tasks: list[asyncio.Task[None]] = []
@@ -432,6 +392,13 @@ class Emulator:
             if self.capture is not None:
                 self.capture.close()
             raise
+        loop = asyncio.get_running_loop()
+        if self.shared is not None:  # the fleet bounds the log; the shared loop steps the controller
+            self.shared.join(self.control)
+            self._tasks.append(loop.create_task(self._run_state(), name="emulator state topics"))
+            if cfg.serial is not None:
+                self.motion_server.start_serving(self.motion_server.serve_serial(cfg.serial, data={STATE_LINK: True}))
+            return self
         # installed once nothing can fail any more (close takes it off again)
         self._log_ceiling = BudgetFilter(
             LogBudget("emulator", rate=PEER_LOG_RATE, burst=PEER_LOG_BURST),
@@ -440,7 +407,6 @@ class Emulator:
         )
         profile_logger = type(self.behaviour).__module__  # a profile of one's own logs there
         self._log_ceiling.install(*PEER_LOGGERS, *([] if profile_logger in PEER_LOGGERS else [profile_logger]))
-        loop = asyncio.get_running_loop()
         self._tasks.append(loop.create_task(self._run_control(), name="emulator control loop"))
         self._tasks.append(loop.create_task(self._run_state(), name="emulator state topics"))
         if cfg.serial is not None:
@@ -455,17 +421,26 @@ class Emulator:
         try:
             await self.control.run()
         except Exception:  # pragma: no cover - a bug; the servers must not hang on it
-            log.exception("the control loop failed: e-stop")
-            self.cell.estop()
+            self._control_failed()
             raise
+
+    def _control_failed(self) -> None:
+        """The control loop failed (a defect, in an ``except`` block): e-stop, the traceback logged."""
+        log.exception("the control loop failed: e-stop")
+        self.cell.estop()
 
     async def _run_state(self) -> None:
         period = self.state_stats.period
         # The precise ticker wants an idle loop to hand its wake-ups to: on a simulated or stepped
         # clock the control loop keeps the event loop (and the GIL) busy, and the ticker's thread
         # would starve the topics; the loop's own timers serve those clocks.
-        ticker = _Ticker() if self.clock.realtime else None
-        origin = time.monotonic()
+        own = None
+        if self.shared is not None:
+            ticker = self.shared.ticker
+            origin = time.monotonic() + self.shared.state_phase() * period
+        else:
+            ticker = own = Ticker() if self.clock.realtime else None
+            origin = time.monotonic()
         k = 0
         try:
             while True:
@@ -488,8 +463,8 @@ class Emulator:
                 except Exception:  # pragma: no cover - a bug must not end the topics
                     log.exception("publishing state failed")
         finally:
-            if ticker is not None:
-                ticker.close()
+            if own is not None:
+                own.close()
 
     def state_sessions(self) -> list[Session]:
         """Everyone who gets state topics: state-port clients and serial links."""
@@ -523,11 +498,13 @@ class Emulator:
             with contextlib.suppress(TimeoutError):
                 await self.wait_until(lambda: not self.cell.in_motion, settle_timeout)
         self.control.stop()
+        if self.shared is not None:
+            self.shared.leave(self.control)
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
         stats = self.control.stats
-        if self.clock.realtime and stats.wakes:
+        if self.clock.realtime and stats.wakes and self.shared is None:  # a fleet reports its own
             log.info(
                 "control loop: %d wake-ups, %d overruns (a wake-up more than one interpolation period late), "
                 "latest %.3f ms; state topics: %d rounds, %d skipped, latest %.3f ms",
