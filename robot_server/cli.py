@@ -103,6 +103,13 @@ def parser() -> argparse.ArgumentParser:
     )
     add_version_argument(p)
     p.add_argument(
+        "--fleet",
+        metavar="FILE.toml",
+        help="run every controller of a fleet file in this one process (one [[controller]] table each, "
+        "[defaults] for all; docs/fleet.md); the controllers' settings are the file's, the command line sets "
+        "--speedup, --web, --log-level and --no-stdin for the fleet",
+    )
+    p.add_argument(
         "--model",
         action="append",
         metavar="NAME|PATH",
@@ -287,7 +294,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     if failure is not None:
         print(f"robot-server: {failure}", file=sys.stderr)
         return 2
-    args = parser().parse_args(argv)
+    the_parser = parser()
+    args = the_parser.parse_args(argv)
+    if args.fleet is not None:
+        from .fleet.command import FLEET_OPTIONS, fleet_main
+
+        given = [
+            name
+            for name, value in vars(args).items()
+            if name not in FLEET_OPTIONS and value != the_parser.get_default(name)
+        ]
+        return fleet_main(args, given)
     logging.basicConfig(
         level=args.log_level, stream=sys.stderr, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
@@ -303,9 +320,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         for _, command in args.fault:
             _check_command(command)
         if args.record is not None:
-            _check_writable(Path(args.record))
+            check_writable(Path(args.record))
         if args.capture is not None:
-            _check_writable(Path(args.capture), "--capture")
+            check_writable(Path(args.capture), "--capture")
         config = EmulatorConfig(
             models=tuple(args.model or ["jibot_zxs"]),
             profile=args.profile,
@@ -350,14 +367,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"robot-server: {exc}", file=sys.stderr)
         return 1
     try:
-        _write_records(args.record, recorders, emulator)
+        write_records(args.record, recorders, emulator)
     except OSError as exc:
         print(f"robot-server: cannot write the record: {exc}", file=sys.stderr)
         return 1
     return code
 
 
-def _check_writable(path: Path, option: str = "--record") -> None:
+def check_writable(path: Path, option: str = "--record") -> None:
     """Refuse a file the server could not write (a record when it exits, a capture when it
     starts): before the session, not after."""
     folder = path.parent
@@ -369,7 +386,7 @@ def _check_writable(path: Path, option: str = "--record") -> None:
         raise ValueError(f"{option} {path}: not writable")
 
 
-def _write_records(path: str | None, recorders: list[Recorder], emulator: Emulator) -> None:
+def write_records(path: str | None, recorders: list[Recorder], emulator: Emulator) -> None:
     if path is None:
         return
     target = Path(path)

@@ -11,6 +11,7 @@ they know neither.
 
 from __future__ import annotations
 
+import contextvars
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -58,6 +59,8 @@ class ControlLoop:
     on_wake: Callable[[], None] | None = None
     #: called when a period failed in a :class:`SharedLoop`, which has dropped the loop (a defect)
     on_failure: Callable[[], None] | None = None
+    #: the context a :class:`SharedLoop` runs this loop's periods in (e.g. the log's controller name)
+    context: contextvars.Context | None = None
     _running: bool = field(default=False, init=False)
 
     def stop(self) -> None:
@@ -183,7 +186,10 @@ class SharedLoop:
                     _late(stats, clock.now() - deadline, period)
                 for loop in tuple(self._members):  # a member may leave during another's period
                     try:
-                        loop.wake()
+                        if loop.context is None:
+                            loop.wake()
+                        else:
+                            loop.context.run(loop.wake)
                     except Exception:  # pragma: no cover - a defect in one controller: that one stops
                         self.remove(loop)
                         loop.failed()

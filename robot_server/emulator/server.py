@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import contextvars
 import dataclasses
 import functools
 import logging
@@ -394,6 +395,7 @@ class Emulator:
             raise
         loop = asyncio.get_running_loop()
         if self.shared is not None:  # the fleet bounds the log; the shared loop steps the controller
+            self.control.context = contextvars.copy_context()  # as this task's: the log names the controller
             self.shared.join(self.control)
             self._tasks.append(loop.create_task(self._run_state(), name="emulator state topics"))
             if cfg.serial is not None:

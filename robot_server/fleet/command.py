@@ -1,0 +1,133 @@
+"""``robot-server --fleet FILE.toml``: every controller of a fleet file in one process.
+
+The file is read and checked whole (:mod:`.config`) before anything is bound; then every controller
+starts and prints its ready line (``r1: robot-server ready: ...``), and the fleet prints one of its
+own (``robot-server fleet ready: 3 controllers ...``), with the web view's address when ``--web`` is
+given. Fault commands on stdin name their controller (``r2 estop``, or ``all estop``); each
+controller's ``faults`` run at its controller times. On SIGINT or SIGTERM every robot decelerates
+to rest, every connection closes, the records are written and the command exits 0. Log lines name
+their controller (:mod:`.logs`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import logging
+import os
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from simple_message.endpoints import run
+
+from ..emulator import FaultError
+from .config import FleetError, load_fleet
+from .logs import FORMAT, ControllerField, FleetCeiling
+from .runner import Fleet, FleetCommandError
+
+__all__ = ["FLEET_OPTIONS", "fleet_main"]
+
+log = logging.getLogger("robot_server.fleet")
+
+#: the command line's options that a fleet has as a whole (all others are a controller's, in the file)
+FLEET_OPTIONS = ("fleet", "speedup", "web", "web_rate", "web_token", "log_level", "no_stdin", "imports")
+
+
+def fleet_main(args: argparse.Namespace, given: list[str]) -> int:
+    """Run ``args.fleet``; ``given`` are the controller options also given on the command line
+    (refused: they belong in the file)."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter(FORMAT))
+    handler.addFilter(ControllerField())
+    logging.basicConfig(level=args.log_level, handlers=[handler])
+    if given:
+        options = ", ".join(f"--{name.replace('_', '-')}" for name in given)
+        print(
+            f"robot-server: {options}: a controller's setting; with --fleet it goes in the fleet file "
+            f"([defaults] for all, or a [[controller]] table, as {given[0]} = ...)",
+            file=sys.stderr,
+        )
+        return 2
+    try:
+        spec = load_fleet(args.fleet, speedup=args.speedup)
+        for controller in spec.controllers:
+            if controller.record is not None:
+                from ..cli import check_writable
+
+                check_writable(controller.record, f"controller {controller.name}: record")
+            if controller.config.capture is not None:
+                from ..cli import check_writable
+
+                check_writable(Path(controller.config.capture), f"controller {controller.name}: capture")
+        fleet = Fleet(spec, speedup=args.speedup)
+    except (FleetError, ValueError, OSError) as exc:
+        print(f"robot-server: {exc}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print("robot-server: not enough memory for the records: a smaller record_seconds", file=sys.stderr)
+        return 2
+    try:
+        code = run(_serve(fleet, read_stdin=not args.no_stdin))
+    except FleetError as exc:
+        print(f"robot-server: {exc}", file=sys.stderr)
+        return 1
+    from ..cli import write_records
+
+    failed = False
+    for name, recorders in fleet.recorders.items():
+        target = spec.named(name).record
+        assert target is not None
+        try:
+            fleet.run_as(name, lambda: write_records(str(target), recorders, fleet[name]))  # noqa: B023
+        except OSError as exc:
+            print(f"robot-server: controller {name}: cannot write the record: {exc}", file=sys.stderr)
+            failed = True
+    return 1 if failed else code
+
+
+async def _serve(fleet: Fleet, *, read_stdin: bool) -> int:
+    loop = asyncio.get_running_loop()
+    done = asyncio.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, done.set)
+    ceiling = FleetCeiling(list(fleet)).install(*{type(e.behaviour).__module__ for e in fleet.emulators.values()})
+    try:
+        await fleet.start()
+        for line in fleet.ready_lines():
+            print(line, flush=True)
+        if read_stdin:
+            _read_commands(fleet, loop)
+        await done.wait()
+    finally:
+        log.info("shutting down: bringing %d controllers to rest", len(fleet))
+        await fleet.close()
+        ceiling.remove()
+    return 0
+
+
+def _apply(fleet: Fleet, line: str) -> None:
+    try:
+        fleet.command(line)
+    except FleetCommandError as exc:  # no controller of the fleet named
+        log.warning("%s", exc)
+    except FaultError:  # logged as that controller's
+        pass
+
+
+def _read_commands(fleet: Fleet, loop: asyncio.AbstractEventLoop) -> None:
+    """Fault commands from stdin (``NAME COMMAND``), read by a daemon thread."""
+
+    def reader() -> None:
+        pending = b""
+        with contextlib.suppress(OSError, RuntimeError):
+            while chunk := os.read(0, 4096):
+                pending += chunk
+                *lines, pending = pending.split(b"\n")
+                for line in lines:
+                    if line.strip():
+                        loop.call_soon_threadsafe(_apply, fleet, line.decode(errors="replace"))
+
+    threading.Thread(target=reader, name="robot-server stdin", daemon=True).start()
