@@ -11,6 +11,7 @@
 # Inside the build only apt-get reaches out, to Debian's mirror, for python3.
 #
 # Usage: deploy/build-image.sh [ENGINE BUILD OPTIONS...]
+#        deploy/build-image.sh --print-tag     (the image's name, built or not)
 # Environment:
 #   ENGINE         podman or docker (default: podman if installed, else docker)
 #   PYTHON         the Python that builds the wheelhouse (default: python3)
@@ -27,6 +28,15 @@ BASE=debian:bookworm-slim
 
 say() { echo "== $*" >&2; }
 
+version=$("$PYTHON" -c 'import sys, tomllib; print(tomllib.load(open(sys.argv[1], "rb"))["project"]["version"])' \
+    "$root/pyproject.toml")
+tag="$IMAGE:$version"
+
+if [ "${1:-}" = --print-tag ]; then
+    echo "$tag"
+    exit 0
+fi
+
 if [ -z "${ENGINE:-}" ]; then
     if command -v podman >/dev/null 2>&1; then
         ENGINE=podman
@@ -37,10 +47,6 @@ if [ -z "${ENGINE:-}" ]; then
         exit 2
     fi
 fi
-
-version=$("$PYTHON" -c 'import sys, tomllib; print(tomllib.load(open(sys.argv[1], "rb"))["project"]["version"])' \
-    "$root/pyproject.toml")
-tag="$IMAGE:$version"
 
 # Explicit limits for the build's containers, within this shell's own hard limits: where the
 # sandbox lacks CAP_SYS_RESOURCE, the runtime's defaults (above them) cannot be set.

@@ -2,7 +2,8 @@
 # Build the image with deploy/build-image.sh and run it with podman on loopback: robot-server in
 # the container must answer PING and pass `simple-message conformance server` from this machine,
 # its health check must say healthy, and it must stop on SIGTERM with exit status 0. Then the same
-# for the cell of deploy/compose.yaml, when podman-compose is installed.
+# for a cell of deploy/kubernetes/ (the StatefulSet's command, fleet file and probe, run as the pod
+# would be) and for the cell of deploy/compose.yaml (when podman-compose is installed).
 #
 # Needs podman (apt-get install podman mmdebstrap uidmap), the project installed here (robot-client
 # and simple-message on PATH: the clients) and Python >= 3.11. .ci/run runs it; so does
@@ -73,13 +74,14 @@ bad() {
     failed=$((failed + 1))
     echo "FAIL  $*"
 }
-check() { # check WHAT COMMAND...: PASS when COMMAND exits 0; its output goes to the log
+check() { # check WHAT COMMAND...: PASS when COMMAND exits 0; FAIL shows the end of its output
     local what=$1
     shift
-    if "$@" >>"$work/log" 2>&1; then ok "$what"; else
+    if "$@" >"$work/out" 2>&1; then ok "$what"; else
         bad "$what"
-        tail -n 30 "$work/log" | sed 's/^/      /'
+        tail -n 20 "$work/out" | sed 's/^/      /'
     fi
+    cat "$work/out" >>"$work/log"
 }
 
 free_ports() { # free_ports N: N TCP ports free on 127.0.0.1 now
@@ -92,10 +94,10 @@ print(" ".join(str(s.getsockname()[1]) for s in socks))
 EOF
 }
 
-wait_ready() { # wait_ready CONTAINER [LINES]: until robot-server printed its ready line(s), at most 60 s
-    local want=${2:-1}
+wait_ready() { # wait_ready CONTAINER [LINE]: until robot-server printed its ready line, at most 60 s
+    local line=${2:-robot-server ready}
     for _ in $(seq 240); do
-        if [ "$(podman logs "$1" 2>/dev/null | grep -c 'robot-server ready')" -ge "$want" ]; then return 0; fi
+        if podman logs "$1" 2>/dev/null | grep -q "$line"; then return 0; fi
         if [ "$(podman inspect --format '{{.State.Running}}' "$1" 2>/dev/null)" != true ]; then break; fi
         sleep 0.25
     done
@@ -105,7 +107,14 @@ wait_ready() { # wait_ready CONTAINER [LINES]: until robot-server printed its re
 }
 
 web_page() { # web_page URL: the page answers 200
-    "$PYTHON" -c 'import sys, urllib.request; sys.exit(urllib.request.urlopen(sys.argv[1], timeout=10).status != 200)' "$1"
+    "$PYTHON" - "$1" <<'EOF'
+import sys, urllib.request
+try:
+    status = urllib.request.urlopen(sys.argv[1], timeout=10).status
+except OSError as exc:  # URLError and HTTPError are OSErrors
+    sys.exit(f"GET {sys.argv[1]}: {exc}")
+sys.exit(0 if status == 200 else f"GET {sys.argv[1]}: status {status}")
+EOF
 }
 
 stops_cleanly() { # stops_cleanly CONTAINER: SIGTERM, then exit status 0 (robot-server brings the robot to rest)
@@ -159,6 +168,62 @@ if wait_ready "$moto"; then
     check "SIGTERM: exit status 0" stops_cleanly "$moto"
 else
     bad "robot-server --profile motoros did not start in the container"
+fi
+
+echo "== a cell of deploy/kubernetes/ under podman: the StatefulSet's command, fleet file and probe"
+# the pod as the manifests describe it (read-only root, no capabilities, user 10001), on a loopback
+# address of its own: what a cluster would run, short of the cluster
+if ! "$PYTHON" -c "import yaml" 2>/dev/null; then
+    echo "skipped: PyYAML is not installed here (pip install -e '.[dev]' brings it)"
+else
+    "$PYTHON" - "$here/kubernetes" "$work" <<'EOF'
+import sys, tomllib
+from pathlib import Path
+import yaml
+manifests, work = Path(sys.argv[1]), Path(sys.argv[2])
+docs = [d for f in sorted(manifests.glob("*.yaml")) for d in yaml.safe_load_all(f.read_text()) if d]
+(config,) = [d for d in docs if d["kind"] == "ConfigMap"]
+(sts,) = [d for d in docs if d["kind"] == "StatefulSet"]
+(container,) = sts["spec"]["template"]["spec"]["containers"]
+fleet = config["data"]["fleet.toml"]
+(work / "fleet.toml").write_text(fleet)
+(work / "args").write_text("\n".join(container["args"]) + "\n")
+(work / "probe").write_text("\n".join(container["livenessProbe"]["exec"]["command"]) + "\n")
+(work / "ports").write_text("\n".join(str(p["containerPort"]) for p in container["ports"]) + "\n")
+data = tomllib.loads(fleet)
+lines = []
+for table in data["controller"]:
+    c = {**data.get("defaults", {}), **table}
+    ports = [str(c[k]) for k in ("motion_port", "state_port", "io_port") if k in c]
+    lines.append(" ".join([c["name"], c.get("profile", "generic"), *ports]))
+(work / "controllers").write_text("\n".join(lines) + "\n")
+EOF
+    chmod a+r "$work/fleet.toml"
+    cell=127.0.0.39
+    pod="$run_id-cell"
+    containers+=("$pod")
+    publish=()
+    while read -r port; do publish+=(-p "$cell:$port:$port"); done <"$work/ports"
+    mapfile -t args <"$work/args"
+    mapfile -t probe <"$work/probe"
+    podman run -d --name "$pod" --read-only --cap-drop=ALL --security-opt=no-new-privileges --user 10001:10001 \
+        -v "$work/fleet.toml:/etc/robot-server/fleet.toml:ro" "${publish[@]}" "$tag" "${args[@]}" \
+        >/dev/null 2>>"$work/log"
+    if wait_ready "$pod" "robot-server fleet ready"; then
+        ok "robot-server ${args[*]}: $(podman logs "$pod" 2>/dev/null | grep 'fleet ready')"
+        check "the StatefulSet's probe: ${probe[*]}" podman exec "$pod" "${probe[@]}"
+        while read -r name profile motion state io; do
+            io_opt=()
+            if [ -n "$io" ]; then io_opt=(--io-port "$io"); fi
+            check "$name ($profile): conformance on $cell:$motion" simple-message conformance server \
+                --profile "$profile" --motion-port "$motion" --state-port "$state" "${io_opt[@]}" "$cell"
+            check "$name: its web view at /c/$name/" web_page "http://$cell:8080/c/$name/"
+        done <"$work/controllers"
+        check "the fleet's web view: the index at /" web_page "http://$cell:8080/"
+        check "SIGTERM: exit status 0" stops_cleanly "$pod"
+    else
+        bad "robot-server ${args[*]} did not start in the container"
+    fi
 fi
 
 echo "== the cell of deploy/compose.yaml"
