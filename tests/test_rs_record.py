@@ -230,7 +230,7 @@ def test_the_command_logs_what_each_file_holds(
     group = SimpleNamespace(model=MODEL)
     emulator = SimpleNamespace(cell=SimpleNamespace(config=SimpleNamespace(servo_period=SERVO), groups=[group, group]))
     caplog.set_level(logging.INFO, logger="robot_server")
-    cli._write_records(str(tmp_path / "run.csv.gz"), [record, whole], emulator)  # type: ignore[arg-type]
+    cli.write_records(str(tmp_path / "run.csv.gz"), [record, whole], emulator)  # type: ignore[arg-type]
     messages = [r.getMessage() for r in caplog.records]
     first = tmp_path / "run.csv.gz"
     second = tmp_path / "run.g1.csv.gz"

@@ -92,3 +92,39 @@ def test_every_shipped_model_comes_to_an_exact_rest_after_a_move(model: str) -> 
     _run(fast, slow, 8000)
     assert not fast.in_motion
     assert fast._rest.periods > 0
+
+
+def test_a_period_stepped_at_once_ends_as_its_ticks_one_by_one() -> None:
+    """Controller.step_period (what a control loop without a recorder runs: at rest a replay, moving
+    the drives alone until the period's last tick) against step() four times, through motion, a
+    following-error alarm in the middle of a period, a stop, and rests."""
+    robot = load_model("jibot_zxs")
+    whole, ticks = Controller(robot, ControllerConfig()), Controller(robot, ControllerConfig())
+    sub = whole.servo_ticks_per_interpolation
+
+    def periods(count: int) -> None:
+        for _ in range(count):
+            last = whole.step_period()
+            for _ in range(sub):
+                tick = ticks.step()
+            assert last == tick, f"at t={tick.time}"
+            assert whole.servo.position == ticks.servo.position and whole.servo.integral == ticks.servo.integral
+
+    script: list[tuple[int, Verb]] = [
+        (500, lambda c: c.add_move(np.full(6, 0.4), speed=0.8)),
+        (100, lambda c: c.stop()),
+        (800, lambda c: c.add_move(np.full(6, -0.3), speed=0.5)),
+        (40, lambda c: setattr(c.servo, "following_error_limit", [1e-6] * 6)),  # moving: trips at once
+        (300, lambda c: alarms.append(c.error_code)),
+        (0, lambda c: setattr(c.servo, "following_error_limit", [1.0] * 6)),
+        (10, lambda c: c.reset()),
+        (10, lambda c: c.add_move(np.full(6, 0.1), speed=0.5)),
+        (1500, lambda c: None),
+    ]
+    alarms: list[int] = []
+    for count, verb in script:
+        periods(count)
+        _both(whole, ticks, verb)
+    assert alarms == [4101, 4101], "the following-error alarm tripped in both"
+    assert whole.error_code == 0 and ticks.error_code == 0
+    assert whole.points_accepted == 3 and whole._rest.periods > 0

@@ -585,12 +585,40 @@ class Controller:
                 self.step()
             return self.step()
         self._instant()
-        if self._replaying is not None and self._rest_key() == self._replay_key:
+        if self._replaying is not None:  # nothing can happen between the instant and its period
             self._tick += sub - 1
             return self._replay(self._replaying[-1], sub - 1)
         for i in range(sub - 1):
-            self._servo_tick(i)
+            if self._replaying is None and not self._rest.watching and (self.moving or self._settled):
+                self._unseen_tick(i)  # moving: no one sees this tick but the drives
+            else:
+                self._servo_tick(i)
         return self._servo_tick(sub - 1)
+
+    def _unseen_tick(self, i: int) -> None:
+        """Servo tick ``i`` of the period (not its last) when no one sees its :class:`Tick`: the
+        drives and their following-error supervision only, the same numbers as :meth:`_servo_tick`
+        (which also makes the tick, and checks the robot settling: not while it moves)."""
+        self._tick += 1
+        f = (i + 1) / self._sub
+        g = 1.0 - f
+        (p0, v0, _), (p1, v1, _) = self._previous, self._next
+        cmd_p = [g * x + f * y for x, y in zip(p0, p1, strict=True)]
+        servo = self.servo
+        if self.config.increment_feedforward:
+            period = self.config.interpolation_period
+            servo.step(cmd_p, [(y - x) / period for x, y in zip(p0, p1, strict=True)])
+        else:
+            servo.step(cmd_p, [g * x + f * y for x, y in zip(v0, v1, strict=True)])
+        limits = servo.following_error_limit
+        for j, (c, a) in enumerate(zip(cmd_p, servo.position, strict=True)):
+            e = c - a
+            if abs(e) > limits[j]:
+                self.raise_alarm(
+                    FOLLOWING_ERROR_ALARM + j + 1,
+                    f"following error of joint {j + 1} ({self.model.joints[j].name}) is {e:.4g}, limit {limits[j]:g}",
+                )
+                break
 
     def _instant(self) -> None:
         """At an interpolation instant: sample the motion for the next one, or find the coming
@@ -711,23 +739,14 @@ class Controller:
         )
 
     def _replay(self, resting: Tick, i: int) -> Tick:
-        """One tick of a resting period again, at its new time (:mod:`.rest`)."""
+        """One tick of a resting period again, at its new time (:mod:`.rest`). (The tuples are
+        made directly: a NamedTuple's own constructor and ``_replace`` cost several times more,
+        and this runs for every controller at rest every period.)"""
         self._tick += 1
         now = self._tick * self.config.servo_period
         if i + 1 == self._sub:
-            self.tool = self.tool._replace(time=now)
-        tick = self.command = Tick(
-            now,
-            resting.command_position,
-            resting.command_velocity,
-            resting.command_acceleration,
-            resting.actual_position,
-            resting.actual_velocity,
-            resting.actual_acceleration,
-            resting.following_error,
-            resting.points,
-            self.tool,
-        )
+            self.tool = _new(ToolState, (now, *self.tool[1:]))
+        tick = self.command = _new(Tick, (now, *resting[1:9], self.tool))
         return tick
 
     def run_for(self, seconds: float, recorder: Recorder | None = None) -> None:
@@ -787,6 +806,9 @@ class Controller:
         self._settled = False  # the drives still brake the joints to a halt
         self.servo.hold()
         self.queue.abandon(np.array(actual))
+
+
+_new = tuple.__new__
 
 
 def submit_together(pairs: Sequence[tuple[Controller, Point]], *, first: bool = False) -> None:

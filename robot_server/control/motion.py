@@ -346,8 +346,7 @@ class MotionQueue:
         running = self._running
         if running is not None:
             assert running.segment is not None
-            s = running.segment.sample(t - self._started)
-            self._state = State(s.position, s.velocity, s.acceleration)
+            self._state = State(*running.segment.state_at(t - self._started))
         self._t = t
         return self._state
 

@@ -73,6 +73,11 @@ class RestWatch:
         else:
             self._drives = None
 
+    @property
+    def watching(self) -> bool:
+        """A period is being watched (its ticks are needed)."""
+        return self._drives is not None
+
     def add(self, tick: Tick) -> None:
         if self._drives is not None:
             self._ticks.append(tick)

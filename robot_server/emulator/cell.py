@@ -335,7 +335,7 @@ class RobotCell:
     def notify(self) -> None:
         """Wake everything waiting in :meth:`changed` (called after every control-loop wake-up)."""
         moving = [g.in_motion for g in self.groups]
-        for i, (now, before) in enumerate(zip(moving, self._was_moving, strict=True)):
+        for i, (now, before) in enumerate(zip(moving, self._was_moving, strict=True) if any(self._was_moving) else ()):
             if before and not now:
                 g = self.groups[i]
                 kind = self._kind[i]
@@ -390,6 +390,8 @@ class Wakeup:
         await future
 
     def wake(self) -> None:
+        if not self._waiters:
+            return
         waiters, self._waiters = self._waiters, []
         for w in waiters:
             if not w.done():  # not cancelled meanwhile

@@ -28,7 +28,7 @@ import functools
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -244,16 +244,43 @@ def _check_fixed_wire(config: EmulatorConfig, profile: EmulatorProfile) -> None:
 
 @dataclass
 class PeriodStats:
-    """How punctually the state topics went out (wall clock)."""
+    """How punctually the state topics went out (wall clock): the rounds' lateness, its maximum
+    and its distribution in :data:`LATENESS_BIN` steps (the last bin holds all later ones)."""
 
     period: float
     sent: int = 0
     max_lateness: float = 0.0
     skipped: int = 0
+    #: rounds by lateness, :data:`LATENESS_BIN` wide each
+    histogram: list[int] = field(default_factory=lambda: [0] * LATENESS_BINS)
 
     def add(self, lateness: float) -> None:
         self.sent += 1
         self.max_lateness = max(self.max_lateness, lateness)
+        self.histogram[min(LATENESS_BINS - 1, max(0, int(lateness / LATENESS_BIN)))] += 1
+
+    def quantile(self, q: float) -> float:
+        """The lateness that ``q`` of the rounds were within (the upper edge of its bin, s)."""
+        return lateness_quantile(self.histogram, q)
+
+
+#: the lateness histogram's bins: 20 us wide up to 10 ms
+LATENESS_BIN = 20e-6
+LATENESS_BINS = 500
+
+
+def lateness_quantile(histogram: Sequence[int], q: float) -> float:
+    """The lateness within which ``q`` of the rounds of ``histogram`` (:class:`PeriodStats`'s, or
+    several added up) went out (s, the upper edge of the bin; 0 with no rounds)."""
+    total = sum(histogram)
+    if total == 0:
+        return 0.0
+    needed, seen = q * total, 0
+    for index, count in enumerate(histogram):
+        seen += count
+        if seen >= needed:
+            return (index + 1) * LATENESS_BIN
+    return len(histogram) * LATENESS_BIN
 
 
 class Emulator:
@@ -397,7 +424,7 @@ class Emulator:
         if self.shared is not None:  # the fleet bounds the log; the shared loop steps the controller
             self.control.context = contextvars.copy_context()  # as this task's: the log names the controller
             self.shared.join(self.control)
-            self._tasks.append(loop.create_task(self._run_state(), name="emulator state topics"))
+            self.shared.state_rounds(self.state_stats.period).add(self._state_round, self._skip_rounds)
             if cfg.serial is not None:
                 self.motion_server.start_serving(self.motion_server.serve_serial(cfg.serial, data={STATE_LINK: True}))
             return self
@@ -436,13 +463,8 @@ class Emulator:
         # The precise ticker wants an idle loop to hand its wake-ups to: on a simulated or stepped
         # clock the control loop keeps the event loop (and the GIL) busy, and the ticker's thread
         # would starve the topics; the loop's own timers serve those clocks.
-        own = None
-        if self.shared is not None:
-            ticker = self.shared.ticker
-            origin = time.monotonic() + self.shared.state_phase() * period
-        else:
-            ticker = own = Ticker() if self.clock.realtime else None
-            origin = time.monotonic()
+        ticker = Ticker() if self.clock.realtime else None
+        origin = time.monotonic()
         k = 0
         try:
             while True:
@@ -455,18 +477,26 @@ class Emulator:
                 late = time.monotonic() - deadline
                 if late > period:  # fell behind (a stalled machine): skip, never burst
                     missed = int(late // period)
-                    self.state_stats.skipped += missed
+                    self._skip_rounds(missed)
                     k += missed
-                self.state_stats.add(late - (late // period) * period if late > period else late)
-                try:
-                    self.publish_state()
-                    for hook in self.after_state:
-                        hook()
-                except Exception:  # pragma: no cover - a bug must not end the topics
-                    log.exception("publishing state failed")
+                    deadline += missed * period
+                self._state_round(deadline)
         finally:
-            if own is not None:
-                own.close()
+            if ticker is not None:
+                ticker.close()
+
+    def _skip_rounds(self, count: int) -> None:
+        self.state_stats.skipped += count
+
+    def _state_round(self, deadline: float) -> None:
+        """One round of state topics, due at ``deadline`` (``time.monotonic()``), then the hooks."""
+        self.state_stats.add(max(0.0, time.monotonic() - deadline))
+        try:
+            self.publish_state()
+            for hook in self.after_state:
+                hook()
+        except Exception:  # pragma: no cover - a bug must not end the topics
+            log.exception("publishing state failed")
 
     def state_sessions(self) -> list[Session]:
         """Everyone who gets state topics: state-port clients and serial links."""
@@ -502,6 +532,7 @@ class Emulator:
         self.control.stop()
         if self.shared is not None:
             self.shared.leave(self.control)
+            self.shared.state_rounds(self.state_stats.period).remove(self._state_round)
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)

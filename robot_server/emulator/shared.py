@@ -13,14 +13,23 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import sys
+import time
+from collections.abc import Callable
 
 from ..control import Clock, ControlLoop, SharedLoop
 from .ticker import Ticker
 
-__all__ = ["Shared"]
+__all__ = ["Shared", "StateRounds"]
 
-#: the golden ratio's fractional part: successive multiples spread evenly over [0, 1) for any count
-_SPREAD = 0.6180339887498949
+#: how often a thread holding the GIL lets another that waits for it run (s; :meth:`Shared.start`)
+SWITCH_INTERVAL = 0.0002
+#: how far apart the slots of a period's state rounds are (s): :class:`StateRounds`
+SLOT = 0.002
+
+#: a state round: called with its deadline (``time.monotonic()``), or told how many it missed
+RoundCallback = Callable[[float], None]
+SkipCallback = Callable[[int], None]
 
 
 class Shared:
@@ -34,11 +43,17 @@ class Shared:
         self.loops: dict[tuple[float, int], SharedLoop] = {}
         self._tasks: list[asyncio.Task[object]] = []
         self.ticker: Ticker | None = None
-        self._phases = 0
+        #: one schedule of state rounds per period
+        self.rounds: dict[float, StateRounds] = {}
 
     def start(self) -> None:
         if self.clock.realtime and self.ticker is None:
             self.ticker = Ticker()
+            # The ticker's thread needs the GIL for the moment it takes to hand a wake-up over; a
+            # loop busy with many controllers holds it until the interpreter asks it to let go,
+            # every switch interval (5 ms by default: a state round up to 5 ms late). Asked every
+            # 0.2 ms instead, the hand-over waits at most that; a lone thread is never asked.
+            sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
 
     def join(self, loop: ControlLoop) -> None:
         """Run ``loop``'s periods at the shared wake-ups of its interpolation period from the next one on."""
@@ -54,12 +69,13 @@ class Shared:
         for shared in self.loops.values():
             shared.remove(loop)
 
-    def state_phase(self) -> float:
-        """Where in its period the next emulator's state rounds fall due: a share of the period,
-        0..1, spread evenly however many emulators ask."""
-        phase = (self._phases * _SPREAD) % 1.0
-        self._phases += 1
-        return phase
+    def state_rounds(self, period: float) -> StateRounds:
+        """The schedule of every emulator's state rounds of ``period`` seconds (made on first use)."""
+        rounds = self.rounds.get(period)
+        if rounds is None:
+            rounds = self.rounds[period] = StateRounds(period, self.ticker)
+            self._tasks.append(asyncio.get_running_loop().create_task(rounds.run(), name=f"state rounds {period:g} s"))
+        return rounds
 
     async def close(self) -> None:
         for shared in self.loops.values():
@@ -72,3 +88,64 @@ class Shared:
         if self.ticker is not None:
             self.ticker.close()
             self.ticker = None
+
+
+class StateRounds:
+    """The state rounds of many emulators with one period, on one schedule.
+
+    The period is cut into slots :data:`SLOT` apart; each emulator takes the slot with the fewest
+    (so that their rounds spread over the period); one wake-up runs every round of its slot, in the
+    order they joined. A process with hundreds of controllers wakes a few hundred times a second
+    for their state, however many they are, and no round waits for more than its slot's share of
+    the others. Falling more than a period behind (a stalled machine) skips rounds, never bursts."""
+
+    def __init__(self, period: float, ticker: Ticker | None) -> None:
+        self.period = period
+        self.slots = max(1, round(period / SLOT))
+        self.spacing = period / self.slots
+        self._ticker = ticker
+        self._members: list[list[tuple[RoundCallback, SkipCallback]]] = [[] for _ in range(self.slots)]
+        self._joined = asyncio.Event()
+
+    def add(self, publish: RoundCallback, skipped: SkipCallback) -> None:
+        slot = min(range(self.slots), key=lambda s: len(self._members[s]))
+        self._members[slot].append((publish, skipped))
+        self._joined.set()
+
+    def remove(self, publish: RoundCallback) -> None:
+        for members in self._members:
+            members[:] = [m for m in members if m[0] != publish]
+
+    async def _sleep_until(self, deadline: float) -> None:
+        if self._ticker is not None:
+            await self._ticker.sleep_until(deadline)
+        else:  # a simulated or stepped clock keeps the loop busy: its own timers serve
+            await asyncio.sleep(max(0.0, deadline - time.monotonic()))
+
+    async def run(self) -> None:
+        members, slots, spacing = self._members, self.slots, self.spacing
+        origin = time.monotonic()
+        j = 0
+        while True:
+            if not any(members):
+                self._joined.clear()
+                await self._joined.wait()
+            j += 1
+            for _ in range(slots):  # on to the next slot that has rounds to run
+                if members[j % slots]:
+                    break
+                j += 1
+            deadline = origin + j * spacing
+            await self._sleep_until(deadline)
+            late = time.monotonic() - deadline
+            if late > self.period:  # fell behind: on to the slot due now, the rounds between skipped
+                missed = int(late // spacing)
+                for slot in range(slots):
+                    count = missed // slots + (1 if (slot - j - 1) % slots < missed % slots else 0)
+                    if count:
+                        for _, skipped in members[slot]:
+                            skipped(count)
+                j += missed
+                deadline = origin + j * spacing
+            for publish, _ in tuple(members[j % slots]):
+                publish(deadline)

@@ -26,6 +26,7 @@ from typing import TypeVar
 
 from ..control import Clock, RealTimeClock, Recorder
 from ..emulator import Emulator, FaultError
+from ..emulator.server import lateness_quantile
 from ..emulator.shared import Shared
 from ..loader import load_model
 from ..model import ModelError, RobotModel
@@ -162,21 +163,29 @@ class Fleet:
 
     def _report(self) -> None:
         for (period, _), shared in self.shared.loops.items():
-            stats = shared.stats
-            if self.shared.clock.realtime and stats.wakes:
+            loop = shared.stats
+            if self.shared.clock.realtime and loop.wakes:
                 log.info(
                     "control loop (%g ms, %d controllers): %d wake-ups, %d overruns (a wake-up more than one "
                     "interpolation period late), latest %.3f ms",
                     period * 1e3,
                     len(self),
-                    stats.wakes,
-                    stats.overruns,
-                    stats.max_lateness * 1e3,
+                    loop.wakes,
+                    loop.overruns,
+                    loop.max_lateness * 1e3,
                 )
-        rounds = sum(e.state_stats.sent for e in self.emulators.values())
-        skipped = sum(e.state_stats.skipped for e in self.emulators.values())
-        latest = max((e.state_stats.max_lateness for e in self.emulators.values()), default=0.0)
-        log.info("state topics: %d rounds, %d skipped, latest %.3f ms", rounds, skipped, latest * 1e3)
+        stats = [e.state_stats for e in self.emulators.values()]
+        together = [sum(column) for column in zip(*(s.histogram for s in stats), strict=True)]
+        worst = max(stats, key=lambda s: s.quantile(0.99))
+        log.info(
+            "state topics: %d rounds, %d skipped, lateness p99 %.3f ms (the worst controller's p99 %.3f ms), "
+            "latest %.3f ms",
+            sum(s.sent for s in stats),
+            sum(s.skipped for s in stats),
+            lateness_quantile(together, 0.99) * 1e3,
+            worst.quantile(0.99) * 1e3,
+            max(s.max_lateness for s in stats) * 1e3,
+        )
 
     async def __aenter__(self) -> Fleet:
         return await self.start()

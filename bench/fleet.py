@@ -1,0 +1,492 @@
+"""Fleet benchmark: what a controller costs in a ``robot-server --fleet`` process, against one process each.
+
+Plain script; prints tables. Targets (issue 38), on the machine it runs on:
+
+* at rest, >= 100 controllers per core: each <= 1 % of a core and <= 10 MB of memory (the fleet's
+  resident memory divided by its controllers);
+* moving, >= 20 controllers per core in real time: every one streaming trajectories, the fleet's
+  control wake-ups with 0 overruns (a wake-up more than one interpolation period late);
+* the state rounds on time: lateness p99 <= 1 ms for every controller of a 50-controller fleet
+  with a state client each (as the fleet measures it when each round goes out, and as the clients
+  see it: the spread of the intervals between rounds around the period).
+
+Idle: a fleet of N controllers of every profile in turn (generic, motoros, abb, fanuc, staubli),
+measured for ``--seconds`` after two seconds of settling: CPU time of the process (utime + stime)
+per controller, its resident memory per controller. The comparison row: N ``robot-server``
+processes, one controller each, measured in the same run the same way (summed). Moving: N generic
+controllers, each with a client (this project's RobotDriver, in a separate process) streaming a
+two-second swing back and forth for the whole window. Jitter: 50 controllers of every profile at
+rest, each with a raw state client (a separate process) that timestamps every round.
+
+``--soak MINUTES``: a 50-controller fleet with clients connecting, streaming, stopping and vanishing
+(FIN and RST) at random for MINUTES; prints the fleet's RSS every minute, its errors (tracebacks,
+ERROR lines) and its overruns.
+
+    python bench/fleet.py [--counts 1,10,50,100,200] [--process-counts 1,10,50] [--moving 20,40]
+                          [--seconds 10] [--skip idle,moving,jitter] [--soak MINUTES]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import itertools
+import os
+import platform
+import random
+import re
+import signal
+import socket
+import struct
+import sys
+import tempfile
+import time
+from collections.abc import AsyncIterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+PROFILES = ("generic", "motoros", "abb", "fanuc", "staubli")
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+PORTS = r"(?P<profile>\w+) profile, .*?motion [\d.]+:(?P<motion>\d+), state [\d.]+:(?P<state>\d+)"
+READY = re.compile(r"^(?P<name>[\w-]+): robot-server ready: " + PORTS)
+SINGLE = re.compile(
+    r"^robot-server ready: (?P<profile>\w+) profile, .*?motion [\d.]+:(?P<motion>\d+), state [\d.]+:(?P<state>\d+)"
+)
+OVERRUNS = re.compile(r"control loop \(.*?\): (\d+) wake-ups, (\d+) overruns.*?latest ([\d.]+) ms")
+STATE_REPORT = re.compile(r"lateness p99 ([\d.]+) ms \(the worst controller's p99 ([\d.]+) ms\), latest ([\d.]+) ms")
+#: the state rate of each profile (Hz): what a client's intervals are compared with
+RATES = {"generic": 40.0, "motoros": 40.0, "abb": 10.0, "fanuc": 1 / 0.024, "staubli": 50.0}
+
+
+@dataclass
+class Controller:
+    name: str
+    profile: str
+    motion: int
+    state: int
+
+
+@dataclass
+class Running:
+    """One or more robot-server processes and their controllers."""
+
+    procs: list[asyncio.subprocess.Process]
+    logs: list[Path]
+    controllers: list[Controller] = field(default_factory=list)
+
+    def cpu(self) -> float:
+        """CPU seconds used so far by the processes together."""
+        total = 0
+        for proc in self.procs:
+            with open(f"/proc/{proc.pid}/stat") as stat:
+                fields = stat.read().rsplit(")", 1)[1].split()
+            total += int(fields[11]) + int(fields[12])
+        return total / CLOCK_TICKS
+
+    def rss(self) -> float:
+        """Resident memory of the processes together (MB)."""
+        total = 0
+        for proc in self.procs:
+            with open(f"/proc/{proc.pid}/status") as status:
+                for line in status:
+                    if line.startswith("VmRSS:"):
+                        total += int(line.split()[1])
+        return total / 1024
+
+    async def stop(self) -> list[str]:
+        """SIGINT every process, wait (bounded), return their logs."""
+        for proc in self.procs:
+            if proc.returncode is None:
+                proc.send_signal(signal.SIGINT)
+        for proc in self.procs:
+            try:
+                await asyncio.wait_for(proc.wait(), 60.0)
+            except TimeoutError:
+                proc.kill()
+                await proc.wait()
+        return [log.read_text(errors="replace") for log in self.logs]
+
+
+def fleet_file(count: int, profiles: Sequence[str], folder: Path) -> Path:
+    lines = []
+    for k in range(count):
+        profile = profiles[k % len(profiles)]
+        lines += ["[[controller]]", f'name = "c{k}"', f'profile = "{profile}"', "motion_port = 0", "state_port = 0"]
+        if profile == "motoros":
+            lines.append("io_port = 0")
+        lines.append("")
+    path = folder / f"fleet{count}.toml"
+    path.write_text("\n".join(lines))
+    return path
+
+
+async def _spawn(args: Sequence[str], log: Path) -> asyncio.subprocess.Process:
+    with log.open("wb") as err:
+        return await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "robot_server", *args, "--no-stdin", stdout=asyncio.subprocess.PIPE, stderr=err
+        )
+
+
+@contextlib.asynccontextmanager
+async def fleet(count: int, profiles: Sequence[str], folder: Path) -> AsyncIterator[Running]:
+    log = folder / f"fleet{count}.log"
+    proc = await _spawn(["--fleet", str(fleet_file(count, profiles, folder))], log)
+    running = Running([proc], [log])
+    try:
+        assert proc.stdout is not None
+        async with asyncio.timeout(120.0):
+            while len(running.controllers) < count:
+                line = (await proc.stdout.readline()).decode()
+                if not line:
+                    raise RuntimeError(f"the fleet ended: {log.read_text()[-2000:]}")
+                match = READY.match(line)
+                if match:
+                    running.controllers.append(
+                        Controller(match["name"], match["profile"], int(match["motion"]), int(match["state"]))
+                    )
+            await proc.stdout.readline()  # the fleet's own ready line
+        yield running
+    finally:
+        await running.stop()
+
+
+@contextlib.asynccontextmanager
+async def processes(count: int, profiles: Sequence[str], folder: Path) -> AsyncIterator[Running]:
+    running = Running([], [])
+    try:
+        for k in range(count):
+            profile = profiles[k % len(profiles)]
+            log = folder / f"single{k}.log"
+            extra = ["--io-port", "0"] if profile == "motoros" else []
+            proc = await _spawn(["--profile", profile, "--motion-port", "0", "--state-port", "0", *extra], log)
+            running.procs.append(proc)
+            running.logs.append(log)
+        for k, proc in enumerate(running.procs):
+            assert proc.stdout is not None
+            line = (await asyncio.wait_for(proc.stdout.readline(), 120.0)).decode()
+            match = SINGLE.match(line)
+            if match is None:
+                raise RuntimeError(f"robot-server did not start: {line!r} {running.logs[k].read_text()[-2000:]}")
+            running.controllers.append(Controller(f"p{k}", match["profile"], int(match["motion"]), int(match["state"])))
+        yield running
+    finally:
+        await running.stop()
+
+
+async def measure(running: Running, seconds: float) -> tuple[float, float]:
+    """(share of a core, resident MB) of the processes over ``seconds`` after 2 s of settling."""
+    await asyncio.sleep(2.0)
+    cpu0, wall0 = running.cpu(), time.monotonic()
+    await asyncio.sleep(seconds)
+    return (running.cpu() - cpu0) / (time.monotonic() - wall0), running.rss()
+
+
+# -- idle ----------------------------------------------------------------------------------------
+
+
+async def idle(counts: Sequence[int], process_counts: Sequence[int], seconds: float, folder: Path) -> None:
+    print("\n## At rest (no clients): cost per controller\n")
+    print("| controllers | how | CPU per controller (% of a core) | RSS per controller (MB) | CPU total (%) |", end="")
+    print(" RSS total (MB) |")
+    print("|---:|---|---:|---:|---:|---:|")
+    rows: list[tuple[int, str, float, float]] = []
+    for count in sorted(set(counts) | set(process_counts)):
+        if count in counts:
+            async with fleet(count, PROFILES, folder) as running:
+                share, rss = await measure(running, seconds)
+            rows.append((count, "one fleet process", share, rss))
+            print(_idle_row(count, "one fleet process", share, rss), flush=True)
+        if count in process_counts:
+            async with processes(count, PROFILES, folder) as running:
+                share, rss = await measure(running, seconds)
+            print(_idle_row(count, "one process each", share, rss), flush=True)
+    good = [r for r in rows if r[0] >= 100 and r[2] / r[0] <= 0.01 and r[3] / r[0] <= 10.0]
+    print(f"\ntarget (>= 100 controllers per core, <= 1 % and <= 10 MB each): {'met' if good else 'NOT met'}")
+
+
+def _idle_row(count: int, how: str, share: float, rss: float) -> str:
+    return f"| {count} | {how} | {100 * share / count:.3f} | {rss / count:.2f} | {100 * share:.1f} | {rss:.0f} |"
+
+
+# -- moving --------------------------------------------------------------------------------------
+
+
+async def moving(counts: Sequence[int], seconds: float, folder: Path) -> None:
+    print("\n## Moving: every controller streaming (a RobotDriver each, in another process)\n")
+    print("| controllers | CPU per controller (% of a core) | CPU total (%) | wake-ups | overruns |", end="")
+    print(" latest wake-up (ms) | trajectories run |")
+    print("|---:|---:|---:|---:|---:|---:|---:|")
+    for count in counts:
+        async with fleet(count, ("generic",), folder) as running:
+            ports = ",".join(f"{c.motion}:{c.state}" for c in running.controllers)
+            client = await asyncio.create_subprocess_exec(
+                sys.executable, __file__, "_stream", ports, str(seconds + 4.0), stdout=asyncio.subprocess.PIPE
+            )
+            share, _ = await measure(running, seconds)
+            out, _ = await asyncio.wait_for(client.communicate(), 120.0)
+            log = (await running.stop())[0]
+        runs = out.decode().strip()
+        match = OVERRUNS.search(log)
+        wakes, overruns, latest = (match[1], match[2], match[3]) if match else ("?", "?", "?")
+        errors = log.count("Traceback")
+        print(
+            f"| {count} | {100 * share / count:.2f} | {100 * share:.0f} | {wakes} | {overruns} | {latest} | {runs}"
+            + (f" ({errors} tracebacks)" if errors else "")
+            + " |",
+            flush=True,
+        )
+
+
+async def _stream_client(ports: str, seconds: float) -> None:
+    """(child) Stream a swing back and forth to every controller until ``seconds`` have passed."""
+    import numpy as np
+
+    from client.driver import RobotDriver
+    from client.trajectory import Trajectory
+    from robot_server import load_model
+
+    model = load_model("jibot_zxs")
+    times = np.linspace(0.0, 2.0, 41)
+    shape = (1 - np.cos(np.pi * times / 2.0)) / 2
+    swing = np.array([0.4, -0.3, 0.2, 0.0, 0.3, 0.0])
+    out = Trajectory(times, np.outer(shape, swing))
+    back = Trajectory(times, np.outer(1.0 - shape, swing))
+    end = time.monotonic() + seconds
+    done = 0
+
+    async def one(motion: int, state: int) -> None:
+        nonlocal done
+        async with RobotDriver("127.0.0.1", motion, state, model=model) as robot:
+            trajectories = (out, back)
+            k = 0
+            while time.monotonic() < end:
+                await robot.execute(trajectories[k % 2])
+                k += 1
+                done += 1
+
+    pairs = [tuple(int(p) for p in item.split(":")) for item in ports.split(",")]
+    with contextlib.suppress(TimeoutError):
+        async with asyncio.timeout(seconds + 30.0):
+            await asyncio.gather(*(one(m, s) for m, s in pairs))
+    print(done)
+
+
+# -- jitter --------------------------------------------------------------------------------------
+
+
+async def jitter(count: int, seconds: float, folder: Path) -> None:
+    print(f"\n## State rounds: {count} controllers of every profile at rest, a state client each\n")
+    async with fleet(count, PROFILES, folder) as running:
+        spec = ",".join(f"{c.state}:{c.profile}" for c in running.controllers)
+        client = await asyncio.create_subprocess_exec(
+            sys.executable, __file__, "_watch", spec, str(seconds), stdout=asyncio.subprocess.PIPE
+        )
+        out, _ = await asyncio.wait_for(client.communicate(), seconds + 120.0)
+        log = (await running.stop())[0]
+    print("| seen by | rounds | interval spread p99, all (ms) | the worst controller's p99 (ms) | max (ms) |")
+    print("|---|---:|---:|---:|---:|")
+    print(out.decode().strip())
+    match = STATE_REPORT.search(log)
+    if match:
+        print(f"| the fleet (lateness when each round went out) | | {match[1]} | {match[2]} | {match[3]} |")
+    overruns = OVERRUNS.search(log)
+    if overruns:
+        print(f"\ncontrol wake-ups meanwhile: {overruns[1]}, overruns {overruns[2]}, latest {overruns[3]} ms")
+
+
+async def _watch_client(spec: str, seconds: float) -> None:
+    """(child) Timestamp every state round of every controller; print the intervals' spread."""
+    items = [(int(p), profile) for p, profile in (item.split(":") for item in spec.split(","))]
+    rounds: list[list[float]] = [[] for _ in items]
+    #: chunks closer than this are one round (a round is a few frames written together)
+    gap = 0.004
+
+    class Watch(asyncio.Protocol):
+        def __init__(self, index: int) -> None:
+            self.index = index
+
+        def data_received(self, data: bytes) -> None:
+            now = time.monotonic()
+            seen = rounds[self.index]
+            if not seen or now - seen[-1] > gap:
+                seen.append(now)
+
+    loop = asyncio.get_running_loop()
+    transports = []
+    for index, (port, _) in enumerate(items):
+        transport, _ = await loop.create_connection(lambda i=index: Watch(i), "127.0.0.1", port)  # type: ignore[misc]
+        transports.append(transport)
+    await asyncio.sleep(seconds)
+    for transport in transports:
+        transport.close()
+    spreads: list[float] = []
+    worst = 0.0
+    total = 0
+    for (_, profile), seen in zip(items, rounds, strict=True):
+        period = 1.0 / RATES[profile]
+        deviations = sorted(abs((b - a) - period) for a, b in itertools.pairwise(seen[1:]))
+        if not deviations:
+            continue
+        total += len(deviations)
+        spreads += deviations
+        worst = max(worst, deviations[min(len(deviations) - 1, int(0.99 * len(deviations)))])
+    spreads.sort()
+    p99 = spreads[min(len(spreads) - 1, int(0.99 * len(spreads)))] if spreads else float("nan")
+    peak = spreads[-1] if spreads else float("nan")
+    print(f"| the clients (interval - period) | {total} | {p99 * 1e3:.3f} | {worst * 1e3:.3f} | {peak * 1e3:.3f} |")
+
+
+# -- soak ----------------------------------------------------------------------------------------
+
+
+async def soak(minutes: float, folder: Path) -> None:
+    print(f"\n## Soak: 50 controllers of every profile, clients coming and going at random for {minutes:g} min\n")
+    async with fleet(50, PROFILES, folder) as running:
+        spec = ",".join(f"{c.motion}:{c.state}:{c.profile}" for c in running.controllers)
+        client = await asyncio.create_subprocess_exec(
+            sys.executable, __file__, "_chaos", spec, str(minutes * 60.0), stdout=asyncio.subprocess.PIPE
+        )
+        print("| minute | RSS (MB) | CPU over the minute (% of a core) |")
+        print("|---:|---:|---:|")
+        await asyncio.sleep(5.0)
+        first = running.rss()
+        samples = [first]
+        cpu0, wall0 = running.cpu(), time.monotonic()
+        print(f"| 0 | {first:.1f} | |", flush=True)
+        for minute in range(1, int(minutes) + 1):
+            await asyncio.sleep(max(0.0, wall0 + 60.0 - time.monotonic()))
+            cpu1, wall1 = running.cpu(), time.monotonic()
+            rss = running.rss()
+            samples.append(rss)
+            print(f"| {minute} | {rss:.1f} | {100 * (cpu1 - cpu0) / (wall1 - wall0):.0f} |", flush=True)
+            cpu0, wall0 = cpu1, wall1
+        out, _ = await asyncio.wait_for(client.communicate(), 300.0)
+        log = (await running.stop())[0]
+    print(f"\nclients: {out.decode().strip()}")
+    print(f"RSS: first {samples[0]:.1f} MB, last {samples[-1]:.1f} MB, range {min(samples):.1f}..{max(samples):.1f} MB")
+    drift = max(abs(s - samples[0]) for s in samples)
+    print(f"RSS flat within +-5 MB: {'yes' if drift <= 5.0 else 'NO'} (largest change {drift:.1f} MB)")
+    errors = [line for line in log.splitlines() if " ERROR " in line or line.startswith("Traceback")]
+    print(f"tracebacks: {log.count('Traceback')}, ERROR lines: {len(errors)}")
+    for line in errors[:5]:
+        print(f"  {line}")
+    overruns = OVERRUNS.search(log)
+    if overruns:
+        print(f"control wake-ups: {overruns[1]}, overruns {overruns[2]}, latest {overruns[3]} ms")
+
+
+async def _chaos_client(spec: str, seconds: float) -> None:
+    """(child) Clients connect, stream, stop and vanish (FIN or RST) at random, for ``seconds``."""
+    import numpy as np
+
+    from client.driver import RobotDriver
+    from client.trajectory import Trajectory
+    from robot_server import load_model
+
+    model = load_model("jibot_zxs")
+    items = [(int(m), int(s), profile) for m, s, profile in (item.split(":") for item in spec.split(","))]
+    end = time.monotonic() + seconds
+    counts = {"sessions": 0, "streamed": 0, "stopped": 0, "rst": 0, "fin": 0, "garbage": 0, "failed": 0}
+    rng = random.Random(38)
+
+    def swing(amplitude: float) -> Trajectory:
+        times = np.linspace(0.0, 1.0, 21)
+        shape = (1 - np.cos(np.pi * times)) / 2
+        goal = np.array([amplitude, -amplitude / 2, 0.1, 0.0, 0.2, 0.0])
+        return Trajectory(times, np.outer(shape, goal))
+
+    async def session(motion: int, state: int, profile: str) -> None:
+        counts["sessions"] += 1
+        what = rng.random()
+        if what < 0.2:  # a raw client that sends garbage, or nothing, and vanishes
+            _, writer = await asyncio.open_connection("127.0.0.1", rng.choice((motion, state)))
+            if rng.random() < 0.5:
+                writer.write(bytes(rng.getrandbits(8) for _ in range(rng.randrange(1, 200))))
+                counts["garbage"] += 1
+            await asyncio.sleep(rng.uniform(0.0, 0.5))
+            _vanish(writer, rng, counts)
+            return
+        robot = RobotDriver("127.0.0.1", motion, state, profile=profile, model=model, goal_timeout=20.0)
+        await robot.connect()
+        try:
+            task = asyncio.ensure_future(robot.execute(swing(rng.uniform(0.05, 0.4))))
+            await asyncio.sleep(rng.uniform(0.1, 2.0))
+            if task.done():
+                counts["streamed"] += 1
+                task.result()
+            elif rng.random() < 0.5:
+                await robot.stop()
+                counts["stopped"] += 1
+            task.cancel()
+            with contextlib.suppress(BaseException):
+                await task
+        finally:
+            writer = getattr(robot, "_motion_writer", None)
+            if writer is not None and rng.random() < 0.5:
+                _vanish(writer, rng, counts)
+            await robot.close()
+            # back to rest before the next client: a new trajectory starts where the robot is
+            counts["fin"] += 1
+
+    async def worker() -> None:
+        while time.monotonic() < end:
+            motion, state, profile = rng.choice(items)
+            try:
+                async with asyncio.timeout(30.0):
+                    await session(motion, state, profile)
+            except Exception:  # a refusal, a busy controller, a reset connection: the chaos itself
+                counts["failed"] += 1
+            await asyncio.sleep(rng.uniform(0.0, 0.2))
+
+    await asyncio.gather(*(worker() for _ in range(12)))
+    print(", ".join(f"{k} {v}" for k, v in counts.items()))
+
+
+def _vanish(writer: asyncio.StreamWriter, rng: random.Random, counts: dict[str, int]) -> None:
+    sock = writer.get_extra_info("socket")
+    if sock is not None and rng.random() < 0.5:  # RST: linger 0
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        counts["rst"] += 1
+    else:
+        counts["fin"] += 1
+    writer.close()
+
+
+# -- main ----------------------------------------------------------------------------------------
+
+
+def _ints(text: str) -> list[int]:
+    return [int(x) for x in text.split(",") if x.strip()]
+
+
+async def main(args: argparse.Namespace) -> None:
+    machine = f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores"
+    print(f"# Fleet benchmark: {machine}, Python {platform.python_version()}")
+    with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
+        folder = Path(tmp)
+        if args.soak is not None:
+            await soak(args.soak, folder)
+            return
+        skip = set(args.skip.split(",")) if args.skip else set()
+        if "idle" not in skip:
+            await idle(_ints(args.counts), _ints(args.process_counts), args.seconds, folder)
+        if "moving" not in skip:
+            await moving(_ints(args.moving), args.seconds, folder)
+        if "jitter" not in skip:
+            await jitter(50, args.seconds, folder)
+
+
+if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1].startswith("_"):
+        child = {"_stream": _stream_client, "_watch": _watch_client, "_chaos": _chaos_client}[sys.argv[1]]
+        asyncio.run(child(sys.argv[2], float(sys.argv[3])))
+        sys.exit(0)
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--counts", default="1,10,50,100,200", help="fleet sizes at rest")
+    parser.add_argument("--process-counts", default="1,10,50", help="one-process-per-controller comparison sizes")
+    parser.add_argument("--moving", default="20,40", help="fleet sizes moving")
+    parser.add_argument("--seconds", type=float, default=10.0, help="each measurement's window")
+    parser.add_argument("--skip", default="", help="idle, moving, jitter: parts to leave out")
+    parser.add_argument("--soak", type=float, metavar="MINUTES", help="run the soak instead of the tables")
+    asyncio.run(main(parser.parse_args()))
