@@ -128,11 +128,12 @@ def test_the_statefulset_runs_the_configmaps_fleet_with_its_web_view_and_probes(
 
 
 def test_resources_follow_the_per_controller_targets() -> None:
-    """requests: 64 Mi + 10 Mi and 10 m of a core per controller (the fleet's targets at rest);
-    limits: twice the memory, 100 m per controller + 200 m (statefulset.yaml's comment)."""
+    """requests: the process's own 64 Mi and 50 m of a core, and 10 Mi and 10 m per controller (the
+    fleet's targets at rest); limits: twice the memory, 200 m + 100 m per controller
+    (statefulset.yaml's comment)."""
     n = len(fleet()["controller"])
     r = container()["resources"]
-    assert r["requests"] == {"cpu": f"{10 * n}m", "memory": f"{64 + 10 * n}Mi"}
+    assert r["requests"] == {"cpu": f"{50 + 10 * n}m", "memory": f"{64 + 10 * n}Mi"}
     assert r["limits"] == {"cpu": f"{100 * n + 200}m", "memory": f"{2 * (64 + 10 * n)}Mi"}
 
 
