@@ -243,7 +243,8 @@ async def test_log_lines_name_their_controller() -> None:
     handler.addFilter(ControllerField())
     root = logging.getLogger()
     root.addHandler(handler)
-    level, root.level = root.level, logging.INFO
+    level = root.level
+    root.setLevel(logging.INFO)  # setLevel: the loggers' cached levels are cleared too
     try:
         async with stepped_fleet(*CELL) as (fleet, _clock):
             ceiling = FleetCeiling(list(fleet)).install()
@@ -257,7 +258,7 @@ async def test_log_lines_name_their_controller() -> None:
                 ceiling.remove()
     finally:
         root.removeHandler(handler)
-        root.level = level
+        root.setLevel(level)
     named = {(r.controller, r.getMessage()) for r in records}  # type: ignore[attr-defined]
     assert any(who == "r2: " and "emergency stop" in text for who, text in named), named
     assert any(who == "r3: " and "state" in text.lower() for who, text in named), named
