@@ -49,11 +49,12 @@ class Shared:
     def start(self) -> None:
         if self.clock.realtime and self.ticker is None:
             self.ticker = Ticker()
-            # The ticker's thread needs the GIL for the moment it takes to hand a wake-up over; a
-            # loop busy with many controllers holds it until the interpreter asks it to let go,
-            # every switch interval (5 ms by default: a state round up to 5 ms late). Asked every
-            # 0.2 ms instead, the hand-over waits at most that; a lone thread is never asked.
-            sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
+            if self.ticker.kind == "thread":
+                # The ticker's thread needs the GIL for the moment it takes to hand a wake-up over;
+                # a loop busy with many controllers holds it until the interpreter asks it to let
+                # go, every switch interval (5 ms by default: a state round up to 5 ms late). Asked
+                # every 0.2 ms instead, the hand-over waits at most that; a lone thread is never asked.
+                sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
 
     def join(self, loop: ControlLoop) -> None:
         """Run ``loop``'s periods at the shared wake-ups of its interpolation period from the next one on."""
