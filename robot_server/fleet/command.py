@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import functools
 import logging
 import os
 import signal
@@ -23,6 +24,7 @@ from pathlib import Path
 
 from simple_message.endpoints import run
 
+from ..cli import check_writable, write_records
 from ..emulator import FaultError
 from .config import FleetError, load_fleet
 from .logs import FORMAT, ControllerField, FleetCeiling
@@ -55,12 +57,8 @@ def fleet_main(args: argparse.Namespace, given: list[str]) -> int:
         spec = load_fleet(args.fleet, speedup=args.speedup)
         for controller in spec.controllers:
             if controller.record is not None:
-                from ..cli import check_writable
-
                 check_writable(controller.record, f"controller {controller.name}: record")
             if controller.config.capture is not None:
-                from ..cli import check_writable
-
                 check_writable(Path(controller.config.capture), f"controller {controller.name}: capture")
         fleet = Fleet(spec, speedup=args.speedup)
     except (FleetError, ValueError, OSError) as exc:
@@ -74,14 +72,12 @@ def fleet_main(args: argparse.Namespace, given: list[str]) -> int:
     except FleetError as exc:
         print(f"robot-server: {exc}", file=sys.stderr)
         return 1
-    from ..cli import write_records
-
     failed = False
     for name, recorders in fleet.recorders.items():
         target = spec.named(name).record
         assert target is not None
         try:
-            fleet.run_as(name, lambda: write_records(str(target), recorders, fleet[name]))  # noqa: B023
+            fleet.run_as(name, functools.partial(write_records, str(target), recorders, fleet[name]))
         except OSError as exc:
             print(f"robot-server: controller {name}: cannot write the record: {exc}", file=sys.stderr)
             failed = True

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import contextvars
+import functools
 import logging
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -133,12 +134,12 @@ class Fleet:
         if not command.strip():
             raise FleetCommandError(f"expected NAME COMMAND (e.g. {next(iter(self.emulators))} estop) or {ALL} COMMAND")
         if name == ALL:
-            return [f"{n}: " + self.run_as(n, lambda n=n: self._apply(n, command)) for n in self.emulators]  # type: ignore[misc]
+            return [f"{n}: " + self.run_as(n, functools.partial(self._apply, n, command)) for n in self.emulators]
         if name not in self.emulators:
             names = list(self.emulators)
             shown = ", ".join(names[:10]) + (f" ... ({len(names)})" if len(names) > 10 else "")
             raise FleetCommandError(f"no controller {name!r} in the fleet (controllers: {shown}; {ALL}: every one)")
-        return [f"{name}: " + self.run_as(name, lambda: self._apply(name, command))]
+        return [f"{name}: " + self.run_as(name, functools.partial(self._apply, name, command))]
 
     async def close(self, settle_timeout: float = 10.0) -> None:
         """Bring every robot to rest (together), close every connection, then the shared pieces."""
