@@ -57,9 +57,9 @@ def fleet_main(args: argparse.Namespace, given: list[str]) -> int:
         spec = load_fleet(args.fleet, speedup=args.speedup)
         for controller in spec.controllers:
             if controller.record is not None:
-                check_writable(controller.record, f"controller {controller.name}: record")
+                check_writable(controller.record, f"{spec.path}: controller {controller.name}: record")
             if controller.config.capture is not None:
-                check_writable(Path(controller.config.capture), f"controller {controller.name}: capture")
+                check_writable(Path(controller.config.capture), f"{spec.path}: controller {controller.name}: capture")
         fleet = Fleet(spec, speedup=args.speedup)
     except (FleetError, ValueError, OSError) as exc:
         print(f"robot-server: {exc}", file=sys.stderr)
