@@ -237,7 +237,7 @@ class FrameDecoder:
                 codec = (replies if comm == service_reply else requests)[msg_type]
                 if codec is not None and length == codec.length:
                     # this frame and the ones after it with the same header, straight from buf
-                    pos = codec.unpack_run(buf, pos, end, comm, reply, append)
+                    pos = codec.unpack_run(buf, pos, end, msg_type, comm, reply, out)
                 else:  # any other shape of the type, an unknown type, a malformed body
                     append(decode_or_error(buf[pos:stop], wire))
                     pos = stop
@@ -251,6 +251,50 @@ class FrameDecoder:
         self._buf = buf[pos:] if pos < end else b""
         self.frames_decoded += len(out) - queued
         return out
+
+    def one_message(self, data: bytes, wire: WireFormat) -> Message | MalformedMessage | None:
+        """``feed_messages(data, wire)`` for the commonest read, one whole frame (a request, its reply,
+        one topic): its message, or ``None`` with nothing done when ``data`` is anything else.
+
+        The shortcut applies when nothing is held (no incomplete frame, no frame queued by
+        :meth:`feed`, no error), the byte order is known, ``wire`` is the one the last
+        :meth:`feed_messages` was given, and ``data`` (``bytes``) is exactly one frame whose length
+        prefix is within the maximum. The message is then exactly what :meth:`feed_messages` returns
+        as its only item, and :attr:`frames_decoded` counts it; otherwise call :meth:`feed_messages`.
+        """
+        if wire is not self._given or self._buf or self._frames or self._error is not None or self._plain:
+            return None
+        if self._prefix is None or type(data) is not bytes or len(data) < _FRAME_MIN:
+            return None
+        wire = self._wire
+        length, msg_type, comm, _ = wire.header.unpack_from(data, 0)
+        if length != len(data) - LENGTH_SIZE or length > self.max_length:
+            return None  # a part of a frame, several, or a bad length: the general path
+        self.frames_decoded += 1
+        tables = self._tables
+        if length == HEADER_SIZE:  # header only: decoded once per distinct frame, as feed_messages does
+            small = tables.small
+            item: Message | MalformedMessage | None = small.get(data)
+            if item is None:
+                item = decode_or_error(data, wire)
+                if isinstance(item, Message) and len(small) < _SMALL_FRAMES:
+                    small[data] = item
+            return item
+        codec = (tables.replies if comm == _SERVICE_REPLY else tables.requests)[msg_type]
+        if codec is not None and length == codec.length:
+            return codec.unpack(data)
+        return decode_or_error(data, wire)
+
+    def cached(self, data: bytes, wire: WireFormat) -> Message | None:
+        """What :meth:`one_message` would return for ``data`` without decoding anything: the kept
+        message of a header-only frame (PING, an ack) decoded before, when ``data`` is exactly that
+        frame and the decoder is where :meth:`one_message` applies; else ``None``. Nothing is
+        counted or changed (:meth:`.link.Link.take_standing` counts what it takes)."""
+        if wire is not self._given or self._buf or self._frames or self._error is not None or self._plain:
+            return None
+        if self._prefix is None:
+            return None
+        return self._tables.small.get(data)
 
     def _detect(self, buf: bytes, end: int) -> struct.Struct | None:
         """Detect the byte order from the stream's first length prefix (``None``: not 4 bytes yet)."""

@@ -180,6 +180,8 @@ class Link:
             FrameDecoder(None if autodetect else wire.byte_order, max_length=max_length) if reader is None else reader
         )
         self._raw = reader is not None
+        #: the decoder when it cuts by the length prefix (receive_one's shortcut), else None
+        self._cutter = self._decoder if isinstance(self._decoder, FrameDecoder) else None
         self._pending: deque[Request] = deque()
         self._events: deque[Event] = deque()
         self._ended = False
@@ -190,6 +192,10 @@ class Link:
         self._end_after = False
         #: Called with each complete frame received, before it is decoded (frame logs, captures).
         self.on_frame: Callable[[bytes], None] | None = None
+        #: Standing replies: whole request frames that the link's user answers with a fixed reply frame
+        #: without having them decoded (:meth:`take_standing`): request frame -> (reply frame, the
+        #: class of the message the request must decode to for that reply).
+        self.standing: dict[bytes, tuple[bytes, type[Message]]] = {}
 
     # -- state -----------------------------------------------------------------------------------
 
@@ -270,6 +276,66 @@ class Link:
         self._backlog_pos = 0
         if not self._events:
             self._decode_slice()
+
+    def take_standing(self, data: bytes) -> bytes | None:
+        """Take ``data``, one of the :attr:`standing` request frames, as received and answered, when
+        the general path would make of it exactly one :class:`Received` event of a message of the
+        standing class, and nothing else: nothing waits (no event, no bytes), ``data`` is that one
+        whole frame in the stream's byte order, and it decodes (in the registry as it is now) to an
+        instance of that class, a request or a topic. Its message, kept from when that frame was first
+        decoded, is not decoded again and no event is queued; the decoder counts the frame, and the
+        reply frame is returned for the caller to send. ``None`` otherwise, with nothing done."""
+        entry = self.standing.get(data)
+        cutter = self._cutter
+        if (
+            entry is None
+            or cutter is None
+            or self._events
+            or self._backlog
+            or self._ended
+            or self._end_after
+            or self.on_frame is not None
+        ):
+            return None
+        msg = cutter.cached(data, self.wire)
+        if (
+            msg is None
+            or msg.__class__ is not entry[1]
+            or msg.__class__ is HeaderOnly
+            or msg.comm_type == _SERVICE_REPLY
+        ):
+            return None
+        cutter.frames_decoded += 1
+        return entry[0]
+
+    def receive_one(self, data: bytes) -> Message | None:
+        """:meth:`receive_data` with a shortcut for the commonest read: when ``data`` is exactly one
+        whole frame, nothing waits before it (no event, no bytes) and it is a message received (a
+        request or a topic that decodes: what :meth:`next_event` would give as :class:`Received`),
+        that message is returned instead, as if its :class:`Received` had been queued and taken.
+        Otherwise ``None`` is returned and the events are queued as :meth:`receive_data` queues them.
+        The events that follow are the same either way: with nothing before and nothing after it,
+        the frame's :class:`Received` would have been the only one."""
+        cutter = self._cutter
+        if (
+            cutter is None
+            or self._events
+            or self._backlog
+            or self._ended
+            or self._end_after
+            or self.on_frame is not None
+            or not data
+        ):
+            self.receive_data(data)
+            return None
+        msg = cutter.one_message(data, self.wire)
+        if msg is None:
+            self.receive_data(data)
+            return None
+        if msg.__class__ is HeaderOnly or msg.comm_type == _SERVICE_REPLY or isinstance(msg, MalformedMessage):
+            self._message(msg)  # not a plain Received (a reply, a malformed body...): its event, as ever
+            return None
+        return msg
 
     def next_event(self) -> Event | NeedData:
         """The next thing that happened, or :data:`NEED_DATA`."""

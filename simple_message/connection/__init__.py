@@ -145,6 +145,11 @@ class Connection(asyncio.Protocol):
         #: If set, called when reading ends (EOF or a frame error) instead of closing at once, so a
         #: server can still answer the requests it already read; it must close the connection.
         self.on_read_end: Callable[[BaseException | None], None] | None = None
+        #: The link's standing replies (:attr:`~..link.Link.standing`) are sent: set by the owner of
+        #: the message handler while the handler would answer those requests at once with those
+        #: replies (nothing of the connection's waits to be answered before them); see
+        #: :meth:`data_received`.
+        self.standing_armed = False
         self._started = False
         self._transport_lost = asyncio.Event()
         #: the stream pair given, kept only because a StreamWriter closes its transport when collected
@@ -258,7 +263,48 @@ class Connection(asyncio.Protocol):
     # -- the transport's callbacks (asyncio.Protocol) ---------------------------------------------
 
     def data_received(self, data: bytes) -> None:
+        if self.standing_armed and type(data) is bytes and data in self.link.standing and self._answer_standing(data):
+            return
         self._inbound.data_received(self, data)
+
+    def _answer_standing(self, data: bytes) -> bool:
+        """Answer ``data``, one of the link's standing requests, with its standing reply, when it is
+        what the general path would do with it: the connection reading and nothing waiting (no
+        handler awaited, no input ended), no tap, no subscriber, no frame log, nothing queued to
+        send and none of the transport's write buffer in use, and the link taking it as the one
+        message received (:meth:`~..link.Link.take_standing`). Then what the general path does
+        besides decoding it and calling the handler happens: the frame is counted, the peer's input
+        noted, the reply written (a peer found too far behind is closed), the incomplete-frame clock
+        stopped. Returns whether it did (else nothing was done)."""
+        inbound = self._inbound
+        subscribers = self._subscribers
+        transport = self.transport
+        if (
+            inbound.early is not None
+            or inbound.done
+            or inbound.blocked
+            or self.state is ConnectionState.CLOSED
+            or self._tap.tap is not None
+            or subscribers.subscriptions
+            or subscribers.inbox is not None
+            or self.write_split is not None
+            or self._outbound.queued
+            or transport.is_closing()
+            or transport.get_write_buffer_size()
+            or frames_log.isEnabledFor(logging.DEBUG)
+        ):
+            return False
+        reply = self.link.take_standing(data)
+        if reply is None:
+            return False
+        transport.write(reply)
+        if self.frame_timeout is not None:
+            self.last_input = time.monotonic()  # (after the reply: nothing reads it in between)
+        if transport.get_write_buffer_size() > self.max_write_buffer:
+            self.abort(ConnectionClosed(f"peer fell {transport.get_write_buffer_size()} bytes behind"))
+        if inbound.partial_timer is not None and self.frame_timeout is not None:
+            inbound.watch_partial(self)  # nothing is held: the clock stops
+        return True
 
     def eof_received(self) -> bool:
         self._inbound.input_ended(self, None)

@@ -106,15 +106,37 @@ class Inbound:
             return
         if self.tap.tap is not None:
             self.tap.data(False, data)
-        if self.autodetect:
-            detected = link.detected
+        # One whole frame received, with nothing before it, comes back from the link as its message
+        # (the commonest read: a request, a topic); anything else is queued as events. A handler's
+        # awaitable pending: everything waits in the link, in order.
+        detected = link.detected if self.autodetect else True
+        if self.blocked:
+            msg = None
             link.receive_data(data)
-            if link.detected and not detected:
-                log.info("%s: detected %s byte order", connection.name, link.wire.byte_order.value)
         else:
-            link.receive_data(data)
-        if connection.frame_timeout is not None:
+            msg = link.receive_one(data)
+        if not detected and link.detected:
+            log.info("%s: detected %s byte order", connection.name, link.wire.byte_order.value)
+        frame_timeout = connection.frame_timeout
+        if frame_timeout is not None:
             connection.last_input = time.monotonic()
+        if msg is not None:
+            # what process() does with the link's one Received event (the link holds nothing more)
+            try:
+                on_message = connection.on_message
+                result = None if on_message is None else on_message(msg)
+                if result is not None:
+                    self.wait_for(connection, result, msg)
+                else:
+                    subscribers = self.subscribers
+                    if subscribers.subscriptions or subscribers.inbox is not None:
+                        subscribers.deliver(msg)
+            except Exception as exc:  # a bug in a handler must not leave the peer hanging
+                log.exception("%s: reader failed", connection.name)
+                self.read_ended(connection, exc)
+            if self.partial_timer is not None and connection.frame_timeout is not None:
+                self.watch_partial(connection)  # nothing is held: the clock stops
+            return
         if not self.blocked:
             self.process(connection)
         if connection.frame_timeout is not None and (link.buffered or self.partial_timer is not None):

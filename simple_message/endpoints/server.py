@@ -76,6 +76,7 @@ from ..wire import DEFAULT_FORMAT, WireFormat
 from .sessions import (
     _PING_REPLY,
     NO_REPLY,
+    STANDING_PING,
     ArrivalHook,
     CloseConnection,
     Handler,
@@ -203,6 +204,8 @@ class Server:
         if on_arrival is not None:
             self._arrival[msg_type] = on_arrival
         self._ping_auto = _PING not in self._handlers and _PING not in self._arrival
+        for session in self.sessions:
+            session.arm_standing()
 
     # -- serving -----------------------------------------------------------------------------------
 
@@ -374,11 +377,15 @@ class Server:
             session.data.update(data)
         connection.on_message = functools.partial(self._arrived, session)
         connection.on_read_end = session.end_of_input
+        # A PING the server answers itself (see _arrived) is answered by the connection, the frame
+        # neither decoded nor handed over, while nothing of the session's is queued before it.
+        connection.link.standing.update(STANDING_PING)
         self.sessions.add(session)
         session.worker = asyncio.get_running_loop().create_task(self._work(session), name=f"sm-work {connection.name}")
         if self.on_connect is not None:
             self.on_connect(session)
         connection.start()
+        session.arm_standing()
         return session
 
     async def _until_closed(self, session: Session) -> None:
@@ -530,6 +537,7 @@ class Server:
                     session.connection.send_nowait(out)
                 return None
             item = out if isinstance(out, _Later) else _Ready(out)
+        session.connection.standing_armed = False  # something waits now: PINGs take their turn behind it
         try:
             session.queue.put_nowait(item)
         except asyncio.QueueFull:
@@ -555,6 +563,7 @@ class Server:
                 return
             finally:
                 session.busy = False
+                session.arm_standing()
 
     async def _dispatch(self, session: Session, item: _Item) -> Message | None:
         if isinstance(item, _Ready):

@@ -20,7 +20,7 @@ from ..connection import Connection
 from ..constants import CommType, ReplyCode
 from ..errors import MalformedMessage
 from ..messages import Message, Ping
-from ..wire import WireFormat
+from ..wire import BE32, LE32, WireFormat
 
 if TYPE_CHECKING:
     from .server import Server
@@ -75,6 +75,22 @@ class Session:
         #: the task that handles what is queued, in order
         self.worker: asyncio.Task[None] | None = None
 
+    def arm_standing(self) -> None:
+        """Let the connection answer PING itself (its standing reply: the frame of the server's own
+        reply, the request neither decoded nor handed over) exactly while the server would answer a
+        PING arriving now itself, at once, with that frame (the fast path of :meth:`.Server._arrived`):
+        the server answers PING (no handler, no arrival hook, no fixed-size reader) and nothing of
+        this session's waits to be handled before it. The connection checks the rest itself (see
+        :meth:`.Connection.data_received`); called whenever one of these may have changed."""
+        server = self.server
+        self.connection.standing_armed = (
+            server._ping_auto
+            and server.reader is None
+            and server.max_write_buffer >= 0  # the connection sends only with its write buffer empty
+            and not self.busy
+            and self.queue.empty()
+        )
+
     def ping_reply(self) -> bytes:
         """The frame of the server's own PING reply in this session's wire format (cached)."""
         wire = self.connection.link.wire
@@ -122,6 +138,10 @@ class Session:
 
 #: the server's own answer to a PING (messages are immutable: one instance serves every reply)
 _PING_REPLY = Ping(comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.SUCCESS)
+#: the PING request frame in each byte order, the server's reply to it in the same order and the class
+#: it decodes to: the standing reply of a server's connections (PING has no reals: one frame serves
+#: float32 and float64)
+STANDING_PING = {Ping().encode(wire): (_PING_REPLY.encode(wire), Ping) for wire in (LE32, BE32)}
 
 
 class _Later:

@@ -33,6 +33,9 @@ _HEADER = "iiii"  # length prefix + msg_type + comm_type + reply_code, always in
 _COMM = {int(c): c for c in CommType}
 _REPLY = {int(c): c for c in ReplyCode}
 _SERVICE_REPLY = int(CommType.SERVICE_REPLY)
+#: a run whose frame this many frames on still has the run's header is decoded by iter_unpack
+#: (setting that up costs about what decoding two frames one by one does)
+_LONG_RUN = 8
 
 #: Message class per type for requests and topics (index 0) and for SERVICE_REPLYs (index 1).
 #: Kept by :func:`~.registry.register` and :func:`~.registry.unregister` (the decoder's lookup
@@ -58,13 +61,16 @@ class _Codec:
     loop costs a third of the time):
 
     * ``unpack(frame)`` decodes one whole frame of exactly ``struct.size`` bytes;
-    * ``unpack_run(buf, pos, end, comm_type, reply_code, append)`` decodes, straight from a stream
+    * ``unpack_run(buf, pos, end, msg_type, comm, reply, out)`` decodes, straight from a stream
       (``bytes``, complete frames up to ``end``), the frame at ``pos``, whose header the caller
-      read (its ``comm_type`` and ``reply_code``, and a length prefix equal to :attr:`length`), and
-      every frame after it with the same 16 header bytes, passing each message to ``append``; it
-      returns the position after the last. Messages of one type mostly come in such runs (a
-      trajectory, a feedback topic), so the caller reads one header per run, and the run compares
-      the next header's bytes instead of unpacking them.
+      read (its ``msg_type``, ``comm`` and ``reply`` as wire ints, and a length prefix equal to
+      :attr:`length`), and every frame after it with the same header, appending each message to the
+      list ``out``; it returns the position after the last. Messages of one type mostly come in such
+      runs (a trajectory, a feedback topic), so the caller reads one header per run. The first frame
+      is unpacked on its own; once the next one has the same 16 header bytes, the rest of the run
+      is unpacked by one :meth:`struct.Struct.iter_unpack` over the complete frames left (header and
+      body, so no position is computed and no call is made per frame in Python), each frame's four
+      header ints compared with the run's, and the run ends at the first that differs.
 
     Neither runs the class's ``__init__``/``__post_init__`` (decoding never has). What
     ``Message.__post_init__`` checks, the layout guarantees: each joint array is a slice of exactly
@@ -73,10 +79,21 @@ class _Codec:
     set through the class's builder (:func:`_builder`) when it has one.
     """
 
-    __slots__ = ("__weakref__", "body", "builder", "length", "plan", "struct", "unpack", "unpack_run")
+    __slots__ = (
+        "__weakref__",
+        "arrays",
+        "body",
+        "builder",
+        "length",
+        "plan",
+        "scalars",
+        "struct",
+        "unpack",
+        "unpack_run",
+    )
 
     unpack: Callable[[bytes], Message]
-    unpack_run: Callable[[bytes, int, int, int, int, Callable[[Message], object]], int]
+    unpack_run: Callable[[bytes, int, int, int, int, int, list[Any]], int]
 
     def __init__(self, cls: type[Message], wire: WireFormat) -> None:
         plan: list[tuple[str, int, int]] = []
@@ -91,6 +108,8 @@ class _Codec:
         self.length = self.struct.size - LENGTH_SIZE
         self.plan = tuple(plan)
         self.builder = _builder(cls)
+        #: the rest of a run is unpacked by these (see :meth:`_run_structs`)
+        self.scalars, self.arrays = self._run_structs(cls, wire)
         self.compile(cls)
         # (re)registering the class with other converters recompiles it (see _refresh_codecs)
         _LIVE_CODECS.setdefault(cls, weakref.WeakSet()).add(self)
@@ -110,11 +129,11 @@ class _Codec:
         }
         fast = self.builder is not None
 
-        def build(comm: str, reply: str, offset: int, indent: str) -> list[str]:
-            """Statements that make ``o`` from the unpacked values ``v`` (field k at k - offset)."""
+        def build(comm: str, reply: str, value_of: Callable[[int, int, int], str], indent: str) -> list[str]:
+            """Statements that make ``o``; ``value_of(k, start, stop)`` is the expression of field k."""
             values = [("comm_type", comm), ("reply_code", reply)]
             for k, (name, start, stop) in enumerate(self.plan):
-                value = f"v[{start - offset}]" if stop < 0 else f"v[{start - offset}:{stop - offset}]"
+                value = value_of(k, start, stop)
                 if name in converters:
                     env[f"_conv{k}"] = dict(converters[name])  # a plain dict: .get is faster than a proxy's
                     value = f"_conv{k}.get({value}, {value})"
@@ -129,29 +148,87 @@ class _Codec:
                 lines.append("o.__class__ = _cls")
             return [indent + line for line in lines]
 
+        def item(offset: int) -> Callable[[int, int, int], str]:
+            """Field k as an item (or a slice) of the unpacked values ``v``, at its index - ``offset``."""
+            return lambda k, start, stop: f"v[{start - offset}]" if stop < 0 else f"v[{start - offset}:{stop - offset}]"
+
+        def named(k: int, start: int, stop: int) -> str:
+            return f"f{k}"  # a local of the run's loop (an array: its own tuple, straight from its struct)
+
         size = self.struct.size
+        # The rest of a run, one iter_unpack per part: the header and the scalar fields (each array
+        # skipped as padding), and each array alone (its values come out as the field's own tuple).
+        scalars, arrays = self.scalars, self.arrays
+        env["_view"] = memoryview
+        env["_zip"] = zip
+        iterators = ["_scalars(frames)"]
+        env["_scalars"] = scalars.iter_unpack
+        targets = ["h0", "h1", "h2", "h3"] + [f"f{k}" for k, (_, _, stop) in enumerate(self.plan) if stop < 0]
+        loop_target = "(" + ", ".join(targets) + ")"
+        for k, array in arrays:
+            env[f"_array{k}"] = array.iter_unpack
+            iterators.append(f"_array{k}(frames)")
+            loop_target += f", f{k}"
+        loop_source = iterators[0] if len(iterators) == 1 else "_zip(" + ", ".join(iterators) + ")"
         source = [
             "def unpack(frame):",
             "    v = _unpack(frame)",
-            *build("_COMM.get(v[2], v[2])", "_REPLY.get(v[3], v[3])", 0, "    "),
+            *build("_COMM.get(v[2], v[2])", "_REPLY.get(v[3], v[3])", item(0), "    "),
             "    return o",
-            "def unpack_run(buf, pos, end, comm_type, reply_code, append):",
+            "def unpack_run(buf, pos, end, msg_type, comm, reply, out):",
+            "    comm_type = _COMM.get(comm, comm)",
+            "    reply_code = _REPLY.get(reply, reply)",
             f"    head = buf[pos:pos + {LENGTH_SIZE + HEADER_SIZE}]",
             "    same = buf.startswith",
-            "    comm_type = _COMM.get(comm_type, comm_type)",
-            "    reply_code = _REPLY.get(reply_code, reply_code)",
             f"    last = end - {size}",
-            "    while True:",
-            "        v = _unpack_body(buf, pos)",
-            *build("comm_type", "reply_code", 4, "        "),
-            "        append(o)",
-            f"        pos += {size}",
-            "        if pos > last or not same(head, pos):",
-            "            return pos",
+            "    v = _unpack_body(buf, pos)",
+            *build("comm_type", "reply_code", item(4), "    "),
+            "    out.append(o)",
+            f"    pos += {size}",
+            "    if pos > last or not same(head, pos):",
+            "        return pos",
+            f"    if pos + {(_LONG_RUN - 1) * size} > last or not same(head, pos + {(_LONG_RUN - 1) * size}):",
+            "        while True:  # a short run, frame by frame",
+            "            v = _unpack_body(buf, pos)",
+            *build("comm_type", "reply_code", item(4), "            "),
+            "            out.append(o)",
+            f"            pos += {size}",
+            "            if pos > last or not same(head, pos):",
+            "                return pos",
+            "    first = len(out)",
+            f"    frames = _view(buf)[pos:pos + (end - pos) // {size} * {size}]",
+            f"    for {loop_target} in {loop_source}:",
+            f"        if h1 != msg_type or h2 != comm or h3 != reply or h0 != {self.length}:",
+            "            break",
+            *build("comm_type", "reply_code", named, "        "),
+            "        out.append(o)",
+            f"    return pos + (len(out) - first) * {size}",
         ]
         exec("\n".join(source), env)  # generated from the class's own LAYOUT only
         self.unpack = env["unpack"]
         self.unpack_run = env["unpack_run"]
+
+    def _run_structs(
+        self, cls: type[Message], wire: WireFormat
+    ) -> tuple[struct.Struct, list[tuple[int, struct.Struct]]]:
+        """The structs a run is unpacked with, each the size of a whole frame: the four header ints
+        and the scalar fields (the arrays skipped), and, per array field (its plan index), that
+        array alone."""
+        sizes = [wire.struct(_body_format(((name, code),))).size for name, code in cls.LAYOUT]
+        scalar_format = _HEADER
+        arrays: list[tuple[int, str]] = []
+        offset = LENGTH_SIZE + HEADER_SIZE
+        for k, ((name, code), nbytes) in enumerate(zip(cls.LAYOUT, sizes, strict=True)):
+            if self.plan[k][2] < 0:
+                scalar_format += code
+            else:
+                scalar_format += f"{nbytes}x"
+                arrays.append((k, f"{offset}x{_body_format(((name, code),))}{self.struct.size - offset - nbytes}x"))
+            offset += nbytes
+        structs = [(k, wire.struct(layout)) for k, layout in arrays]
+        scalars = wire.struct(scalar_format)
+        assert all(s.size == self.struct.size for _, s in [(0, scalars), *structs]), cls
+        return scalars, structs
 
     def pack(self, msg: Message) -> bytes:
         values: list[Any] = [self.length, msg.MSG_TYPE, msg.comm_type, msg.reply_code]
