@@ -192,12 +192,17 @@ class Link:
         self._end_after = False
         #: Called with each complete frame received, before it is decoded (frame logs, captures).
         self.on_frame: Callable[[bytes], None] | None = None
-        #: Standing replies: whole request frames that the link's user answers with a fixed reply frame
-        #: without having them decoded (:meth:`take_standing`): request frame -> (reply frame, the
-        #: class of the message the request must decode to for that reply).
-        self.standing: dict[bytes, tuple[bytes, type[Message]]] = {}
+        self._standing: dict[bytes, tuple[bytes, type[Message]]] = {}
 
     # -- state -----------------------------------------------------------------------------------
+
+    @property
+    def standing(self) -> dict[bytes, tuple[bytes, type[Message]]]:
+        """Standing replies: whole request frames that the link's user answers with a fixed reply
+        frame without having them decoded (:meth:`take_standing`): request frame -> (reply frame, the
+        class of the message the request must decode to for that reply). One dict for the link's
+        life: change its items."""
+        return self._standing
 
     @property
     def detected(self) -> bool:
@@ -285,7 +290,7 @@ class Link:
         instance of that class, a request or a topic. Its message, kept from when that frame was first
         decoded, is not decoded again and no event is queued; the decoder counts the frame, and the
         reply frame is returned for the caller to send. ``None`` otherwise, with nothing done."""
-        entry = self.standing.get(data)
+        entry = self._standing.get(data)
         cutter = self._cutter
         if (
             entry is None

@@ -150,6 +150,8 @@ class Connection(asyncio.Protocol):
         #: replies (nothing of the connection's waits to be answered before them); see
         #: :meth:`data_received`.
         self.standing_armed = False
+        #: the link's standing replies (the same dict), looked up here before anything else
+        self._standing = self.link.standing
         self._started = False
         self._transport_lost = asyncio.Event()
         #: the stream pair given, kept only because a StreamWriter closes its transport when collected
@@ -263,7 +265,7 @@ class Connection(asyncio.Protocol):
     # -- the transport's callbacks (asyncio.Protocol) ---------------------------------------------
 
     def data_received(self, data: bytes) -> None:
-        if self.standing_armed and type(data) is bytes and data in self.link.standing and self._answer_standing(data):
+        if self.standing_armed and type(data) is bytes and data in self._standing and self._answer_standing(data):
             return
         self._inbound.data_received(self, data)
 
@@ -291,7 +293,7 @@ class Connection(asyncio.Protocol):
             or self._outbound.queued
             or transport.is_closing()
             or transport.get_write_buffer_size()
-            or frames_log.isEnabledFor(logging.DEBUG)
+            or frames_log.isEnabledFor(_DEBUG)
         ):
             return False
         reply = self.link.take_standing(data)
@@ -437,4 +439,5 @@ class Connection(asyncio.Protocol):
 
 
 _SUCCESS = int(ReplyCode.SUCCESS)
+_DEBUG = logging.DEBUG
 _FAILURE = int(ReplyCode.FAILURE)

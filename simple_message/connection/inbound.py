@@ -50,6 +50,23 @@ class Inbound:
     reference to it, so that a finished connection is freed by reference counting, with no cycle
     left for the garbage collector."""
 
+    __slots__ = (
+        "autodetect",
+        "awaited",
+        "blocked",
+        "done",
+        "early",
+        "early_end",
+        "input_over",
+        "lost_reason",
+        "partial_timer",
+        "reading",
+        "requests",
+        "resume_task",
+        "subscribers",
+        "tap",
+    )
+
     def __init__(
         self,
         requests: Requests,
