@@ -3,7 +3,8 @@ list, the buttons' commands, bad input, and the command line. The page itself ru
 browser in test_rs_web_browser.py.
 
 The emulator runs on a clock the test advances; the web view's own sampler is not started here
-(``Feed.sample`` is called by the test), so what a page gets does not depend on timing.
+(``Feed.sample`` is called by the test), so what a page gets does not depend on timing. The fleet's
+view and the token are tested in test_rs_web_fleet.py.
 """
 
 from __future__ import annotations
@@ -50,9 +51,8 @@ async def web_emulator(**options: Any) -> AsyncIterator[tuple[Emulator, SteppedC
     view = WebView(emu, "127.0.0.1", 0)
     await emu.start()
     try:
+        view.controller.autosample = False  # the test takes the samples
         await view.start()
-        assert view._sampler is not None
-        view._sampler.cancel()  # the test takes the samples
         await step(clock, 0.0)
         yield emu, clock, view
         await settle(emu, clock)
@@ -405,8 +405,12 @@ async def test_page_and_static_files_are_served() -> None:
             assert page.status == 200
             html = await page.text()
         also = ["/static/vendor/three/three.core.js", "/static/vendor/three/LICENSE", "/static/vendor/uplot/LICENSE"]
-        for path in [*re.findall(r'(?:src|href)="(/static/[^"]+)"', html), *also]:
-            async with http.get(view.url.rstrip("/") + path) as response:
+        # every address in the page is relative (it is served at / and at a fleet's /c/NAME/ alike)
+        assert not re.findall(r'(?:src|href)="/', html) and '"/static' not in html
+        linked = re.findall(r'(?:src|href)="(static/[^"]+)"', html) + re.findall(r'"\./(static/[^"]+)"', html)
+        assert len(linked) >= 5, linked
+        for path in [*linked, *also]:
+            async with http.get(view.url + path.lstrip("/")) as response:
                 assert response.status == 200, path
         assert "//cdn" not in html and "https://" not in html  # everything comes from the package
         async with http.get(view.url + "static/../feed.py") as escape:

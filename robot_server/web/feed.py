@@ -1,14 +1,17 @@
 """What the web view's pages are sent: the model once, then samples of the controller, decimated.
 
 A :class:`Feed` watches one :class:`~robot_server.emulator.Emulator`. :meth:`Feed.sample` (called
-``rate`` times a second of wall time by the web server, whatever the number of pages) reads each
+``rate`` times a second of wall time by the web server while a page is open, whatever the number of
+pages; never while none is) reads each
 motion group's latest servo tick, the STATUS the state port reports, the policy, the queues and the
 connected clients, and keeps the samples of the last ``window`` seconds; every page is then sent at
 most one update per sample, made for it from shared pieces (each piece encoded to JSON once, not
 once per page). Points the controllers accept (:attr:`~.emulator.cell.RobotCell.point_listeners`)
 and frames on the wire (:class:`~.traffic.TrafficTap`) are numbered, and each page has its own
 cursor into them (:class:`Page`): a page that falls behind misses samples (its plots have a gap)
-but gets every waypoint and frame still kept, and counts the frames it could not be sent.
+but gets every waypoint and frame still kept, and counts the frames it could not be sent. The
+points are heard only between :meth:`Feed.attach` and :meth:`Feed.detach` (while pages are open);
+:func:`status_of` is the STATUS part alone, as the fleet's index shows it.
 
 The messages are JSON text; docs/web.md describes them field by field.
 """
@@ -37,7 +40,7 @@ if TYPE_CHECKING:
     from ..control import Point
     from ..emulator import Emulator
 
-__all__ = ["Feed", "Page", "PROTOCOL_VERSION", "MAX_RATE", "MAX_FRAMES_PER_UPDATE"]
+__all__ = ["Feed", "Page", "PROTOCOL_VERSION", "MAX_RATE", "MAX_FRAMES_PER_UPDATE", "status_of"]
 
 #: the version of the messages (docs/web.md); the page says so when it gets another
 PROTOCOL_VERSION = 1
@@ -92,6 +95,22 @@ def describe_model(model: RobotModel, supervision: Supervision) -> dict[str, Any
     }
 
 
+def status_of(emulator: Emulator) -> dict[str, Any]:
+    """The STATUS the emulator's state port reports (its profile's, e.g. MotoROS's motion possible
+    only in trajectory mode), as the page's lights show it."""
+    reported = getattr(emulator.behaviour, "status", None)
+    status: Status = reported() if callable(reported) else emulator.cell.status()
+    return {
+        "drives_powered": bool(status.drives_powered == 1),
+        "e_stopped": bool(status.e_stopped == 1),
+        "in_error": bool(status.in_error == 1),
+        "error_code": int(status.error_code),
+        "in_motion": bool(status.in_motion == 1),
+        "motion_possible": bool(status.motion_possible == 1),
+        "mode": _mode(status.mode),
+    }
+
+
 def _finite(values: list[float]) -> list[float | None]:
     """JSON has no NaN or infinity: such a value is sent as null (a gap in the plot)."""
     return [v if math.isfinite(v) else None for v in values]
@@ -111,7 +130,8 @@ class Page:
 
 class Feed:
     """Samples an emulator for the web view's pages (see the module doc). Make it before the
-    emulator starts: its traffic tap goes on the servers then."""
+    emulator starts: its traffic tap goes on the servers then. The accepted points are heard from
+    :meth:`attach` to :meth:`detach`."""
 
     def __init__(
         self, emulator: Emulator, *, rate: float = 30.0, window: float = 10.0, frames: int = DEFAULT_CAPACITY
@@ -126,7 +146,7 @@ class Feed:
         config = emulator.config
         self.traffic = TrafficTap(real_size=config.wire.real_size, capacity=frames)
         emulator.taps.append(self.traffic)
-        emulator.cell.point_listeners.append(self._accepted)
+        self._listening = False
         self._groups = [describe_model(g.model, g.supervision) for g in emulator.cell.groups]
         #: (controller time, sample JSON), oldest first: the last window's
         self._samples: deque[tuple[float, str]] = deque(maxlen=math.ceil(window * rate) + 1)
@@ -136,8 +156,20 @@ class Feed:
         self._state = "{}"  # the JSON pieces of the newest sample that are not numbered
         self._sampled = Wakeup()
 
+    def attach(self) -> None:
+        """Hear of accepted points from now on (a page opened). The samples and waypoints kept from
+        an earlier time are dropped: nothing was heard in between, and the plots would join them."""
+        if self._listening:
+            return
+        self._listening = True
+        self._samples.clear()
+        self._waypoints.clear()
+        self.emulator.cell.point_listeners.append(self._accepted)
+
     def detach(self) -> None:
-        """Stop hearing of accepted points (the traffic tap stays on the servers until they close)."""
+        """Stop hearing of accepted points (no page is open; the traffic tap stays on the servers
+        until they close)."""
+        self._listening = False
         with contextlib.suppress(ValueError):
             self.emulator.cell.point_listeners.remove(self._accepted)
 
@@ -175,18 +207,8 @@ class Feed:
         horizon = t - self.window
         while self._waypoints and self._waypoints[0][1] < horizon:
             self._waypoints.popleft()
-        status_of = getattr(emulator.behaviour, "status", None)
-        status: Status = status_of() if callable(status_of) else cell.status()
         state = {
-            "status": {
-                "drives_powered": bool(status.drives_powered == 1),
-                "e_stopped": bool(status.e_stopped == 1),
-                "in_error": bool(status.in_error == 1),
-                "error_code": int(status.error_code),
-                "in_motion": bool(status.in_motion == 1),
-                "motion_possible": bool(status.motion_possible == 1),
-                "mode": _mode(status.mode),
-            },
+            "status": status_of(emulator),
             "policy": emulator.config.interpolation,
             "queue": [{"fill": c.queue_fill, "capacity": c.queue_capacity} for c in cell.groups],
             "clients": self.clients(),
@@ -219,11 +241,13 @@ class Feed:
 
     # -- messages --------------------------------------------------------------------------------
 
-    def hello(self, page: Page) -> str:
-        """The first message to a page: the emulator, the model, the last window's samples and
-        waypoints, and the traffic kept; moves the page's cursors past what it holds."""
+    def hello(self, page: Page, *, name: str | None = None, control: dict[str, Any] | None = None) -> str:
+        """The first message to a page: the emulator (``name``: its name in a fleet), the model, the
+        last window's samples and waypoints, the traffic kept, and ``control`` (whether this page
+        may send commands, and why not); moves the page's cursors past what it holds."""
         cfg = self.emulator.config
         emulator = {
+            "name": name,
             "profile": cfg.profile,
             "policy": cfg.interpolation,
             "byte_order": cfg.byte_order,
@@ -242,6 +266,7 @@ class Feed:
         return (
             f'{{"type":"hello","version":{PROTOCOL_VERSION},"emulator":{_compact(emulator)},'
             f'"groups":{_compact(self._groups)},'
+            f'"control":{_compact(control or {"commands": True, "why": None})},'
             f'"history":[{",".join(s for _, s in self._samples)}],'
             f'"waypoints":[{",".join(w for _, _, w in self._waypoints)}],'
             f'"traffic":[{",".join(frames)}]}}'

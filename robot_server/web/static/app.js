@@ -1,8 +1,9 @@
 // robot-server live web view: 3D robot (three.js), joint plots (uPlot), status, traffic, fault buttons.
-// One WebSocket at /ws; docs/web.md describes its messages.
+// One WebSocket, `ws` beside the page (/ws, or /c/NAME/ws in a fleet); docs/web.md describes its messages.
+// Every address is relative, so that the page works wherever it is served.
 
 import * as THREE from 'three';
-import { OrbitControls } from '/static/vendor/three/OrbitControls.js';
+import { OrbitControls } from './vendor/three/OrbitControls.js';
 
 const uPlot = window.uPlot;
 
@@ -12,6 +13,8 @@ const uPlot = window.uPlot;
 const webview = {
   connected: false,
   hello: null,
+  // whether this page may send commands (the hello says; false until it does)
+  commands: false,
   samples: 0,
   lastTime: null,
   plots: [],
@@ -801,6 +804,16 @@ function showEmulator(h) {
   if (e.policy) setText('#policy', String(e.policy));
 }
 
+// in a fleet (the hello names the controller): its name, and the way back to the fleet's index
+function showName(e) {
+  const name = typeof e.name === 'string' && e.name ? e.name : '';
+  setText('#controller-name', name ? ` · ${name}` : '');
+  document.title = name ? `${name} · robot-server` : 'robot-server';
+  const link = $('#fleet-link');
+  link.hidden = !name;
+  if (name) link.href = '../../' + (TOKEN ? `?token=${encodeURIComponent(TOKEN)}` : '');
+}
+
 function showQueue(queue) {
   if (!Array.isArray(queue)) return;
   setText('#queue', queue.map((q) => `${q.fill} / ${q.capacity}`).join(', ') || '–');
@@ -931,11 +944,32 @@ function initTrafficControls() {
 
 let socket = null;
 
+// the web view's token, from this page's address (?token=...): offered when the WebSocket opens
+const TOKEN = new URLSearchParams(location.search).get('token');
+
+// commands allowed or not (control: the hello's {commands, why}); disabled until the hello says
+function showControl(control) {
+  const allowed = !!(control && control.commands === true);
+  webview.commands = allowed;
+  for (const btn of document.querySelectorAll('button[data-command]')) {
+    btn.disabled = !allowed;
+    btn.title = allowed ? (btn.dataset.title || '') : 'read-only';
+  }
+  const note = $('#read-only');
+  const why = control && typeof control.why === 'string' ? control.why : '';
+  note.hidden = allowed || !why;
+  note.textContent = allowed ? '' : why;
+  note.title = note.textContent;
+}
+
 function initCommands() {
   for (const btn of document.querySelectorAll('button[data-command]')) {
+    btn.dataset.title = btn.title || '';
+    btn.disabled = true;
     btn.addEventListener('click', () => {
       const command = btn.dataset.command;
       const out = $('#command-result');
+      if (!webview.commands) return;
       if (!socket || socket.readyState !== WebSocket.OPEN) {
         out.textContent = `${command}: not connected`;
         out.dataset.ok = 'false';
@@ -978,7 +1012,11 @@ function connect() {
   setConnection('connecting');
   let ws;
   try {
-    ws = new WebSocket((location.protocol === 'https:' ? 'wss://' : 'ws://') + location.host + '/ws');
+    const url = new URL('ws', location.href);
+    url.protocol = location.protocol === 'https:' ? 'wss:' : 'ws:';
+    url.search = TOKEN ? `?token=${encodeURIComponent(TOKEN)}` : '';
+    url.hash = '';
+    ws = new WebSocket(url.href);
   } catch (err) {
     scheduleReconnect();
     return;
@@ -1002,6 +1040,7 @@ function connect() {
   ws.addEventListener('close', () => {
     if (socket !== ws) return;
     socket = null;
+    showControl(null);
     setConnection('closed');
     scheduleReconnect();
   });
@@ -1040,6 +1079,8 @@ function onHello(msg) {
   }
   hello = msg;
   webview.hello = msg;
+  showControl(msg.control || { commands: true, why: null });
+  showName(msg.emulator || {});
   resetData(msg);
   resetStatus();
   clientsKey = null;
