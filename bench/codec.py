@@ -3,7 +3,8 @@
 Plain script; prints a table. Targets: decoding at least 300,000 JOINT_TRAJ_PT frames per second on
 one core, frame cutting included (issue 2); 1,000,000 on the path a Link takes,
 ``FrameDecoder.feed_messages`` (issue 16); 200,000 messages per second decoded from a 100 MB
-pcapng of the project's own traffic (issue 20; ``--capture-mb`` sets its size).
+pcapng of the project's own traffic (issue 20; ``--capture-mb`` sets its size); JOINT_TRAJ_PT cut
+and decoded at least at the reference C++ library's rate, both measured in the same run (issue 38).
 
 Columns: ``cut+decode`` is ``feed`` + ``decode`` of each frame, each message dropped at once;
 ``kept`` the same with the messages of a call kept until its end; ``feed_messages`` cuts and decodes
@@ -13,18 +14,30 @@ visible with the three-array types), so ``kept`` is the like-for-like comparison
 1000 coalesced frames of one type, which ``feed_messages`` decodes as one run; the mixed-stream
 table below shows both paths on a random mix of four types (runs of about one frame).
 
-    python bench/codec.py [--seconds 0.5] [--capture-mb 100]
+When the reference C++ peer is built (shared/peer beside this repository; ``--peer DIR``, else
+``$SM_PEER_DIR``, else /work/peer-build/bin: see bench/latency.py), its ``sm_client decode N`` (a frame
+from its bytes, then its JOINT_TRAJ_PT message, one frame at a time) and this package's JOINT_TRAJ_PT
+paths are measured in alternating runs of about the same length (``--runs``, default 5), ``--pin
+same`` keeping this process and the C++ client on one CPU; the table gives each one's median and
+range and the ratio of the medians to the C++ rate, with the target.
+
+    python bench/codec.py [--seconds 0.5] [--capture-mb 100] [--peer DIR] [--runs 5] [--pin none|same]
+                          [--peer-only]
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import platform
 import random
+import statistics
+import sys
 import tempfile
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 from simple_message import (
     LE32,
@@ -62,6 +75,21 @@ def rate(fn: Callable[[], object], seconds: float, batch: int = 1000) -> float:
     return best
 
 
+def once(fn: Callable[[], object], seconds: float, batch: int = 1) -> float:
+    """Calls per second of ``fn`` over one run of at least ``seconds`` (for runs alternated with another
+    program's, each measured once)."""
+    n = 0
+    start = time.perf_counter()
+    deadline = start + seconds
+    while True:
+        for _ in range(batch):
+            fn()
+        n += batch
+        now = time.perf_counter()
+        if now >= deadline:
+            return n / (now - start)
+
+
 def machine() -> str:
     """Python version, CPU model and core count, for the benchmark tables."""
     model = platform.processor() or platform.machine()
@@ -80,7 +108,27 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--seconds", type=float, default=0.5)
     parser.add_argument("--capture-mb", type=float, default=100.0, help="size of the capture decoded (MB)")
+    parser.add_argument(
+        "--peer",
+        metavar="DIR",
+        help="where the C++ peer's sm_client is (default: $SM_PEER_DIR, else /work/peer-build/bin)",
+    )
+    parser.add_argument("--runs", type=int, default=5, help="alternating runs against the C++ library")
+    parser.add_argument(
+        "--pin",
+        choices=["none", "same"],
+        default="none",
+        help="against the C++ library: this process and the C++ client on one CPU (same), or where the OS puts them",
+    )
+    parser.add_argument("--peer-only", action="store_true", help="only the comparison with the C++ library")
     args = parser.parse_args()
+    if not args.peer_only:
+        tables(args.seconds, args.capture_mb)
+    compare_with_peer(args.peer, max(args.runs, 1), args.pin, args.seconds, header=args.peer_only)
+
+
+def tables(seconds: float, capture_mb: float) -> None:
+    """The package's own rates (no comparison)."""
     q = [0.1, -0.2, 0.3, -0.4, 0.5, -0.6]
     samples: list[tuple[str, Message]] = [
         ("JOINT_TRAJ_PT", JointTrajPt(7, q, 0.5, 0.1)),
@@ -96,8 +144,8 @@ def main() -> None:
     print(f"|{'-' * 24}|{'-' * 16}|{'-' * 16}|{'-' * 19}|{'-' * 13}|{'-' * 22}|")
     for name, msg in samples:
         frame = encode(msg, LE32)
-        enc = rate(lambda m=msg: encode(m, LE32), args.seconds)
-        dec = rate(lambda f=frame: decode(f, LE32), args.seconds)
+        enc = rate(lambda m=msg: encode(m, LE32), seconds)
+        dec = rate(lambda f=frame: decode(f, LE32), seconds)
         # Frame cutting plus decoding, from a stream of 1000 coalesced frames per feed.
         chunk = frame * 1000
         decoder = FrameDecoder()
@@ -107,20 +155,20 @@ def main() -> None:
             for f in decoder:
                 decode(f, LE32)
 
-        both = rate(cut_and_decode, args.seconds, batch=1) * 1000
+        both = rate(cut_and_decode, seconds, batch=1) * 1000
 
         def cut_and_decode_kept(chunk: bytes = chunk, decoder: FrameDecoder = decoder) -> None:
             decoder.feed(chunk)
             for _m in [decode(f, LE32) for f in decoder]:
                 pass
 
-        kept = rate(cut_and_decode_kept, args.seconds, batch=1) * 1000
+        kept = rate(cut_and_decode_kept, seconds, batch=1) * 1000
 
         def feed_messages(chunk: bytes = chunk, decoder: FrameDecoder = decoder) -> None:
             for _m in decoder.feed_messages(chunk, LE32):
                 pass
 
-        one_pass = rate(feed_messages, args.seconds, batch=1) * 1000
+        one_pass = rate(feed_messages, seconds, batch=1) * 1000
         print(f"| {name:<22} | {enc:>14,.0f} | {dec:>14,.0f} | {both:>17,.0f} | {kept:>11,.0f} | {one_pass:>20,.0f} |")
 
     # Frame-decoder throughput on a 10 MB mixed stream fed in 64 KiB reads (as a socket delivers it).
@@ -175,8 +223,89 @@ def main() -> None:
     print("| the same stream cut and decoded | msg/s |")
     print("|---|---:|")
     for label, fn in (("feed + decode", plain), ("feed + decode, kept", plain_kept), ("feed_messages", one_pass)):
-        print(f"| {label} | {rate(fn, args.seconds, batch=1) * frames:,.0f} |")
-    capture_rate(args.capture_mb)
+        print(f"| {label} | {rate(fn, seconds, batch=1) * frames:,.0f} |")
+    capture_rate(capture_mb)
+
+
+JTP_POINT = JointTrajPt(7, [0.1, 0.2, 0.3, 0.4, 0.5, 0.6], 0.5, 2.0)  # sm_client decode's point (sm_client.cpp)
+
+
+def compare_with_peer(peer_option: str | None, runs: int, pin: str, seconds: float, *, header: bool) -> None:
+    """JOINT_TRAJ_PT cut and decoded here and by the C++ library (``sm_client decode``), alternating."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from latency import BUILD_HINT, DECODE_COUNT, PeerError, find_peer, sm_client_decode
+
+    if header:
+        print(f"# simple_message codec benchmark: {machine()}")
+    peer, where = find_peer(peer_option)
+    if peer is None:
+        print(f"\n(C++ reference peer not built: no sm_client in {where}; {BUILD_HINT}, or --peer DIR)")
+        return
+    frame = encode(JTP_POINT, LE32)
+    chunk = frame * 1000
+    decoder = FrameDecoder()
+
+    def feed_messages() -> None:
+        for _m in decoder.feed_messages(chunk, LE32):
+            pass
+
+    def feed_and_decode() -> None:
+        decoder.feed(chunk)
+        for f in decoder:
+            decode(f, LE32)
+
+    def decode_frames() -> None:
+        for _ in range(1000):
+            decode(frame, LE32)
+
+    def feed_messages_no_gc() -> None:
+        gc.disable()
+        try:
+            feed_messages()
+        finally:
+            gc.enable()
+
+    paths: list[tuple[str, Callable[[], None]]] = [
+        ("`feed_messages`: 1000 coalesced frames cut and decoded in one pass (every connection's path)", feed_messages),
+        ("`feed` + `decode` of each frame (the cut+decode column)", feed_and_decode),
+        ("`decode(frame)`, one whole frame at a time (what sm_client decode does per frame)", decode_frames),
+        ("(for scale: `feed_messages` with the garbage collector off, as the package never runs)", feed_messages_no_gc),
+    ]
+    cpp: list[float] = []
+    rates: dict[str, list[float]] = {name: [] for name, _ in paths}
+    before = os.sched_getaffinity(0)
+    cpu = min(before)
+    if pin == "same":
+        os.sched_setaffinity(0, {cpu})  # sm_client inherits it
+    try:
+        for _ in range(runs):
+            try:
+                cpp.append(sm_client_decode(peer, DECODE_COUNT))
+            except PeerError as e:
+                print(f"\n(sm_client decode failed: {e})")
+                return
+            for name, fn in paths:
+                rates[name].append(once(fn, seconds) * 1000)
+    finally:
+        os.sched_setaffinity(0, before)
+    where_run = f"pinned to CPU {cpu}" if pin == "same" else "not pinned"
+    print()
+    print(
+        f"| JOINT_TRAJ_PT cut+decode against the C++ library ({peer}), {runs} alternating runs, {where_run}: "
+        "median (range) | msg/s | ratio to C++ (target, issue 38: feed_messages >= 1.0x) |"
+    )
+    print("|---|---:|---:|")
+    print(f"| C++ `sm_client decode {DECODE_COUNT}` | {spread(cpp)} | |")
+    cpp_median = statistics.median(cpp)
+    for name, _ in paths:
+        ratio = statistics.median(rates[name]) / cpp_median
+        paired = [p / c for p, c in zip(rates[name], cpp, strict=True)]
+        print(f"| {name} | {spread(rates[name])} | {ratio:.2f}x (run pairs {min(paired):.2f}-{max(paired):.2f}x) |")
+
+
+def spread(values: list[float]) -> str:
+    """Median and range of the runs."""
+    return f"{statistics.median(values):,.0f} ({min(values) / 1e6:.2f}-{max(values) / 1e6:.2f} M)"
 
 
 def write_capture(path: str, megabytes: float) -> int:
