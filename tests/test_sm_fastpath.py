@@ -4,7 +4,7 @@
   ``feed`` + ``decode`` of each frame, wherever the run ends;
 * one whole frame taken by the decoder and the link without events (``FrameDecoder.one_message``,
   ``Link.receive_one``), against ``feed_messages`` and ``receive_data`` + ``next_event``;
-* a server's standing PING reply (``Link.take_standing``, ``Connection.standing_armed``), against
+* a server's standing PING reply (``Link.take_standing``, ``Connection.standing_for``), against
   the same reads with the standing replies off: the same bytes written, in the same writes, the same
   handler calls and deliveries, the same frames counted.
 """
@@ -312,10 +312,19 @@ STEPS = [
 ]
 
 
-async def run_steps(steps: list[str], standing: bool) -> dict[str, object]:
-    """The steps against a server connection whose standing replies are on or off."""
-    server = Server(LE32, name="fast")
+async def run_steps(steps: list[str], standing: bool, replace_handler: bool = False) -> dict[str, object]:
+    """The steps against a server connection whose standing replies are on or off (``replace_handler``:
+    its message handler wrapped by the test after the server set it)."""
     calls: list[tuple[str, object]] = []
+
+    class Recording(Server):
+        """Records what reaches the server's per-connection pipeline (its on_message)."""
+
+        def _arrived(self, session: Session, msg: Any) -> Any:
+            calls.append(("message", type(msg).__name__))
+            return super()._arrived(session, msg)
+
+    server = Recording(LE32, name="fast")
     release = asyncio.Event()
 
     async def slow(msg: JointTrajPt, session: Session) -> None:
@@ -331,14 +340,15 @@ async def run_steps(steps: list[str], standing: bool) -> dict[str, object]:
     connection = next(iter(server.sessions)).connection
     if not standing:
         connection.link.standing.clear()
-    original = connection.on_message
-    assert original is not None
+    if replace_handler:
+        original = connection.on_message
+        assert original is not None
 
-    def on_message(msg: Any) -> Any:
-        calls.append(("message", type(msg).__name__))
-        return original(msg)
+        def on_message(msg: Any) -> Any:
+            calls.append(("replaced", type(msg).__name__))
+            return original(msg)
 
-    connection.on_message = on_message
+        connection.on_message = on_message
     subscription = None
     logger = logging.getLogger("simple_message.connection.frames")
     level = logger.level
@@ -439,6 +449,13 @@ def test_the_standing_reply_changes_nothing_but_the_calls(steps: list[str]) -> N
     assert without_pings(on["calls"]) == without_pings(off["calls"])
     for field in ("delivered", "frames", "closed", "logged"):
         assert on[field] == off[field], field
+
+
+def test_a_replaced_message_handler_gets_every_ping() -> None:
+    """The standing reply is sent on behalf of the server's own handler only."""
+    on = asyncio.run(run_steps(["ping", "ping"], standing=True, replace_handler=True))
+    assert on["calls"] == [("replaced", "Ping"), ("message", "Ping")] * 2
+    assert on["writes"] == [PING_REPLY] * 2
 
 
 def test_no_standing_reply_when_the_registry_decodes_ping_otherwise() -> None:

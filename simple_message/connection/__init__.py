@@ -145,11 +145,11 @@ class Connection(asyncio.Protocol):
         #: If set, called when reading ends (EOF or a frame error) instead of closing at once, so a
         #: server can still answer the requests it already read; it must close the connection.
         self.on_read_end: Callable[[BaseException | None], None] | None = None
-        #: The link's standing replies (:attr:`~..link.Link.standing`) are sent: set by the owner of
-        #: the message handler while the handler would answer those requests at once with those
-        #: replies (nothing of the connection's waits to be answered before them); see
-        #: :meth:`data_received`.
-        self.standing_armed = False
+        #: The message handler on whose behalf the link's standing replies (:attr:`~..link.Link.standing`)
+        #: are sent, or ``None``: set by its owner while the handler would answer those requests at
+        #: once with those replies (nothing of the connection's waits to be answered before them);
+        #: they are sent only while it is :attr:`on_message` (see :meth:`data_received`).
+        self.standing_for: MessageHandler | None = None
         #: the link's standing replies (the same dict), looked up here before anything else
         self._standing = self.link.standing
         self._started = False
@@ -265,7 +265,14 @@ class Connection(asyncio.Protocol):
     # -- the transport's callbacks (asyncio.Protocol) ---------------------------------------------
 
     def data_received(self, data: bytes) -> None:
-        if self.standing_armed and type(data) is bytes and data in self._standing and self._answer_standing(data):
+        armed = self.standing_for
+        if (
+            armed is not None
+            and armed is self.on_message
+            and type(data) is bytes
+            and data in self._standing
+            and self._answer_standing(data)
+        ):
             return
         self._inbound.data_received(self, data)
 

@@ -410,6 +410,7 @@ class Server:
             # with connections coming and going, let memory pile up between collections).
             connection.on_message = None
             connection.on_read_end = None
+            connection.standing_for = None
             session.worker = None
 
     async def serve_serial(self, url: str, *, data: dict[str, Any] | None = None, **serial_options: Any) -> None:
@@ -537,7 +538,7 @@ class Server:
                     session.connection.send_nowait(out)
                 return None
             item = out if isinstance(out, _Later) else _Ready(out)
-        session.connection.standing_armed = False  # something waits now: PINGs take their turn behind it
+        session.connection.standing_for = None  # something waits now: PINGs take their turn behind it
         try:
             session.queue.put_nowait(item)
         except asyncio.QueueFull:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import enum
+import functools
 import logging
 from collections.abc import Awaitable, Callable
 from typing import TYPE_CHECKING, Any
@@ -83,13 +84,18 @@ class Session:
         this session's waits to be handled before it. The connection checks the rest itself (see
         :meth:`.Connection.data_received`); called whenever one of these may have changed."""
         server = self.server
-        self.connection.standing_armed = (
-            server._ping_auto
+        connection = self.connection
+        handler = connection.on_message  # the server's own (see Server._open), unless replaced since
+        ours = isinstance(handler, functools.partial) and handler.func == server._arrived and handler.args == (self,)
+        ready = (
+            ours
+            and server._ping_auto
             and server.reader is None
             and server.max_write_buffer >= 0  # the connection sends only with its write buffer empty
             and not self.busy
             and self.queue.empty()
         )
+        connection.standing_for = handler if ready else None
 
     def ping_reply(self) -> bytes:
         """The frame of the server's own PING reply in this session's wire format (cached)."""
