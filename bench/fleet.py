@@ -422,7 +422,11 @@ async def _chaos_client(spec: str, seconds: float) -> None:
             _vanish(writer, rng, counts)
             return
         robot = RobotDriver("127.0.0.1", motion, state, profile=profile, model=model, goal_timeout=20.0)
-        await robot.connect()
+        try:
+            await robot.connect()
+        except BaseException:  # refused (another client moves that robot...): what it opened is closed
+            await robot.close()
+            raise
         task = asyncio.ensure_future(robot.execute(swing(rng.uniform(0.05, 0.4))))
         try:
             await asyncio.sleep(rng.uniform(0.1, 2.0))

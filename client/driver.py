@@ -215,7 +215,11 @@ class RobotDriver:
             await self.close()
             raise DriverError(self._cannot_connect(exc)) from None
         self._monitor.start(subscription)
-        await self.wait_state(timeout)
+        try:
+            await self.wait_state(timeout)
+        except BaseException:  # no state came (or cancelled): nothing stays open behind the error
+            await self.close()
+            raise
         return self
 
     def _cannot_connect(self, exc: BaseException) -> str:

@@ -208,3 +208,31 @@ async def test_a_status_in_a_read_of_its_own_is_not_a_new_joint_state() -> None:
 
         await bounded(count())
         assert samples <= fake.rounds - first + 1, (samples, fake.rounds - first)
+
+
+async def test_a_controller_that_never_publishes_its_state_leaves_no_connection_open() -> None:
+    """connect() waits for the first joint state; when none comes, it fails and closes what it
+    opened (before, both connections stayed open behind the error, and a program retrying held
+    more and more of the controller's connection slots)."""
+    ended: list[bytes] = []
+    both = asyncio.Event()
+
+    async def silent(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        ended.append(await reader.read())  # b"" once the client closes
+        if len(ended) == 2:
+            both.set()
+        writer.close()
+
+    server = await asyncio.start_server(silent, "127.0.0.1", 0)
+    port = server.sockets[0].getsockname()[1]
+    state = await asyncio.start_server(silent, "127.0.0.1", 0)
+    try:
+        robot = RobotDriver("127.0.0.1", port, state.sockets[0].getsockname()[1])
+        with pytest.raises(DriverError):
+            await robot.connect(timeout=0.2)
+        async with asyncio.timeout(10.0):
+            await both.wait()  # both connections closed by the client
+        assert ended == [b"", b""]
+    finally:
+        server.close()
+        state.close()
