@@ -89,10 +89,7 @@ class Access:
         if self._token is None:
             return None
         if not offered:
-            return (
-                "read-only: the buttons need the web view's token; open the address robot-server printed "
-                "at start (it ends with ?token=...)"
-            )
+            return "read-only: commands need the web view's token (open the address printed at start, ?token=...)"
         if not hmac.compare_digest(offered.encode("utf-8", "surrogateescape"), self._token):
             return "read-only: the token in this page's address is not this web view's"
         return None
