@@ -50,7 +50,7 @@ from .emulator.owner import OnDisconnect
 from .emulator.server import MAX_STATE_RATE
 from .loader import load_model, shipped_cells, shipped_models
 from .model import ModelError
-from .web import MAX_RATE, WebUnavailable, web_address, web_view
+from .web import MAX_RATE, TOKEN_ENV, WebUnavailable, web_address, web_view
 
 if TYPE_CHECKING:
     from .web.server import WebView
@@ -107,7 +107,7 @@ def parser() -> argparse.ArgumentParser:
         metavar="FILE.toml",
         help="run every controller of a fleet file in this one process (one [[controller]] table each, "
         "[defaults] for all; docs/fleet.md); the controllers' settings are the file's, the command line sets "
-        "--speedup, --web, --log-level and --no-stdin for the fleet",
+        "--speedup, --web, --web-token, --web-rate, --log-level and --no-stdin for the fleet",
     )
     p.add_argument(
         "--model",
@@ -279,6 +279,14 @@ def parser() -> argparse.ArgumentParser:
         "HOST default 127.0.0.1, PORT 0: any free one; needs the web extra: pip install 'simple-message-stack[web]')",
     )
     p.add_argument(
+        "--web-token",
+        metavar="TOKEN",
+        default=os.environ.get(TOKEN_ENV) or None,
+        help=f"what the web view's commands need (faults, reset, drives; default: ${TOKEN_ENV}); beyond loopback "
+        "without one, a token is made and printed once in the ready line's address; without the token a page is "
+        "read-only",
+    )
+    p.add_argument(
         "--web-rate",
         type=positive_float,
         default=30.0,
@@ -354,7 +362,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         models = [load_model(m) for m in config.models]
         emulator = Emulator(config, models)
         recorders = emulator.record(args.record_seconds) if args.record else []
-        view = None if args.web is None else web_view(emulator, *args.web, rate=args.web_rate)
+        view = None if args.web is None else web_view(emulator, *args.web, rate=args.web_rate, token=args.web_token)
     except (ValueError, ModelError, OSError, WebUnavailable) as exc:
         print(f"robot-server: {exc}", file=sys.stderr)
         return 2
@@ -447,7 +455,7 @@ async def _serve(
         except BaseException:
             await emulator.close()
             raise
-        ready += f", web view {view.url}"
+        ready += f", web view {view.token_url if view.token_generated else view.url}"
     print(ready, flush=True)
     if emulator.capture is not None:
         log.info("recording every connection to %s", emulator.capture.path)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
 import re
 import signal
 import socket
@@ -372,3 +373,36 @@ async def test_the_command_refuses_a_bad_file_before_binding(tmp_path: Path) -> 
     out, err = await asyncio.wait_for(proc.communicate(), 30.0)
     assert proc.returncode == 2 and not out
     assert f"{path}: controller r2: queue_sise: unknown key; did you mean queue_size?" in err.decode()
+
+
+@pytest.mark.slow
+async def test_the_command_serves_the_fleets_web_view_with_a_token_beyond_loopback(tmp_path: Path) -> None:
+    pytest.importorskip("aiohttp")
+    path = tmp_path / "cell.toml"
+    path.write_text(FLEET_FILE)
+    log = tmp_path / "fleet.log"
+    with log.open("wb") as err:
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "robot_server", "--fleet", str(path), "--web", "0.0.0.0:0", "--no-stdin",
+            stdout=asyncio.subprocess.PIPE, stderr=err, env={**os.environ, "ROBOT_SERVER_WEB_TOKEN": ""},
+        )  # fmt: skip
+        try:
+            assert proc.stdout is not None
+            async with asyncio.timeout(30.0):
+                lines = [(await proc.stdout.readline()).decode() for _ in range(3)]
+            match = re.search(r", web view http://0\.0\.0\.0:(\d+)/\?token=([\w-]{16,})$", lines[2].strip())
+            assert match, lines[2]
+            reader, writer = await asyncio.open_connection("127.0.0.1", int(match[1]))
+            writer.write(b"GET /fleet.json HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n")
+            async with asyncio.timeout(10.0):
+                answer = (await reader.read()).decode()
+            writer.close()
+            assert " 200 " in answer.splitlines()[0]
+            assert '"name":"r1"' in answer.replace(" ", "") and '"name":"r2"' in answer.replace(" ", "")
+            assert match[2] not in log.read_text(), "the token is printed once, never logged"
+            proc.send_signal(signal.SIGINT)
+            assert await asyncio.wait_for(proc.wait(), 30.0) == 0, log.read_text()
+        finally:
+            if proc.returncode is None:
+                proc.kill()
+                await proc.wait()

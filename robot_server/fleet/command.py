@@ -21,14 +21,19 @@ import signal
 import sys
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from simple_message.endpoints import run
 
 from ..cli import check_writable, write_records
 from ..emulator import FaultError
+from ..web import MAX_RATE, WebUnavailable, fleet_view
 from .config import FleetError, load_fleet
 from .logs import FORMAT, ControllerField, FleetCeiling
 from .runner import Fleet, FleetCommandError
+
+if TYPE_CHECKING:
+    from ..web.fleet import FleetView
 
 __all__ = ["FLEET_OPTIONS", "fleet_main"]
 
@@ -61,15 +66,20 @@ def fleet_main(args: argparse.Namespace, given: list[str]) -> int:
             if controller.config.capture is not None:
                 check_writable(Path(controller.config.capture), f"{spec.path}: controller {controller.name}: capture")
         fleet = Fleet(spec, speedup=args.speedup)
-    except (FleetError, ValueError, OSError) as exc:
+        view = None
+        if args.web is not None:
+            if args.web_rate > MAX_RATE:
+                raise ValueError(f"--web-rate is at most {MAX_RATE:g} updates a second")
+            view = fleet_view(fleet.emulators, *args.web, rate=args.web_rate, token=args.web_token, run_as=fleet.run_as)
+    except (FleetError, ValueError, OSError, WebUnavailable) as exc:
         print(f"robot-server: {exc}", file=sys.stderr)
         return 2
     except MemoryError:
         print("robot-server: not enough memory for the records: a smaller record_seconds", file=sys.stderr)
         return 2
     try:
-        code = run(_serve(fleet, read_stdin=not args.no_stdin))
-    except FleetError as exc:
+        code = run(_serve(fleet, view, read_stdin=not args.no_stdin))
+    except (FleetError, OSError) as exc:  # a port taken between the check and the start
         print(f"robot-server: {exc}", file=sys.stderr)
         return 1
     failed = False
@@ -84,7 +94,7 @@ def fleet_main(args: argparse.Namespace, given: list[str]) -> int:
     return 1 if failed else code
 
 
-async def _serve(fleet: Fleet, *, read_stdin: bool) -> int:
+async def _serve(fleet: Fleet, view: FleetView | None, *, read_stdin: bool) -> int:
     loop = asyncio.get_running_loop()
     done = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -92,13 +102,19 @@ async def _serve(fleet: Fleet, *, read_stdin: bool) -> int:
     ceiling = FleetCeiling(list(fleet)).install(*{type(e.behaviour).__module__ for e in fleet.emulators.values()})
     try:
         await fleet.start()
-        for line in fleet.ready_lines():
+        lines = fleet.ready_lines()
+        if view is not None:
+            await view.start()
+            lines[-1] += f", web view {view.token_url if view.token_generated else view.url}"
+        for line in lines:
             print(line, flush=True)
         if read_stdin:
             _read_commands(fleet, loop)
         await done.wait()
     finally:
         log.info("shutting down: bringing %d controllers to rest", len(fleet))
+        if view is not None:
+            await view.close()
         await fleet.close()
         ceiling.remove()
     return 0
