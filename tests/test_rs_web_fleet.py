@@ -50,6 +50,7 @@ async def fleet_web(token: str | None = None, *, autosample: bool = False) -> As
     view = fleet_view(fleet.emulators, "127.0.0.1", 0, token=token, run_as=fleet.run_as)
     for controller in view.controllers.values():
         controller.autosample = autosample
+    view.index_max_age = 0.0  # each /fleet.json made anew (its reuse is tested on its own)
     await fleet.start()
     try:
         await view.start()
@@ -104,6 +105,21 @@ async def test_the_index_lists_every_controller_and_follows_an_estop() -> None:
         fleet.command("r2 alarm 4711 door open")
         rows = {c["name"]: c for c in (await index(http, view))["controllers"]}
         assert rows["r2"]["status"]["in_error"] and rows["r2"]["status"]["error_code"] == 4711
+
+
+async def test_one_index_answer_serves_whoever_asks_within_its_max_age() -> None:
+    """However many index pages are open, or however fast a program asks, the controllers are read
+    at most once every ``index_max_age`` seconds; the token's part is each request's own."""
+    async with fleet_web(TOKEN) as (fleet, view), aiohttp.ClientSession() as http:
+        view.index_max_age = 3600.0
+        first = await index(http, view)
+        fleet["r1"].cell.estop()
+        again = await index(http, view, TOKEN)
+        assert again["controllers"] == first["controllers"]  # the same answer, r1 not yet e-stopped
+        assert first["control"]["commands"] is False and again["control"]["commands"] is True
+        assert view.summary()["controllers"][0]["status"]["e_stopped"] is True  # summary() reads now
+        view.index_max_age = 0.0
+        assert (await index(http, view))["controllers"][0]["status"]["e_stopped"] is True
 
 
 async def test_the_index_page_and_each_controllers_page_are_served() -> None:

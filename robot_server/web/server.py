@@ -236,7 +236,7 @@ class ControllerView:
         if not isinstance(command, str) or not command.strip():
             return {"type": "result", "ok": False, "error": "command: a fault command, e.g. estop"}
         if why is not None:
-            self._budget.log(log, logging.INFO, "web view: a command from a read-only page (%s) refused", peer)
+            self._run_as(functools.partial(self._refuse, peer))
             return {"type": "result", "ok": False, "refused": True, "error": f"refused, {why}"}
         now = time.monotonic()
         sent[:] = [t for t in sent if now - t < 1.0]
@@ -248,6 +248,10 @@ class ControllerView:
         except FaultError as exc:
             return {"type": "result", "ok": False, "error": str(exc)}
         return {"type": "result", "ok": True, "text": applied}
+
+    def _refuse(self, peer: str) -> str:
+        self._budget.log(log, logging.INFO, "web view: a command from a read-only page (%s) refused", peer)
+        return ""
 
     def _apply(self, command: str) -> str:
         applied = self.emulator.command(command)
