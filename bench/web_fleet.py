@@ -16,8 +16,9 @@ the same run:
   index page does;
 * one controller's page open: another process reads its WebSocket at the default 30 updates a second.
 
-It also times one ``/fleet.json`` answer (made in the process, without HTTP): per request and per
-controller.
+It also times, in the process and without HTTP, one ``/fleet.json`` answer (per request and per
+controller) and one sample of a controller's page (``Feed.sample``, per profile): ``rate`` of those a
+second is what each controller cost with no page before, whatever else loads the machine.
 
     python bench/web_fleet.py [--counts 20,50,100] [--seconds 5] [--runs 1]
 
@@ -129,6 +130,21 @@ async def summary_time(count: int, folder: Path) -> float:
         return (time.perf_counter() - began) / rounds
 
 
+async def sample_time(folder: Path) -> dict[str, float]:
+    """One ``Feed.sample`` per profile (s), the median of 200."""
+    async with running(len(PROFILES), folder, True) as (fleet, view):
+        assert view is not None
+        times = {}
+        for name, controller in view.controllers.items():
+            spent = []
+            for _ in range(200):
+                began = time.perf_counter()
+                controller.feed.sample()
+                spent.append(time.perf_counter() - began)
+            times[fleet[name].config.profile] = statistics.median(spent)
+        return times
+
+
 async def main(args: argparse.Namespace) -> None:
     machine = f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores"
     print(f"# Web view of a fleet at rest ({machine}; {args.seconds:g} s per case, median of {args.runs})\n")
@@ -151,6 +167,12 @@ async def main(args: argparse.Namespace) -> None:
         for count in args.counts:
             spent = await summary_time(count, folder)
             print(f"| {count} | {1e3 * spent:.2f} | {1e6 * spent / count:.1f} |", flush=True)
+        rate = 30.0
+        print(f"\nOne sample of a controller's page, and {rate:g} a second (the default rate) as a share of a core:\n")
+        print("| profile | one sample (us) | at 30 a second (% of a core) |")
+        print("|---|---:|---:|")
+        for profile, spent in (await sample_time(folder)).items():
+            print(f"| {profile} | {1e6 * spent:.1f} | {100 * rate * spent:.3f} |", flush=True)
 
 
 def run_client(kind: str, url: str, seconds: float) -> None:
