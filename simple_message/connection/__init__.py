@@ -309,7 +309,8 @@ class Connection(asyncio.Protocol):
         transport.write(reply)
         if self.frame_timeout is not None:
             self.last_input = time.monotonic()  # (after the reply: nothing reads it in between)
-        if transport.get_write_buffer_size() > self.max_write_buffer:
+        # written with the buffer empty, the buffer holds at most the reply now
+        if len(reply) > self.max_write_buffer and transport.get_write_buffer_size() > self.max_write_buffer:
             self.abort(ConnectionClosed(f"peer fell {transport.get_write_buffer_size()} bytes behind"))
         if inbound.partial_timer is not None and self.frame_timeout is not None:
             inbound.watch_partial(self)  # nothing is held: the clock stops
