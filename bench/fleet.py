@@ -19,8 +19,10 @@ two-second swing back and forth for the whole window. Jitter: 50 controllers of 
 rest, each with a raw state client (a separate process) that timestamps every round.
 
 ``--soak MINUTES``: a 50-controller fleet with clients connecting, streaming, stopping and vanishing
-(FIN and RST) at random for MINUTES; prints the fleet's RSS every minute, its errors (tracebacks,
-ERROR lines) and its overruns.
+(FIN and RST) at random for MINUTES; prints the fleet's RSS every minute and of it the private
+anonymous memory (RssAnon: the heap, what a leak grows; the flatness is judged on it, as the kernel
+may drop the shared libraries' pages from RSS at any time), its errors (tracebacks, ERROR lines)
+and its overruns.
 
     python bench/fleet.py [--counts 1,10,50,100,200] [--process-counts 1,10,50] [--moving 20,40]
                           [--seconds 10] [--skip idle,moving,jitter] [--soak MINUTES]
@@ -84,13 +86,15 @@ class Running:
             total += int(fields[11]) + int(fields[12])
         return total / CLOCK_TICKS
 
-    def rss(self) -> float:
-        """Resident memory of the processes together (MB)."""
+    def rss(self, field: str = "VmRSS") -> float:
+        """Resident memory of the processes together (MB): all of it (``VmRSS``), or the private
+        anonymous memory alone (``RssAnon``: the heap; what a leak grows; the shared libraries'
+        pages, which the kernel may drop and read again, are ``RssFile``)."""
         total = 0
         for proc in self.procs:
             with open(f"/proc/{proc.pid}/status") as status:
                 for line in status:
-                    if line.startswith("VmRSS:"):
+                    if line.startswith(field + ":"):
                         total += int(line.split()[1])
         return total / 1024
 
@@ -349,27 +353,28 @@ async def soak(minutes: float, folder: Path) -> None:
         client = await asyncio.create_subprocess_exec(
             sys.executable, __file__, "_chaos", spec, str(minutes * 60.0), stdout=asyncio.subprocess.PIPE
         )
-        print("| minute | RSS (MB) | CPU over the minute (% of a core) |")
-        print("|---:|---:|---:|")
+        print("| minute | RSS (MB) | of it private, RssAnon (MB) | CPU over the minute (% of a core) |")
+        print("|---:|---:|---:|---:|")
         await asyncio.sleep(5.0)
-        first = running.rss()
-        samples = [first]
+        samples = [running.rss("RssAnon")]
         cpu0, wall0 = running.cpu(), time.monotonic()
-        print(f"| 0 | {first:.1f} | |", flush=True)
+        print(f"| 0 | {running.rss():.1f} | {samples[0]:.1f} | |", flush=True)
         for minute in range(1, int(minutes) + 1):
             await asyncio.sleep(max(0.0, wall0 + 60.0 - time.monotonic()))
             cpu1, wall1 = running.cpu(), time.monotonic()
-            rss = running.rss()
-            samples.append(rss)
-            print(f"| {minute} | {rss:.1f} | {100 * (cpu1 - cpu0) / (wall1 - wall0):.0f} |", flush=True)
+            anon = running.rss("RssAnon")
+            samples.append(anon)
+            share = 100 * (cpu1 - cpu0) / (wall1 - wall0)
+            print(f"| {minute} | {running.rss():.1f} | {anon:.1f} | {share:.0f} |", flush=True)
             cpu0, wall0 = cpu1, wall1
         out, _ = await asyncio.wait_for(client.communicate(), 300.0)
         operator.cancel()
         log = (await running.stop())[0]
     print(f"\nclients: {out.decode().strip()}")
-    print(f"RSS: first {samples[0]:.1f} MB, last {samples[-1]:.1f} MB, range {min(samples):.1f}..{max(samples):.1f} MB")
+    low, high = min(samples), max(samples)
+    print(f"RssAnon: first {samples[0]:.1f} MB, last {samples[-1]:.1f} MB, range {low:.1f}..{high:.1f} MB")
     drift = max(abs(s - samples[0]) for s in samples)
-    print(f"RSS flat within +-5 MB: {'yes' if drift <= 5.0 else 'NO'} (largest change {drift:.1f} MB)")
+    print(f"private memory flat within +-5 MB: {'yes' if drift <= 5.0 else 'NO'} (largest change {drift:.1f} MB)")
     errors = [line for line in log.splitlines() if " ERROR " in line]
     print(f"tracebacks: {log.count('Traceback')}; ERROR lines: {len(errors)} (a played controller's own failures among")
     print("them: ABB's RAPID motion server stopping on garbage, as it does), the first:")
