@@ -10,8 +10,6 @@ comes in time, the running segment gets the points' own state back. Functions of
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 from numpy.typing import NDArray
 
@@ -60,7 +58,7 @@ def start_next(
             # robot must be able to stop there (a burst: the points all queued at once)
             braked = braking(settings, entry, after, holds)
             if braked is not entry:
-                entry = replace(braked, unbraked=None)
+                entry = braked.evolve(unbraked=None)
                 assert entry.end is not None
                 segment = connect(entry.end, 2, after.end, after.end_order, after.duration)
                 after = after.marked(Phase.TRANSIENT, start=entry.end, start_order=2, segment=segment)
@@ -114,7 +112,7 @@ def braking(settings: Settings, entry: Entry, last: Entry, stops: NDArray[np.boo
     slower = slowed(end, least_slowing(lambda f: not stop_overshoots(f), steps=8))
     candidate = stretched(
         settings,
-        replace(entry, end=slower, segment=connect(entry.start, entry.start_order, slower, 2, entry.duration)),
+        entry.evolve(end=slower, segment=connect(entry.start, entry.start_order, slower, 2, entry.duration)),
     )
     if (
         excess(settings, candidate)[0] > 1.0
@@ -123,7 +121,7 @@ def braking(settings: Settings, entry: Entry, last: Entry, stops: NDArray[np.boo
     ):
         return entry  # it cannot brake that much on the way to its own point: as planned
     log.debug("point %d: slower through it, to be able to stop at point %d", entry.index, last.index)
-    return replace(candidate, unbraked=end)
+    return candidate.evolve(unbraked=end)
 
 
 def unbraked(context: Context, running: Entry, started: float) -> Entry | None:
@@ -139,9 +137,7 @@ def unbraked(context: Context, running: Entry, started: float) -> Entry | None:
     segment = connect(context.state, 2, end, 2, remaining)
     entry = stretched(
         settings,
-        replace(
-            running, start=context.state, start_order=2, duration=remaining, end=end, segment=segment, unbraked=None
-        ),
+        running.evolve(start=context.state, start_order=2, duration=remaining, end=end, segment=segment, unbraked=None),
     )
     if (
         entry.duration > MAX_LAG_FACTOR * remaining + MAX_LAG  # as late as a jerk replacement may be

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import replace
 
 import numpy as np
 
@@ -122,7 +121,7 @@ def determine(settings: Settings, entry: Entry, after: Array, after_duration: fl
     end = through(settings.limits, entry, entry.duration, after, after_duration)
     if not (entry.transient and at_rest(entry.start)):
         return stretched(
-            settings, replace(entry, end=end, segment=connect(entry.start, entry.start_order, end, 2, entry.duration))
+            settings, entry.evolve(end=end, segment=connect(entry.start, entry.start_order, end, 2, entry.duration))
         )
     launched_entry = launched(settings, entry, end)
     if overshoot(launched_entry) <= blend.OVERSHOOT:
@@ -156,7 +155,7 @@ def given(entry: Entry, scale: float) -> Entry:
     else:
         end, order = State(point.position, velocity, np.zeros_like(velocity)), 1
     segment = connect(entry.start, entry.start_order, end, order, entry.duration)
-    return replace(entry, end=end, end_order=order, segment=segment)
+    return entry.evolve(end=end, end_order=order, segment=segment)
 
 
 def stretched(settings: Settings, entry: Entry) -> Entry:
@@ -193,7 +192,7 @@ def stretched(settings: Settings, entry: Entry) -> Entry:
         return entry
     if segment.duration > settings.max_duration:
         return entry
-    replaced = replace(entry, segment=segment, duration=segment.duration)
+    replaced = entry.evolve(segment=segment, duration=segment.duration)
     if not within_positions(settings, replaced):
         # ruckig knows no position limits: its motion would leave them; the polynomial stays
         # (beyond the velocity or acceleration limit it slows the trajectory down)
@@ -208,7 +207,7 @@ def to_rest(settings: Settings, entry: Entry, messages: list[tuple[int, str]]) -
     point = knot_of(entry)
     end = State.rest(point.position)
     segment = connect(entry.start, entry.start_order, end, 2, entry.duration)
-    candidate = replace(entry, end=end, segment=segment)
+    candidate = entry.evolve(end=end, segment=segment)
     fits = max(excess(settings, candidate)) <= 1.0 and within_positions(settings, candidate)
     if not fits or swings(settings, candidate) or overshoot(candidate) > blend.OVERSHOOT:
         try:
@@ -216,7 +215,7 @@ def to_rest(settings: Settings, entry: Entry, messages: list[tuple[int, str]]) -
         except PlanningError as exc:  # a start beyond the limits: the polynomial stands
             log.warning("point %d: no motion to rest there within the limits (%s)", point.index, exc)
         else:
-            if fits and overshoot(replace(candidate, segment=segment)) >= overshoot(candidate):
+            if fits and overshoot(candidate.evolve(segment=segment)) >= overshoot(candidate):
                 # the robot cannot stop short of the point from where it is: of the two, the
                 # motion that goes least beyond it
                 return candidate.marked(Phase.DRY)

@@ -88,12 +88,13 @@ def orders(settings: Settings, entry: Entry) -> tuple[float, float, float]:
     if cached is not None:
         return cached  # type: ignore[return-value]
     lim = settings.limits
+    rows = lim.rows
     needed = [1.0, 1.0, 1.0, 1.0]
     for order in range(1, min(segment.bounded_order, 3) + 1):
-        limit = limit_of(lim, order)
-        lo, hi = segment.bounds(order)
-        if np.all(np.maximum(-lo, hi) <= limit):
+        low, high = segment.bound_lists(order)
+        if _symmetric_within(low, high, (rows.max_velocity, rows.max_acceleration, rows.max_jerk)[order - 1]):
             continue
+        limit = limit_of(lim, order)
         lo, hi = segment.extremes(order)
         over = float(np.max(np.maximum(-lo, hi) / limit))
         if over > 1.0 + SLACK:
@@ -103,20 +104,38 @@ def orders(settings: Settings, entry: Entry) -> tuple[float, float, float]:
     return result
 
 
+def _symmetric_within(low: list[float], high: list[float], limit: list[float]) -> bool:
+    """Every joint's ``[low, high]`` within ``[-limit, limit]`` (NaN is not)."""
+    return all(-lo <= m and hi <= m for lo, hi, m in zip(low, high, limit, strict=True))
+
+
 def swings(settings: Settings, entry: Entry) -> bool:
     """The segment goes beyond its two points by more than OVERSHOOT plus what the robot needs
     to brake from its start (its Bezier hull says so: cheap, and exact enough to flag a fast
     start over a long segment, which a quintic turns into a long excursion)."""
     segment = entry.segment
     assert segment is not None and entry.end is not None
-    lo, hi = segment.bounds(0)
-    lim = settings.limits
-    v0, a0 = np.abs(entry.start.velocity), np.abs(entry.start.acceleration)
-    ramp = (a0 + lim.max_acceleration) / lim.max_jerk  # time to turn the acceleration round
-    fastest = v0 + a0 * ramp
-    braking = fastest * ramp + fastest * fastest / (2.0 * lim.max_acceleration) + OVERSHOOT
-    p0, p1 = entry.start.position, entry.end.position
-    return bool(np.any(lo < np.minimum(p0, p1) - braking) or np.any(hi > np.maximum(p0, p1) + braking))
+    low, high = segment.bound_lists(0)
+    rows = settings.limits.rows
+    start = entry.start
+    for lo, hi, v0, a0, p0, p1, max_a, max_j in zip(
+        low,
+        high,
+        start.velocity.tolist(),
+        start.acceleration.tolist(),
+        start.position.tolist(),
+        entry.end.position.tolist(),
+        rows.max_acceleration,
+        rows.max_jerk,
+        strict=True,
+    ):
+        v0, a0 = abs(v0), abs(a0)
+        ramp = (a0 + max_a) / max_j  # time to turn the acceleration round
+        fastest = v0 + a0 * ramp
+        braking = fastest * ramp + fastest * fastest / (2.0 * max_a) + OVERSHOOT
+        if lo < min(p0, p1) - braking or hi > max(p0, p1) + braking:
+            return True
+    return False
 
 
 def uniform_need(settings: Settings, entry: Entry) -> float:
@@ -154,12 +173,16 @@ def within_positions(settings: Settings, entry: Entry) -> bool:
     segment = entry.segment
     assert segment is not None
     lim = settings.limits
-    lo, hi = segment.bounds(0)
-    if np.all(lo >= lim.lower) and np.all(hi <= lim.upper):
+    if _bounds_within(*segment.bound_lists(0), lim.rows.lower, lim.rows.upper):
         return True
     lo, hi = segment.extremes(0)
     slack = SLACK * np.maximum(1.0, np.abs(lim.upper))
     return bool(np.all(lo >= lim.lower - slack) and np.all(hi <= lim.upper + slack))
+
+
+def _bounds_within(low: list[float], high: list[float], lower: list[float], upper: list[float]) -> bool:
+    """Every joint's ``[low, high]`` within ``[lower, upper]`` (NaN is not)."""
+    return all(lo >= a and hi <= b for lo, hi, a, b in zip(low, high, lower, upper, strict=True))
 
 
 def check_position(settings: Settings, entry: Entry) -> None:
@@ -178,28 +201,56 @@ def state_need(state: State, limits: Limits) -> float:
     still gains while its acceleration is brought to 0 at the jerk limit (a^2 / 2 J, when the
     acceleration speeds it up): from a state beyond that, every motion leaves the velocity limit,
     the controller's stop included."""
-    speed = np.abs(state.velocity)
-    direction = np.sign(state.velocity)
-    push = state.acceleration * direction
-    gain = np.where(push > 0.0, push * push / (2.0 * limits.max_jerk), 0.0)  # at k = 1; / k^4 when scaled
-    needed = max(1.0, float(np.max(speed / limits.max_velocity)))
-    needed = max(needed, math.sqrt(float(np.max(np.abs(state.acceleration) / limits.max_acceleration))))
-    # room to brake before the position limit the joint heads for
-    room = np.where(direction > 0.0, limits.upper - state.position, state.position - limits.lower)
+    # joint by joint on floats: numpy's operations on the arrays, in the same order (the same
+    # numbers), without its cost per call on arrays of six (this runs for every planned point)
+    rows = limits.rows
+    max_v, max_a, max_j = rows.max_velocity, rows.max_acceleration, rows.max_jerk
+    speed: list[float] = []
+    push: list[float] = []
+    gain: list[float] = []
+    room: list[float] = []
+    for v, a, p, low, high, jerk in zip(
+        state.velocity.tolist(),
+        state.acceleration.tolist(),
+        state.position.tolist(),
+        rows.lower,
+        rows.upper,
+        max_j,
+        strict=True,
+    ):
+        direction = 1.0 if v > 0.0 else -1.0 if v < 0.0 else 0.0  # np.sign (v is finite)
+        pushed = a * direction
+        speed.append(abs(v))
+        push.append(pushed)
+        gain.append(pushed * pushed / (2.0 * jerk) if pushed > 0.0 else 0.0)  # at k = 1; / k^4 when scaled
+        # room to brake before the position limit the joint heads for
+        room.append(high - p if direction > 0.0 else p - low)
+    fastest_joint = max([s / m for s, m in zip(speed, max_v, strict=True)])
+    needed = max(1.0, fastest_joint)
+    accelerations = [abs(a) / m for a, m in zip(state.acceleration.tolist(), max_a, strict=True)]
+    needed = max(needed, math.sqrt(max(accelerations)))
+    speed_limit = [m * (1.0 + SLACK) for m in max_v]
 
     def fits(k: float) -> bool:
-        v, a = speed / k, np.maximum(push, 0.0) / (k * k)
-        if not np.all(v + gain / k**4 <= limits.max_velocity * (1.0 + SLACK)):
-            return False
-        ramp = (a + limits.max_acceleration) / limits.max_jerk  # to turn the acceleration round
-        fastest = v + a * ramp
-        braking = fastest * ramp + fastest * fastest / (2.0 * limits.max_acceleration)
-        return bool(np.all(braking <= room + SLACK))
+        k4, k2 = k**4, k * k
+        for s, pushed, g, r, top, acc, jerk in zip(speed, push, gain, room, speed_limit, max_a, max_j, strict=True):
+            v, a = s / k, max(pushed, 0.0) / k2
+            if not v + g / k4 <= top:
+                return False
+            ramp = (a + acc) / jerk  # to turn the acceleration round
+            fastest = v + a * ramp
+            braking = fastest * ramp + fastest * fastest / (2.0 * acc)
+            if not braking <= r + SLACK:
+                return False
+        return True
 
     if not fits(needed):
         # both terms fall with k: at ``high`` each is at most half the limit
-        low, high = needed, max(needed, float(np.max(2.0 * speed / limits.max_velocity)))
-        high = max(high, float(np.max(2.0 * gain / limits.max_velocity) ** 0.25))
+        doubled = max([2.0 * s / m for s, m in zip(speed, max_v, strict=True)])
+        low, high = needed, max(needed, doubled)
+        gained = max([2.0 * g / m for g, m in zip(gain, max_v, strict=True)])
+        root: float = gained**0.25
+        high = max(high, root)
         while not fits(high):  # braking room: the braking distance falls as 1 / k (at least)
             if high > 1e6:
                 return high  # no room at all (a joint at its limit, moving on): slowing cannot help

@@ -194,19 +194,27 @@ def plan_knot(context: Context, point: Knot, base: Plan, *, defer: bool) -> Plan
             draft.running,
             draft.started,
             draft.pending,
-            replace(trajectory, points=trajectory.points + 1),
+            trajectory.evolve(points=trajectory.points + 1),
             draft.messages,
             context.at,
         )
     if entry.is_kind(Kind.GIVEN):
         built.append(entry)
-    trajectory = replace(
-        trajectory,
+    trajectory = trajectory.evolve(
         points=trajectory.points + 1,
         last_position=point.position,
         time=point.time if point.time is not None else trajectory.time,
     )
-    draft = replace(draft, pending=(*draft.pending, entry), trajectory=trajectory)
+    draft = Plan(
+        draft.running,
+        draft.started,
+        (*draft.pending, entry),
+        trajectory,
+        draft.messages,
+        draft.at,
+        draft.needed,
+        draft.stopped_dry,
+    )
     return _fit(context, point, draft, built, defer=defer)
 
 
@@ -245,14 +253,14 @@ def _pass_previous(context: Context, point: Knot, base: Plan) -> _Passed:
                 messages.append(
                     dry_message(trajectory, f"point {point.index} came too late to pass through point {running.index}")
                 )
-                trajectory = replace(trajectory, warned_dry=True)
+                trajectory = trajectory.evolve(warned_dry=True)
     elif running is not None and running.knot is None and not pending:
         running, started = None, context.at  # a dry stop is under way: go on from the current setpoint
         transient = True
     elif running is None and not pending and base.stopped_dry == (point.trajectory, point.index - 1):
         transient = True
         messages.append(dry_message(trajectory, f"point {point.index} came after the robot stopped"))
-        trajectory = replace(trajectory, warned_dry=True)
+        trajectory = trajectory.evolve(warned_dry=True)
     draft = Plan(running, started, tuple(pending), trajectory, tuple(messages), context.at)
     return _Passed(draft, tuple(built), transient)
 

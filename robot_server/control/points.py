@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import StrEnum
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -119,6 +120,37 @@ class Limits:
     def dof(self) -> int:
         return int(self.lower.size)
 
+    @cached_property
+    def rows(self) -> LimitRows:
+        """The same limits as lists of floats, and the bounds :func:`within` checks positions and
+        velocities against: for the planning, which works joint by joint on plain floats (numpy's
+        cost per call on arrays of six is several times the arithmetic)."""
+        return LimitRows(
+            self.lower.tolist(),
+            self.upper.tolist(),
+            self.max_velocity.tolist(),
+            self.max_acceleration.tolist(),
+            self.max_jerk.tolist(),
+            *(bound.tolist() for bound in _slackened(self.lower, self.upper)),
+            *(bound.tolist() for bound in _slackened(-self.max_velocity, self.max_velocity)),
+        )
+
+
+class LimitRows(NamedTuple):
+    """:class:`Limits` as lists of floats (:attr:`Limits.rows`)."""
+
+    lower: list[float]
+    upper: list[float]
+    max_velocity: list[float]
+    max_acceleration: list[float]
+    max_jerk: list[float]
+    #: the positions :func:`check_point` accepts (``lower`` and ``upper`` widened by :data:`SLACK`)
+    position_low: list[float]
+    position_high: list[float]
+    #: the velocities it accepts
+    velocity_low: list[float]
+    velocity_high: list[float]
+
 
 #: the shortest segment a point may ask for (s): a non-zero duration or time step below it is refused
 MIN_DURATION = 1e-6
@@ -138,7 +170,7 @@ def check_point(point: Point, limits: Limits, max_duration: float) -> Array:
             continue
         if array.shape != (dof,):
             raise PointRejected(Reason.JOINT_COUNT, f"{what} has {array.size} values; this robot has {dof}")
-        if not np.all(np.isfinite(array)):
+        if not np.isfinite(array).all():
             raise PointRejected(Reason.NOT_FINITE, f"{what} contains NaN or infinity")
     for what, number in (("time", point.time), ("duration", point.duration), ("velocity ratio", point.velocity_ratio)):
         if number is None:
@@ -159,17 +191,28 @@ def check_point(point: Point, limits: Limits, max_duration: float) -> Array:
         raise PointRejected(
             Reason.VELOCITY_LIMIT, f"the velocity ratio {point.velocity_ratio:g} asks for more than the maximum speed"
         )
-    within(point.positions, limits.lower, limits.upper, Reason.POSITION_LIMIT, "position")
-    if point.velocities is not None:
+    rows = limits.rows
+    if not _inside(point.positions.tolist(), rows.position_low, rows.position_high):
+        within(point.positions, limits.lower, limits.upper, Reason.POSITION_LIMIT, "position")
+    if point.velocities is not None and not _inside(point.velocities.tolist(), rows.velocity_low, rows.velocity_high):
         within(point.velocities, -limits.max_velocity, limits.max_velocity, Reason.VELOCITY_LIMIT, "velocity")
     return point.positions
 
 
+def _inside(values: list[float], low: list[float], high: list[float]) -> bool:
+    """Every value within its bounds (the check of :func:`within`, on floats: NaN is not inside)."""
+    return all(lo <= value <= hi for value, lo, hi in zip(values, low, high, strict=True))
+
+
+def _slackened(lower: Array, upper: Array) -> tuple[Array, Array]:
+    """The bounds :func:`within` compares values with: ``lower`` and ``upper`` widened by :data:`SLACK`."""
+    return lower - SLACK * np.maximum(1.0, np.abs(lower)), upper + SLACK * np.maximum(1.0, np.abs(upper))
+
+
 def within(values: Array, lower: Array, upper: Array, reason: Reason, what: str) -> None:
     """Refuse with ``reason`` unless ``lower <= values <= upper`` (to :data:`SLACK`)."""
-    slack_lo = SLACK * np.maximum(1.0, np.abs(lower))
-    slack_hi = SLACK * np.maximum(1.0, np.abs(upper))
-    bad = np.flatnonzero((values < lower - slack_lo) | (values > upper + slack_hi))
+    low, high = _slackened(lower, upper)
+    bad = np.flatnonzero((values < low) | (values > high))
     if bad.size:
         j = int(bad[0])
         raise PointRejected(

@@ -88,7 +88,7 @@ def _rescale(
         # a margin: points rounded to float32 on the wire would otherwise put the next ones a
         # hair over the limit, and every re-scale disturbs the segment under way
         factor = needed * RESCALE_MARGIN
-        trajectory = replace(trajectory, scale=trajectory.scale * factor)
+        trajectory = trajectory.evolve(scale=trajectory.scale * factor)
         for e in pending:  # refused before the segments are built: they could overflow
             if e.trajectory == trajectory.number and e.knot is not None and e.knot.duration is not None:
                 check_duration(
@@ -116,10 +116,10 @@ def _rescale(
     )
     if not trajectory.warned_scale:
         messages.append((logging.WARNING, text))
-        trajectory = replace(trajectory, warned_scale=True, logged_scale=trajectory.scale)
+        trajectory = trajectory.evolve(warned_scale=True, logged_scale=trajectory.scale)
     elif trajectory.scale >= 1.1 * trajectory.logged_scale:  # more: at INFO, once per 10 % (no flood)
         messages.append((logging.INFO, f"{text}, was x{was:.3f}"))
-        trajectory = replace(trajectory, logged_scale=trajectory.scale)
+        trajectory = trajectory.evolve(logged_scale=trajectory.scale)
     else:
         messages.append((logging.DEBUG, f"{text}, was x{was:.3f}"))
     return running, started, pending, trajectory
@@ -148,8 +148,7 @@ def scaled(
             successor = pending[0] if pending and mine[0] else None
             candidate = rebuilt(
                 settings,
-                replace(
-                    running,
+                running.evolve(
                     start=context.state,
                     start_order=2,
                     duration=remaining,
@@ -174,7 +173,7 @@ def scaled(
         if mine[i]:
             duration = need(knot_of(entry).duration) * scale
             assert end is not None
-            moved = replace(entry, start=end, start_order=order, duration=duration, before_duration=duration)
+            moved = entry.evolve(start=end, start_order=order, duration=duration, before_duration=duration)
             if transition or slowed:
                 moved = moved.marked(Phase.TRANSIENT)
                 transition = False
@@ -194,7 +193,7 @@ def rebuilt(settings: Settings, entry: Entry, successor: Entry | None, scale: fl
         return given(entry, scale)
     if entry.dry:
         end = State.rest(knot_of(entry).position)
-        return replace(entry, end=end, segment=connect(entry.start, entry.start_order, end, 2, entry.duration))
+        return entry.evolve(end=end, segment=connect(entry.start, entry.start_order, end, 2, entry.duration))
     if successor is None:
-        return replace(entry, end=None, segment=None)
+        return entry.evolve(end=None, segment=None)
     return determine(settings, entry, knot_of(successor).position, need(knot_of(successor).duration) * scale)

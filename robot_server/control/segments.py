@@ -108,6 +108,13 @@ class Segment(ABC):
         """Per joint, cheap bounds that contain :meth:`extremes` (by default the exact values)."""
         return self.extremes(order)
 
+    def bound_lists(self, order: int) -> tuple[list[float], list[float]]:
+        """:meth:`bounds` as lists of floats, for checks made joint by joint on plain floats (the
+        planning's: numpy's cost per call on arrays of six is several times the arithmetic). The
+        same numbers, but for the sign of a zero: for comparisons only."""
+        lo, hi = self.bounds(order)
+        return lo.tolist(), hi.tolist()
+
     def peak(self, order: int) -> Array:
         """Per joint, the largest magnitude of position, velocity or acceleration (``order``)."""
         lo, hi = self.extremes(order)
@@ -119,6 +126,18 @@ def _vector(value: ArrayLike, name: str, dof: int | None = None) -> Array:
     if dof is not None and array.shape != (dof,):
         raise PlanningError(f"{name} has {array.size} values, expected {dof}")
     return array
+
+
+_FLOAT64 = np.dtype(np.float64)
+
+
+def _floats(value: ArrayLike, name: str, dof: int | None = None) -> list[float]:
+    """:func:`_vector` as a list of floats (the same values; a float64 vector is not copied first)."""
+    if type(value) is np.ndarray and value.dtype is _FLOAT64 and value.ndim == 1:
+        if dof is not None and value.shape[0] != dof:
+            raise PlanningError(f"{name} has {value.size} values, expected {dof}")
+        return value.tolist()  # type: ignore[no-any-return]
+    return _vector(value, name, dof).tolist()  # type: ignore[no-any-return]
 
 
 def _duration(duration: float) -> float:
@@ -247,11 +266,24 @@ class PolynomialSegment(Segment):
         segment._setup(np.array(coefficients, dtype=float), _duration(duration), kind, bounded_order)
         return segment
 
+    @classmethod
+    def _from_rows(cls, rows: list[list[float]], duration: float, kind: str, bounded_order: int) -> PolynomialSegment:
+        """From normalised coefficients as lists of floats, one per power of ``s`` (at most 6; the
+        duration already checked): what the shapes below compute joint by joint."""
+        n = len(rows[0])
+        segment = cls.__new__(cls)
+        segment._setup(np.array(rows + [[0.0] * n] * (6 - len(rows)), dtype=float), duration, kind, bounded_order)
+        return segment
+
     def _setup(self, c: Array, duration: float, kind: str, bounded_order: int) -> None:
-        if not np.all(np.isfinite(c)):
+        # c is the caller's own new array: kept as it is when it has all six rows (in C order)
+        if not np.isfinite(c).all():
             raise PlanningError("polynomial coefficients must be finite")
-        self._normalised = np.zeros((6, c.shape[1]))
-        self._normalised[: c.shape[0]] = c
+        if c.shape[0] == 6 and c.flags.c_contiguous:
+            self._normalised = c
+        else:
+            self._normalised = np.zeros((6, c.shape[1]))
+            self._normalised[: c.shape[0]] = c
         self.duration = duration
         self.dof = c.shape[1]
         self.kind = kind
@@ -311,14 +343,69 @@ class PolynomialSegment(Segment):
         key = ("bounds", order)
         found = self.memo.get(key)
         if found is None:
-            points = self.memo.get("bezier")
-            if points is None:
-                points = self.memo["bezier"] = _TO_BERNSTEIN @ self._normalised
-            assert isinstance(points, np.ndarray)
+            points = self._bezier()
+            for _ in range(order):  # np.diff's differences, without its cost per call
+                points = points[1:] - points[:-1]
             if order:
-                points = np.diff(points, n=order, axis=0) * (_FALLING[order] / self.duration**order)
+                points = points * (_FALLING[order] / self.duration**order)
             found = self.memo[key] = (points.min(axis=0), points.max(axis=0))
         return found  # type: ignore[return-value]
+
+    def _bezier(self) -> Array:
+        """``(6, dof)``: the Bezier control points of the position in normalised time."""
+        points = self.memo.get("bezier")
+        if points is None:
+            points = self.memo["bezier"] = _TO_BERNSTEIN @ self._normalised
+        return points  # type: ignore[return-value]
+
+    def bound_lists(self, order: int) -> tuple[list[float], list[float]]:
+        # :meth:`bounds` computed joint by joint on floats, orders 0 to 3 at once (the checks ask
+        # for all of them): the same operations on the same numbers, so the same values, where no
+        # difference can overflow (control points within 1e300 and finite scale factors; else
+        # numpy's, whose NaN the checks' comparisons then meet as before)
+        key = ("bound lists", order)
+        found = self.memo.get(key)
+        if found is None:
+            if order > 3 or not self._fill_bound_lists():
+                return super().bound_lists(order)
+            found = self.memo[key]
+        return found  # type: ignore[return-value]
+
+    def _fill_bound_lists(self) -> bool:
+        points = self._bezier()
+        factors = [_FALLING[order] / self.duration**order for order in (1, 2, 3)]
+        if not (np.abs(points) <= _SAFE).all() or not all(math.isfinite(f) for f in factors):
+            return False
+        k1, k2, k3 = factors
+        lo0: list[float] = []
+        hi0: list[float] = []
+        lo1: list[float] = []
+        hi1: list[float] = []
+        lo2: list[float] = []
+        hi2: list[float] = []
+        lo3: list[float] = []
+        hi3: list[float] = []
+        for b0, b1, b2, b3, b4, b5 in zip(*points.tolist(), strict=True):
+            lo0.append(min(b0, b1, b2, b3, b4, b5))
+            hi0.append(max(b0, b1, b2, b3, b4, b5))
+            d0, d1, d2, d3, d4 = b1 - b0, b2 - b1, b3 - b2, b4 - b3, b5 - b4
+            x0, x1, x2, x3, x4 = d0 * k1, d1 * k1, d2 * k1, d3 * k1, d4 * k1
+            lo1.append(min(x0, x1, x2, x3, x4))
+            hi1.append(max(x0, x1, x2, x3, x4))
+            d0, d1, d2, d3 = d1 - d0, d2 - d1, d3 - d2, d4 - d3
+            x0, x1, x2, x3 = d0 * k2, d1 * k2, d2 * k2, d3 * k2
+            lo2.append(min(x0, x1, x2, x3))
+            hi2.append(max(x0, x1, x2, x3))
+            d0, d1, d2 = d1 - d0, d2 - d1, d3 - d2
+            x0, x1, x2 = d0 * k3, d1 * k3, d2 * k3
+            lo3.append(min(x0, x1, x2))
+            hi3.append(max(x0, x1, x2))
+        memo = self.memo
+        memo["bound lists", 0] = (lo0, hi0)
+        memo["bound lists", 1] = (lo1, hi1)
+        memo["bound lists", 2] = (lo2, hi2)
+        memo["bound lists", 3] = (lo3, hi3)
+        return True
 
     def extremes(self, order: int) -> tuple[Array, Array]:
         key = ("extremes", order)
@@ -355,6 +442,8 @@ def _bernstein_matrix(degree: int) -> Array:
 
 
 _TO_BERNSTEIN = _bernstein_matrix(5)
+#: control points within this bound: their differences up to the third cannot overflow
+_SAFE = 1e300
 #: the k-th derivative of a degree-5 Bezier curve scales the k-th differences by 5!/(5-k)!
 _FALLING = (1.0, 5.0, 20.0, 60.0, 120.0)
 
@@ -390,15 +479,20 @@ def _unit_roots(slope: Array) -> Array:
 
 def hold(position: ArrayLike, duration: float) -> PolynomialSegment:
     """Stand still at ``position``."""
-    p = _vector(position, "position")
-    return PolynomialSegment.normalised(p[None, :], duration, "hold", 3)
+    p = _floats(position, "position")
+    return PolynomialSegment._from_rows([p], _duration(duration), "hold", 3)
+
+
+# The shapes below compute their coefficients joint by joint on floats: the operations numpy would
+# make on the arrays, in the same order (the same numbers), without its cost per call on arrays of
+# six (a segment is built for every planned point).
 
 
 def linear(start: ArrayLike, end: ArrayLike, duration: float) -> PolynomialSegment:
     """Constant velocity from ``start`` to ``end``: the velocity steps at every join."""
-    p0 = _vector(start, "start")
-    delta = _vector(end, "end", p0.size) - p0
-    return PolynomialSegment.normalised([p0, delta], duration, "linear", 1)
+    p0 = _floats(start, "start")
+    delta = [q1 - q0 for q0, q1 in zip(p0, _floats(end, "end", len(p0)), strict=True)]
+    return PolynomialSegment._from_rows([p0, delta], _duration(duration), "linear", 1)
 
 
 def cubic(start: ArrayLike, end: ArrayLike, duration: float) -> PolynomialSegment:
@@ -413,10 +507,10 @@ def cubic(start: ArrayLike, end: ArrayLike, duration: float) -> PolynomialSegmen
     (docs/reference/motion.md §4). These are the correct ones. The acceleration steps from 0 to 6 D / T^2 at both
     ends, which is the jitter that the quintic removes.
     """
-    p0 = _vector(start, "start")
-    delta = _vector(end, "end", p0.size) - p0
-    zero = np.zeros_like(p0)
-    return PolynomialSegment.normalised([p0, zero, 3.0 * delta, -2.0 * delta], duration, "cubic", 2)
+    p0 = _floats(start, "start")
+    delta = [q1 - q0 for q0, q1 in zip(p0, _floats(end, "end", len(p0)), strict=True)]
+    rows = [p0, [0.0] * len(p0), [3.0 * d for d in delta], [-2.0 * d for d in delta]]
+    return PolynomialSegment._from_rows(rows, _duration(duration), "cubic", 2)
 
 
 def cubic_hermite(
@@ -426,14 +520,18 @@ def cubic_hermite(
     trajectory controller and MotoROS run): ``h0 = p0, h1 = v0, h2 = (3 D - (2 v0 + v1) T) / T^2,
     h3 = (-2 D + (v0 + v1) T) / T^3``, from p(T) = p1 and p'(T) = v1. With v0 = v1 = 0 it is
     :func:`cubic`."""
-    p0 = _vector(start, "start")
-    n = p0.size
-    v0, v1 = _vector(start_velocity, "start velocity", n), _vector(end_velocity, "end velocity", n)
-    delta = _vector(end, "end", n) - p0
+    p0 = _floats(start, "start")
+    n = len(p0)
+    v0, v1 = _floats(start_velocity, "start velocity", n), _floats(end_velocity, "end velocity", n)
+    p1 = _floats(end, "end", n)
     tf = _duration(duration)
-    c2 = 3.0 * delta - (2.0 * v0 + v1) * tf  # = h2 T^2
-    c3 = -2.0 * delta + (v0 + v1) * tf  # = h3 T^3
-    return PolynomialSegment.normalised([p0, v0 * tf, c2, c3], tf, "cubic", 2)
+    c1, c2, c3 = [], [], []
+    for q0, u0, q1, u1 in zip(p0, v0, p1, v1, strict=True):
+        delta = q1 - q0
+        c1.append(u0 * tf)
+        c2.append(3.0 * delta - (2.0 * u0 + u1) * tf)  # = h2 T^2
+        c3.append(-2.0 * delta + (u0 + u1) * tf)  # = h3 T^3
+    return PolynomialSegment._from_rows([p0, c1, c2, c3], tf, "cubic", 2)
 
 
 def quintic(start: ArrayLike, end: ArrayLike, duration: float) -> PolynomialSegment:
@@ -457,17 +555,22 @@ def quintic_hermite(
     ``- (af - a0) T^2``, which misses p(T) by ``(a0 - a1) T^2`` whenever the boundary accelerations
     differ; the tests check all six boundary conditions).
     """
-    p0 = _vector(start[0], "start")
-    n = p0.size
-    v0, a0 = _vector(start[1], "start velocity", n), _vector(start[2], "start acceleration", n)
-    v1, a1 = _vector(end[1], "end velocity", n), _vector(end[2], "end acceleration", n)
-    delta = _vector(end[0], "end", n) - p0
+    p0 = _floats(start[0], "start")
+    n = len(p0)
+    v0, a0 = _floats(start[1], "start velocity", n), _floats(start[2], "start acceleration", n)
+    v1, a1 = _floats(end[1], "end velocity", n), _floats(end[2], "end acceleration", n)
+    p1 = _floats(end[0], "end", n)
     tf = _duration(duration)
     t2 = tf * tf
-    c3 = (20.0 * delta - (8.0 * v1 + 12.0 * v0) * tf - (3.0 * a0 - a1) * t2) / 2.0  # = h3 T^3
-    c4 = (-30.0 * delta + (14.0 * v1 + 16.0 * v0) * tf + (3.0 * a0 - 2.0 * a1) * t2) / 2.0
-    c5 = (12.0 * delta - 6.0 * (v1 + v0) * tf - (a0 - a1) * t2) / 2.0
-    return PolynomialSegment.normalised([p0, v0 * tf, a0 * t2 / 2.0, c3, c4, c5], tf, "quintic", 3)
+    c1, c2, c3, c4, c5 = [], [], [], [], []
+    for q0, u0, b0, q1, u1, b1 in zip(p0, v0, a0, p1, v1, a1, strict=True):
+        delta = q1 - q0
+        c1.append(u0 * tf)
+        c2.append(b0 * t2 / 2.0)
+        c3.append((20.0 * delta - (8.0 * u1 + 12.0 * u0) * tf - (3.0 * b0 - b1) * t2) / 2.0)  # = h3 T^3
+        c4.append((-30.0 * delta + (14.0 * u1 + 16.0 * u0) * tf + (3.0 * b0 - 2.0 * b1) * t2) / 2.0)
+        c5.append((12.0 * delta - 6.0 * (u1 + u0) * tf - (b0 - b1) * t2) / 2.0)
+    return PolynomialSegment._from_rows([p0, c1, c2, c3, c4, c5], tf, "quintic", 3)
 
 
 def launch(
