@@ -106,6 +106,9 @@ def through_state(
     accelerations = acceleration.tolist() if acceleration is not None else [math.inf] * n
     lows = lower.tolist() if lower is not None else [-math.inf] * n
     highs = upper.tolist() if upper is not None else [math.inf] * n
+    # what every joint's segment shares: its duration's powers and the jerk's weights over it
+    weights = _jerk_weights(t1)
+    t1_2, t1_3 = t1 * t1, t1 * t1 * t1
     v_out, a_out = [], []
     for p0, v0, a0, p, p2, pb, j, a_limit, low_limit, high_limit in zip(
         start.position.tolist(),
@@ -120,13 +123,17 @@ def through_state(
         highs,
         strict=True,
     ):
-        v_est, a_est = _estimate(pb, h1, p, t2, p2)
+        # _estimate, inline (the same operations)
+        d1, d2 = (p - pb) / h1, (p2 - p) / t2
+        v_est, a_est = (t2 * d1 + h1 * d2) / (h1 + t2), 2.0 * (d2 - d1) / (h1 + t2)
         first = (p0, v0, a0)
-        v, low, high = _shape(first, t1, p, (p2, t2), v_est, a=a_est)
-        if _harmless(first, t1, p, (p2, t2), (v_est, a_est), limits=(low_limit, high_limit)):
+        if _harmless(p0, v0, a0, t1, p, p2, t2, v_est, a_est, low_limit, high_limit):
             v, low, high = v_est, -math.inf, math.inf
-        a = _jerk_limited(first, t1, (p, v), a_est, (low, high), jerk=j, acceleration=a_limit)
-        if _within(a_est, a0, a_limit) and _peak(first, t1, (p, v), a) > a_limit:
+        else:
+            v, low, high = _shape(first, t1, p, (p2, t2), v_est, a=a_est)
+        c3, c4, c5 = _free(first, t1, (p, v))
+        a = _jerk_clamped(a_est, low, high, j, a_limit, c3, c4, c5, t1_3, weights)
+        if _within(a_est, a0, a_limit) and _beyond(a0, c3, c4, c5, t1_2, a, a_limit):
             # the points are within the limit here, the segment to them is not (after a kink in
             # the data): an end acceleration that keeps it within, at the nearest velocity the
             # shape allows that has one (the jerk then kept within what is left, where it can be)
@@ -200,24 +207,29 @@ def _shape(
     return -u, -w_hi, -w_lo
 
 
-def _harmless(
-    start: tuple[float, float, float],
+def _harmless(  # noqa: PLR0917 - per joint, on the hot path
+    p0: float,
+    v0: float,
+    a0: float,
     t1: float,
     p: float,
-    after: tuple[float, float],
-    state: tuple[float, float],
-    *,
-    limits: tuple[float, float],
+    p2: float,
+    t2: float,
+    v: float,
+    a: float,
+    lower: float,
+    upper: float,
 ) -> bool:
-    """One joint: the plain estimate ``state`` (velocity, acceleration) overshoots by no more than
-    OVERSHOOT and not beyond the position ``limits`` (the convex hull of the Bezier control points
-    of the segment ending here and the start of the next one), and it leaves the next point room
-    to choose."""
-    p0, v0, a0 = start
-    p2, t2 = after
-    v, a = state
-    lower, upper = limits
-    lo1, hi1 = max(min(p0, p) - OVERSHOOT, lower), min(max(p0, p) + OVERSHOOT, upper)
+    """One joint: the plain estimate (velocity ``v``, acceleration ``a`` at ``p``; the segment from
+    ``p0, v0, a0`` over ``t1``, the next to ``p2`` over ``t2``) overshoots by no more than OVERSHOOT
+    and not beyond the position limits ``lower``, ``upper`` (the convex hull of the Bezier control
+    points of the segment ending here and the start of the next one), and it leaves the next point
+    room to choose. (``x if x > y else y`` is ``max(y, x)``, at a fraction of a call's cost.)"""
+    near, far = (p, p0) if p < p0 else (p0, p)
+    lo1 = near - OVERSHOOT
+    lo1 = lower if lower > lo1 else lo1
+    hi1 = far + OVERSHOOT
+    hi1 = upper if upper < hi1 else hi1
     for c in (
         p0 + v0 * t1 / 5.0,
         p0 + 2.0 * v0 * t1 / 5.0 + a0 * t1 * t1 / 20.0,
@@ -226,7 +238,11 @@ def _harmless(
     ):
         if not lo1 <= c <= hi1:
             return False
-    lo2, hi2 = max(min(p, p2) - OVERSHOOT, lower), min(max(p, p2) + OVERSHOOT, upper)
+    near, far = (p2, p) if p2 < p else (p, p2)
+    lo2 = near - OVERSHOOT
+    lo2 = lower if lower > lo2 else lo2
+    hi2 = far + OVERSHOOT
+    hi2 = upper if upper < hi2 else hi2
     for c in (p + v * t2 / 5.0, p + 2.0 * v * t2 / 5.0 + a * t2 * t2 / 20.0):
         if not lo2 <= c <= hi2:
             return False
@@ -245,6 +261,7 @@ _JERK_WEIGHTS = [3.0 - 24.0 * s + 30.0 * s * s for s in _JERK_SAMPLES]
 #: choice), and the end acceleration's weight in it there: a(s) = a0(s) + a1 (3 s - 12 s^2 + 10 s^3)
 _ACCELERATION_SAMPLES = [k / 8.0 for k in range(1, 9)]
 _ACCELERATION_WEIGHTS = [3.0 * s - 12.0 * s * s + 10.0 * s * s * s for s in _ACCELERATION_SAMPLES]
+_ACCELERATION_TERMS = list(zip(_ACCELERATION_SAMPLES, _ACCELERATION_WEIGHTS, strict=True))
 #: the share of the acceleration limit the samples are kept within
 _ACCELERATION_MARGIN = 0.96
 #: the velocities tried, as multiples of the estimate, when no end acceleration keeps a segment
@@ -275,26 +292,58 @@ def _jerk_limited(
     start state a little off the data (after a jerk-limited segment, a kink in a recording) asks
     each next quintic for a larger end acceleration to keep its jerk, and the chain would grow past
     the acceleration limit where the data never comes near it."""
-    low, high = bounds
-    chosen = min(max(a, low), high)
+    c3, c4, c5 = _free(start, t, end)
+    return _jerk_clamped(a, *bounds, jerk, acceleration, c3, c4, c5, t * t * t, _jerk_weights(t))
+
+
+def _jerk_weights(t: float) -> list[tuple[float, float]]:
+    """The jerk's samples and the end acceleration's weights in it over a segment of ``t`` seconds."""
+    return [(s, g / t) for s, g in zip(_JERK_SAMPLES, _JERK_WEIGHTS, strict=True)]
+
+
+def _jerk_clamped(  # noqa: PLR0917 - per joint, on the hot path
+    a: float,
+    low: float,
+    high: float,
+    jerk: float,
+    acceleration: float,
+    c3: float,
+    c4: float,
+    c5: float,
+    t3: float,
+    weights: list[tuple[float, float]],
+) -> float:
+    """:func:`_jerk_limited`'s work, given the quintic's free coefficients (:func:`_free`), ``t``
+    cubed and the weights (:func:`_jerk_weights`): what every joint of a point shares is computed
+    once. (``x if x > y else y`` is ``max(y, x)``, ``x if x < y else y`` is ``min(y, x)``.)"""
+    chosen = low if low > a else a
+    chosen = high if high < chosen else chosen
     if math.isinf(jerk):
         return chosen
-    c3, c4, c5 = _free(start, t, end)
-    t3 = t * t * t
+    k3, k4, k5 = 6.0 * c3, 24.0 * c4, 60.0 * c5
     lower, upper = low, high
-    for s, g in zip(_JERK_SAMPLES, _JERK_WEIGHTS, strict=True):
-        j0 = (6.0 * c3 + 24.0 * c4 * s + 60.0 * c5 * s * s) / t3
-        g = g / t
+    for s, g in weights:
+        j0 = (k3 + k4 * s + k5 * s * s) / t3
         if g > 0.0:
-            lower, upper = max(lower, (-jerk - j0) / g), min(upper, (jerk - j0) / g)
+            bound = (-jerk - j0) / g
+            lower = bound if bound > lower else lower
+            bound = (jerk - j0) / g
+            upper = bound if bound < upper else upper
         elif g < 0.0:
-            lower, upper = max(lower, (jerk - j0) / g), min(upper, (-jerk - j0) / g)
+            bound = (jerk - j0) / g
+            lower = bound if bound > lower else lower
+            bound = (-jerk - j0) / g
+            upper = bound if bound < upper else upper
         elif abs(j0) > jerk:
             return chosen
     if lower > upper:
         return chosen
-    cap = max(acceleration, abs(chosen))
-    return min(max(min(max(chosen, lower), upper), -cap), cap)
+    cap = abs(chosen)
+    cap = cap if cap > acceleration else acceleration
+    kept = lower if lower > chosen else chosen
+    kept = upper if upper < kept else kept
+    kept = -cap if -cap > kept else kept
+    return cap if cap < kept else kept
 
 
 def _within(estimate: float, start: float, acceleration: float) -> bool:
@@ -326,11 +375,13 @@ def _rest_accelerations(start: tuple[float, float, float], t: float, end: tuple[
     return [a0 + (6.0 * c3 * s + 12.0 * c4 * s * s + 20.0 * c5 * s * s * s) / t2 for s in _ACCELERATION_SAMPLES]
 
 
-def _peak(start: tuple[float, float, float], t: float, end: tuple[float, float], a: float) -> float:
-    """One joint: the largest acceleration of the quintic from ``start`` to ``end`` (position,
-    velocity) and the end acceleration ``a`` over ``t``, at the eight instants sampled."""
-    rest = _rest_accelerations(start, t, end)
-    return max(abs(a_s + a * g) for a_s, g in zip(rest, _ACCELERATION_WEIGHTS, strict=True))
+def _beyond(a0: float, c3: float, c4: float, c5: float, t2: float, a: float, limit: float) -> bool:  # noqa: PLR0917 - per joint, on the hot path
+    """One joint: the quintic from ``a0`` (start acceleration) with the free coefficients ``c3``,
+    ``c4``, ``c5`` (:func:`_free`) and the end acceleration ``a`` (``t2``: its time squared)
+    accelerates beyond ``limit`` at one of the eight instants sampled
+    (:func:`_rest_accelerations`' numbers)."""
+    q3, q4, q5 = 6.0 * c3, 12.0 * c4, 20.0 * c5
+    return any(abs(a0 + (q3 * s + q4 * s * s + q5 * s * s * s) / t2 + a * g) > limit for s, g in _ACCELERATION_TERMS)
 
 
 def _acceleration_interval(
