@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import contextvars
 import logging
 import os
 import re
@@ -24,7 +25,7 @@ import pytest
 from robot_server.control import SteppedClock
 from robot_server.emulator import FaultError
 from robot_server.fleet import Fleet, FleetError, load_fleet, parse_fleet
-from robot_server.fleet.logs import CONTROLLER, ControllerField, FleetCeiling
+from robot_server.fleet.logs import CONTROLLER, ControllerField
 from robot_server.fleet.runner import FleetCommandError
 from tests.rawpeer import RawPeer, joint_position, joint_traj_pt, vectors
 from tests.stepped import STEP_TIMEOUT, advance_until
@@ -247,16 +248,13 @@ async def test_log_lines_name_their_controller() -> None:
     level = root.level
     root.setLevel(logging.INFO)  # setLevel: the loggers' cached levels are cleared too
     try:
-        async with stepped_fleet(*CELL) as (fleet, _clock):
-            ceiling = FleetCeiling(list(fleet)).install()
-            try:
-                peer = await RawPeer.connect(fleet["r3"].ports["state"])  # a connection's lines: r3's
-                await peer.frame()
-                await peer.close()
-                fleet.command("r2 estop")
-                fleet.command("r2 reset")
-            finally:
-                ceiling.remove()
+        async with stepped_fleet(*CELL) as (fleet, _clock):  # the fleet's log ceiling installed meanwhile
+            assert fleet.ceiling in logging.getLogger("robot_server.emulator.cell").filters
+            peer = await RawPeer.connect(fleet["r3"].ports["state"])  # a connection's lines: r3's
+            await peer.frame()
+            await peer.close()
+            fleet.command("r2 estop")
+            fleet.command("r2 reset")
     finally:
         root.removeHandler(handler)
         root.setLevel(level)
@@ -265,6 +263,7 @@ async def test_log_lines_name_their_controller() -> None:
     assert any(who == "r3: " and "state" in text.lower() for who, text in named), named
     assert any(who == "" for who, _ in named)  # the fleet's own
     assert CONTROLLER.get() == ""
+    assert fleet.ceiling not in logging.getLogger("robot_server.emulator.cell").filters
 
 
 async def test_fifty_controllers_of_every_profile_each_answer_and_publish() -> None:
@@ -406,3 +405,54 @@ async def test_the_command_serves_the_fleets_web_view_with_a_token_beyond_loopba
             if proc.returncode is None:
                 proc.kill()
                 await proc.wait()
+
+
+def test_a_controller_may_leave_its_ports_to_its_profile() -> None:
+    data = {"controller": [{"name": "r1", "profile": "motoros"}]}
+    try:  # the well-known ports are probed as plain numbers (a profile's are an IntEnum)
+        spec = parse_fleet(data, "cell.toml")
+    except FleetError as exc:  # another program on this machine holds one: said so, by controller and key
+        assert "controller r1:" in str(exc) and "cannot bind" in str(exc), exc
+    else:
+        assert [spec.controllers[0].config.port(r) for r in ("motion", "state", "io")] == [50240, 50241, 50242]
+
+
+def test_two_controllers_writing_one_file_are_refused() -> None:
+    _refused(
+        _fleet({"name": "r1"}, {"name": "r2"}, defaults={"record": "/tmp/same.csv"}),
+        "controller r2: record: /tmp/same.csv is controller r1's record too",
+    )
+    _refused(
+        _fleet({"name": "r1", "capture": "/tmp/a.pcapng"}, {"name": "r2", "capture": "/tmp/../tmp/a.pcapng"}),
+        "controller r2: capture:",
+    )
+    tiny = _fleet({"name": "r1", "servo_period": 1e-9})
+    _refused(tiny, "controller r1: servo_period: 1e-09 s is more than 1000 ticks")
+    _refused(_fleet({"name": "r1", "interpolation_period": 1e300}), "controller r1: interpolation_period: must be > 0")
+
+
+async def test_each_state_round_runs_as_its_controller() -> None:
+    from robot_server.emulator.shared import StateRounds
+
+    rounds = StateRounds(0.004, None)
+    seen: list[tuple[str, str]] = []
+    done = asyncio.Event()
+
+    def member(name: str) -> None:
+        def publish(_deadline: float) -> None:
+            seen.append((name, CONTROLLER.get()))
+            if len(seen) >= 4:
+                done.set()
+
+        CONTROLLER.set(name)  # joined from the controller's own context, as Emulator.start does
+        rounds.add(publish, lambda _count: None)
+
+    for name in ("r1", "r2"):
+        contextvars.copy_context().run(member, name)
+    task = asyncio.get_running_loop().create_task(rounds.run(), context=contextvars.Context())
+    try:
+        async with asyncio.timeout(10.0):
+            await done.wait()
+    finally:
+        task.cancel()
+    assert all(name == who for name, who in seen), seen

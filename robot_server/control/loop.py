@@ -12,6 +12,7 @@ they know neither.
 from __future__ import annotations
 
 import contextvars
+import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -21,6 +22,8 @@ from .controller import Controller
 from .recorder import Recorder
 
 __all__ = ["ControlLoop", "LoopStats", "SharedLoop", "run_simulated"]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -159,11 +162,14 @@ class SharedLoop:
     sub: int
     stats: LoopStats = field(default_factory=LoopStats)
     _members: list[ControlLoop] = field(default_factory=list, init=False)
+    #: loops that have joined so far (those that left included)
+    joined: int = field(default=0, init=False)
     _running: bool = field(default=False, init=False)
 
     def add(self, loop: ControlLoop) -> None:
         loop.check(self.period, self.sub)
         self._members.append(loop)
+        self.joined += 1
 
     def remove(self, loop: ControlLoop) -> None:
         if loop in self._members:
@@ -210,7 +216,13 @@ class SharedLoop:
                     loop.context.run(loop.wake)
             except Exception:  # pragma: no cover - a defect in one controller: that one stops
                 self.remove(loop)
-                loop.failed()
+                try:
+                    if loop.context is None:
+                        loop.failed()
+                    else:
+                        loop.context.run(loop.failed)
+                except Exception:  # its failure handler failed too: the others run on
+                    log.exception("a controller's control loop failed and could not be stopped")
         self.stats.ticks += self.sub
         self.stats.wakes += 1
 

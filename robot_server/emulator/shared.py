@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import contextvars
 import sys
 import time
 from collections.abc import Callable
@@ -26,6 +27,9 @@ __all__ = ["Shared", "StateRounds"]
 SWITCH_INTERVAL = 0.0002
 #: how far apart the slots of a period's state rounds are (s): :class:`StateRounds`
 SLOT = 0.002
+
+#: the most slots a period is cut into (a period longer than a second has slots further apart)
+MAX_SLOTS = 500
 
 #: a state round: called with its deadline (``time.monotonic()``), or told how many it missed
 RoundCallback = Callable[[float], None]
@@ -63,7 +67,11 @@ class Shared:
         shared = self.loops.get(key)
         if shared is None:
             shared = self.loops[key] = SharedLoop(self.clock, *key)
-            self._tasks.append(asyncio.get_running_loop().create_task(shared.run(), name=f"shared control loop {key}"))
+            self._tasks.append(
+                asyncio.get_running_loop().create_task(
+                    shared.run(), name=f"shared control loop {key}", context=contextvars.Context()
+                )
+            )
         shared.add(loop)
 
     def leave(self, loop: ControlLoop) -> None:
@@ -75,7 +83,11 @@ class Shared:
         rounds = self.rounds.get(period)
         if rounds is None:
             rounds = self.rounds[period] = StateRounds(period, self.ticker)
-            self._tasks.append(asyncio.get_running_loop().create_task(rounds.run(), name=f"state rounds {period:g} s"))
+            self._tasks.append(
+                asyncio.get_running_loop().create_task(
+                    rounds.run(), name=f"state rounds {period:g} s", context=contextvars.Context()
+                )
+            )
         return rounds
 
     async def close(self) -> None:
@@ -102,15 +114,18 @@ class StateRounds:
 
     def __init__(self, period: float, ticker: Ticker | None) -> None:
         self.period = period
-        self.slots = max(1, round(period / SLOT))
+        self.slots = min(MAX_SLOTS, max(1, round(period / SLOT)))
         self.spacing = period / self.slots
         self._ticker = ticker
-        self._members: list[list[tuple[RoundCallback, SkipCallback]]] = [[] for _ in range(self.slots)]
+        #: each slot's rounds: (publish, skipped, the context each runs in: its controller's, for the log)
+        self._members: list[list[tuple[RoundCallback, SkipCallback, contextvars.Context]]] = [
+            [] for _ in range(self.slots)
+        ]
         self._joined = asyncio.Event()
 
     def add(self, publish: RoundCallback, skipped: SkipCallback) -> None:
         slot = min(range(self.slots), key=lambda s: len(self._members[s]))
-        self._members[slot].append((publish, skipped))
+        self._members[slot].append((publish, skipped, contextvars.copy_context()))
         self._joined.set()
 
     def remove(self, publish: RoundCallback) -> None:
@@ -131,6 +146,7 @@ class StateRounds:
             if not any(members):
                 self._joined.clear()
                 await self._joined.wait()
+                origin, j = time.monotonic(), 0  # no rounds were due meanwhile
             j += 1
             for _ in range(slots):  # on to the next slot that has rounds to run
                 if members[j % slots]:
@@ -142,11 +158,11 @@ class StateRounds:
             if late > self.period:  # fell behind: on to the slot due now, the rounds between skipped
                 missed = int(late // spacing)
                 for slot in range(slots):
-                    count = missed // slots + (1 if (slot - j - 1) % slots < missed % slots else 0)
+                    count = missed // slots + (1 if (slot - j) % slots < missed % slots else 0)
                     if count:
-                        for _, skipped in members[slot]:
-                            skipped(count)
+                        for _, skipped, context in members[slot]:
+                            context.run(skipped, count)
                 j += missed
                 deadline = origin + j * spacing
-            for publish, _ in tuple(members[j % slots]):
-                publish(deadline)
+            for publish, _, context in tuple(members[j % slots]):
+                context.run(publish, deadline)

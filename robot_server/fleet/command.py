@@ -29,7 +29,7 @@ from ..cli import check_writable, write_records
 from ..emulator import FaultError
 from ..web import MAX_RATE, WebUnavailable, fleet_view
 from .config import FleetError, load_fleet
-from .logs import FORMAT, ControllerField, FleetCeiling
+from .logs import FORMAT, ControllerField
 from .runner import Fleet, FleetCommandError
 
 if TYPE_CHECKING:
@@ -65,7 +65,7 @@ def fleet_main(args: argparse.Namespace, given: list[str]) -> int:
                 check_writable(controller.record, f"{spec.path}: controller {controller.name}: record")
             if controller.config.capture is not None:
                 check_writable(Path(controller.config.capture), f"{spec.path}: controller {controller.name}: capture")
-        fleet = Fleet(spec, speedup=args.speedup)
+        fleet = Fleet(spec)
         view = None
         if args.web is not None:
             if args.web_rate > MAX_RATE:
@@ -99,7 +99,6 @@ async def _serve(fleet: Fleet, view: FleetView | None, *, read_stdin: bool) -> i
     done = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, done.set)
-    ceiling = FleetCeiling(list(fleet)).install(*{type(e.behaviour).__module__ for e in fleet.emulators.values()})
     try:
         await fleet.start()
         lines = fleet.ready_lines()
@@ -116,7 +115,6 @@ async def _serve(fleet: Fleet, view: FleetView | None, *, read_stdin: bool) -> i
         if view is not None:
             await view.close()
         await fleet.close()
-        ceiling.remove()
     return 0
 
 

@@ -52,6 +52,12 @@ class FleetError(ValueError):
 
 #: the longest record a controller keeps (s of controller time), as ``--record-seconds``
 MAX_RECORD_SECONDS = 3600.0
+#: the longest interpolation (and servo) period a controller takes (s): a real one's is milliseconds
+MAX_INTERPOLATION_PERIOD = 1.0
+#: the most servo ticks in one interpolation period (a servo period too short for its interpolation's)
+MAX_SERVO_TICKS = 1000
+#: the largest capture bound (MB)
+MAX_CAPTURE_MB = 1e6
 #: a controller's name: what stdin's fault commands and the web view's addresses use
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,62}")
 #: a name stdin's commands keep for every controller at once
@@ -171,8 +177,8 @@ CONTROLLER_KEYS: dict[str, Callable[[object], object]] = {
     "state_rate": _positive(MAX_STATE_RATE),
     "feedback": _flag,
     "interpolation": _text,
-    "interpolation_period": _positive(),
-    "servo_period": _positive(),
+    "interpolation_period": _positive(MAX_INTERPOLATION_PERIOD),
+    "servo_period": _positive(MAX_INTERPOLATION_PERIOD),
     "queue_size": _integer(1),
     "on_disconnect": _choice(*(o.value for o in OnDisconnect)),
     "lenient": _flag,
@@ -185,7 +191,7 @@ CONTROLLER_KEYS: dict[str, Callable[[object], object]] = {
     "faults": _faults,
     "serial": _text,
     "capture": _text,
-    "capture_max_mb": _positive(),
+    "capture_max_mb": _positive(MAX_CAPTURE_MB),
     "record": _text,
     "record_seconds": _positive(MAX_RECORD_SECONDS),
 }
@@ -282,7 +288,25 @@ def parse_fleet(
         values = {**common, **_read(path, where, table)}
         specs.append(_spec(path, where, name, values, speedup))
     _check_ports(path, specs, check_ports)
+    _check_files(path, specs)
     return FleetSpec(path, tuple(specs))
+
+
+def _check_files(path: Path, specs: Sequence[ControllerSpec]) -> None:
+    """No two controllers write one record or capture file."""
+    for key in ("record", "capture"):
+        seen: dict[Path, str] = {}
+        for spec in specs:
+            target = spec.record if key == "record" else spec.config.capture
+            if target is None:
+                continue
+            resolved = Path(target).expanduser().resolve()
+            if resolved in seen:
+                raise FleetError(
+                    f"{path}: controller {spec.name}: {key}: {target} is controller {seen[resolved]}'s {key} too "
+                    "(one file per controller)"
+                )
+            seen[resolved] = spec.name
 
 
 def _read(path: Path, where: str, table: Mapping[str, Any]) -> dict[str, object]:
@@ -306,10 +330,14 @@ def _spec(path: Path, where: str, name: str, values: dict[str, object], speedup:
         config = EmulatorConfig(**options, speedup=speedup)
     except ValueError as exc:
         raise FleetError(f"{path}: {where}: {exc}") from None
+    if config.interpolation_period / config.servo_period > MAX_SERVO_TICKS:
+        raise FleetError(
+            f"{path}: {where}: servo_period: {config.servo_period:g} s is more than {MAX_SERVO_TICKS} ticks per "
+            f"interpolation period ({config.interpolation_period:g} s)"
+        )
     emulated = config.emulated
-    for role in ("io",):
-        if f"{role}_port" in values and emulated.default_port(role) is None:
-            raise FleetError(f"{path}: {where}: {role}_port: the {config.profile} profile serves no {role} port")
+    if "io_port" in values and emulated.default_port("io") is None:
+        raise FleetError(f"{path}: {where}: io_port: the {config.profile} profile serves no io port")
     record = values.get("record")
     seconds = values.get("record_seconds", 60.0)
     assert isinstance(seconds, float)
@@ -331,9 +359,10 @@ def _check_ports(path: Path, specs: Sequence[ControllerSpec], probe: bool) -> No
     for spec in specs:
         cfg = spec.config
         for role in ("motion", "state", "io"):
-            port = cfg.port(role)
-            if port is None or port == 0:
+            chosen = cfg.port(role)
+            if chosen is None or chosen == 0:
                 continue
+            port = int(chosen)  # a profile's well-known port is an IntEnum, which getaddrinfo refuses
             for other, key, host in taken.get(port, []):
                 if host == cfg.host or _wildcard(host) or _wildcard(cfg.host):
                     whose = "this controller's" if other == spec.name else f"controller {other}'s"

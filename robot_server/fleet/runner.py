@@ -18,6 +18,7 @@ every connection and the shared pieces.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import contextvars
 import functools
 import logging
@@ -32,7 +33,7 @@ from ..emulator.shared import Shared
 from ..loader import load_model
 from ..model import ModelError, RobotModel
 from .config import ALL, FleetError, FleetSpec
-from .logs import CONTROLLER
+from .logs import CONTROLLER, FleetCeiling
 
 __all__ = ["Fleet", "FleetCommandError"]
 
@@ -47,9 +48,14 @@ class FleetCommandError(FaultError):
 class Fleet:
     """The controllers of a fleet file in one process (see the module doc)."""
 
-    def __init__(self, spec: FleetSpec, *, speedup: float = 1.0, clock: Clock | None = None) -> None:
+    def __init__(self, spec: FleetSpec, *, clock: Clock | None = None) -> None:
         self.spec = spec
-        self.shared = Shared(clock if clock is not None else RealTimeClock(speedup))
+        speedups = {c.config.speedup for c in spec.controllers}
+        if len(speedups) > 1:
+            raise FleetError(f"{spec.path}: the controllers of one fleet share one clock: one speed-up, not {speedups}")
+        #: each controller's log budget under the fleet's, while the fleet runs (:mod:`.logs`)
+        self.ceiling = FleetCeiling([c.name for c in spec.controllers])
+        self.shared = Shared(clock if clock is not None else RealTimeClock(speedups.pop() if speedups else 1.0))
         self.emulators: dict[str, Emulator] = {}
         #: each controller's context: its name for the log (:data:`.logs.CONTROLLER`)
         self._contexts: dict[str, contextvars.Context] = {}
@@ -96,6 +102,7 @@ class Fleet:
         if self._started:
             return self
         self._started = True
+        self.ceiling.install(*{type(e.behaviour).__module__ for e in self.emulators.values()})
         self.shared.start()
         loop = asyncio.get_running_loop()
         for controller in self.spec.controllers:
@@ -113,9 +120,10 @@ class Fleet:
         return self
 
     async def _scheduled(self, name: str, at: float, command: str) -> None:
-        emulator = self.emulators[name]
-        await emulator.clock.sleep_until(at)
-        self._apply(name, command)
+        cell = self.emulators[name].cell  # at that controller's time, which began when it started
+        await cell.until(lambda: cell.time >= at - 1e-9)
+        with contextlib.suppress(FaultError):  # logged as that controller's
+            self._apply(name, command)
 
     def _apply(self, name: str, command: str) -> str:
         try:
@@ -160,6 +168,7 @@ class Fleet:
                 log.error("controller %s did not close cleanly: %s", name, result)
         if self._started:
             self._report()
+            self.ceiling.remove()
         await self.shared.close()
 
     def _report(self) -> None:
@@ -170,7 +179,7 @@ class Fleet:
                     "control loop (%g ms, %d controllers): %d wake-ups, %d overruns (a wake-up more than one "
                     "interpolation period late), latest %.3f ms",
                     period * 1e3,
-                    len(self),
+                    shared.joined,
                     loop.wakes,
                     loop.overruns,
                     loop.max_lateness * 1e3,
