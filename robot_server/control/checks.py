@@ -209,32 +209,39 @@ def state_need(state: State, limits: Limits) -> float:
     push: list[float] = []
     gain: list[float] = []
     room: list[float] = []
-    for v, a, p, low, high, jerk in zip(
+    # the largest speed and |acceleration| over their limits (np.max: the same value)
+    fastest_joint = accelerating = -math.inf
+    for v, a, p, low, high, top_v, top_a, jerk in zip(
         state.velocity.tolist(),
         state.acceleration.tolist(),
         state.position.tolist(),
         rows.lower,
         rows.upper,
+        max_v,
+        max_a,
         max_j,
         strict=True,
     ):
         direction = 1.0 if v > 0.0 else -1.0 if v < 0.0 else 0.0  # np.sign (v is finite)
         pushed = a * direction
-        speed.append(abs(v))
+        s = abs(v)
+        speed.append(s)
         push.append(pushed)
         gain.append(pushed * pushed / (2.0 * jerk) if pushed > 0.0 else 0.0)  # at k = 1; / k^4 when scaled
         # room to brake before the position limit the joint heads for
         room.append(high - p if direction > 0.0 else p - low)
-    fastest_joint = max([s / m for s, m in zip(speed, max_v, strict=True)])
+        ratio = s / top_v
+        fastest_joint = ratio if ratio > fastest_joint else fastest_joint
+        ratio = abs(a) / top_a
+        accelerating = ratio if ratio > accelerating else accelerating
     needed = max(1.0, fastest_joint)
-    accelerations = [abs(a) / m for a, m in zip(state.acceleration.tolist(), max_a, strict=True)]
-    needed = max(needed, math.sqrt(max(accelerations)))
+    needed = max(needed, math.sqrt(accelerating))
     speed_limit = [m * (1.0 + SLACK) for m in max_v]
 
     def fits(k: float) -> bool:
         k4, k2 = k**4, k * k
         for s, pushed, g, r, top, acc, jerk in zip(speed, push, gain, room, speed_limit, max_a, max_j, strict=True):
-            v, a = s / k, max(pushed, 0.0) / k2
+            v, a = s / k, (0.0 if 0.0 > pushed else pushed) / k2
             if not v + g / k4 <= top:
                 return False
             ramp = (a + acc) / jerk  # to turn the acceleration round

@@ -271,21 +271,25 @@ class PolynomialSegment(Segment):
         """From normalised coefficients as lists of floats, one per power of ``s`` (at most 6; the
         duration already checked): what the shapes below compute joint by joint."""
         n = len(rows[0])
+        normalised = np.array(rows + [[0.0] * n] * (6 - len(rows)), dtype=float)
+        if not np.isfinite(normalised).all():
+            raise PlanningError("polynomial coefficients must be finite")
         segment = cls.__new__(cls)
-        segment._setup(np.array(rows + [[0.0] * n] * (6 - len(rows)), dtype=float), duration, kind, bounded_order)
+        segment._keep(normalised, duration, kind, bounded_order)
         return segment
 
     def _setup(self, c: Array, duration: float, kind: str, bounded_order: int) -> None:
-        # c is the caller's own new array: kept as it is when it has all six rows (in C order)
         if not np.isfinite(c).all():
             raise PlanningError("polynomial coefficients must be finite")
-        if c.shape[0] == 6 and c.flags.c_contiguous:
-            self._normalised = c
-        else:
-            self._normalised = np.zeros((6, c.shape[1]))
-            self._normalised[: c.shape[0]] = c
+        normalised = np.zeros((6, c.shape[1]))
+        normalised[: c.shape[0]] = c
+        self._keep(normalised, duration, kind, bounded_order)
+
+    def _keep(self, normalised: Array, duration: float, kind: str, bounded_order: int) -> None:
+        """Take ``normalised``, a new ``(6, dof)`` array in C order of finite numbers, as the coefficients."""
+        self._normalised = normalised
         self.duration = duration
-        self.dof = c.shape[1]
+        self.dof = normalised.shape[1]
         self.kind = kind
         self.bounded_order = bounded_order
         self.memo: dict[object, object] = {}
@@ -359,53 +363,25 @@ class PolynomialSegment(Segment):
         return points  # type: ignore[return-value]
 
     def bound_lists(self, order: int) -> tuple[list[float], list[float]]:
-        # :meth:`bounds` computed joint by joint on floats, orders 0 to 3 at once (the checks ask
-        # for all of them): the same operations on the same numbers, so the same values, where no
-        # difference can overflow (control points within 1e300 and finite scale factors; else
-        # numpy's, whose NaN the checks' comparisons then meet as before)
+        # orders 0 to 3 at once (the checks ask for all of them): :meth:`bounds`' operations on
+        # the same numbers, so the same values, in a handful of numpy calls for all four
         key = ("bound lists", order)
         found = self.memo.get(key)
         if found is None:
-            if order > 3 or not self._fill_bound_lists():
+            if order > 3:
                 return super().bound_lists(order)
+            points = self._bezier()
+            stacked = [points]
+            for k in (1, 2, 3):
+                points = points[1:] - points[:-1]
+                stacked.append(points * (_FALLING[k] / self.duration**k))
+            rows = np.concatenate(stacked)
+            lows = np.minimum.reduceat(rows, _ORDER_ROWS, axis=0).tolist()
+            highs = np.maximum.reduceat(rows, _ORDER_ROWS, axis=0).tolist()
+            for k in range(4):
+                self.memo["bound lists", k] = (lows[k], highs[k])
             found = self.memo[key]
         return found  # type: ignore[return-value]
-
-    def _fill_bound_lists(self) -> bool:
-        points = self._bezier()
-        factors = [_FALLING[order] / self.duration**order for order in (1, 2, 3)]
-        if not (np.abs(points) <= _SAFE).all() or not all(math.isfinite(f) for f in factors):
-            return False
-        k1, k2, k3 = factors
-        lo0: list[float] = []
-        hi0: list[float] = []
-        lo1: list[float] = []
-        hi1: list[float] = []
-        lo2: list[float] = []
-        hi2: list[float] = []
-        lo3: list[float] = []
-        hi3: list[float] = []
-        for b0, b1, b2, b3, b4, b5 in zip(*points.tolist(), strict=True):
-            lo0.append(min(b0, b1, b2, b3, b4, b5))
-            hi0.append(max(b0, b1, b2, b3, b4, b5))
-            d0, d1, d2, d3, d4 = b1 - b0, b2 - b1, b3 - b2, b4 - b3, b5 - b4
-            x0, x1, x2, x3, x4 = d0 * k1, d1 * k1, d2 * k1, d3 * k1, d4 * k1
-            lo1.append(min(x0, x1, x2, x3, x4))
-            hi1.append(max(x0, x1, x2, x3, x4))
-            d0, d1, d2, d3 = d1 - d0, d2 - d1, d3 - d2, d4 - d3
-            x0, x1, x2, x3 = d0 * k2, d1 * k2, d2 * k2, d3 * k2
-            lo2.append(min(x0, x1, x2, x3))
-            hi2.append(max(x0, x1, x2, x3))
-            d0, d1, d2 = d1 - d0, d2 - d1, d3 - d2
-            x0, x1, x2 = d0 * k3, d1 * k3, d2 * k3
-            lo3.append(min(x0, x1, x2))
-            hi3.append(max(x0, x1, x2))
-        memo = self.memo
-        memo["bound lists", 0] = (lo0, hi0)
-        memo["bound lists", 1] = (lo1, hi1)
-        memo["bound lists", 2] = (lo2, hi2)
-        memo["bound lists", 3] = (lo3, hi3)
-        return True
 
     def extremes(self, order: int) -> tuple[Array, Array]:
         key = ("extremes", order)
@@ -416,7 +392,11 @@ class PolynomialSegment(Segment):
 
     def _extremes(self, order: int) -> tuple[Array, Array]:
         coefficients = self._derivatives[order]
-        ends = self.sample(np.array([0.0, self.duration]))[order]
+        # at both ends: what :meth:`sample` computes there, for this derivative only
+        s = np.clip(np.array([0.0, self.duration]) / self.duration, 0.0, 1.0)[..., None]
+        ends = np.broadcast_to(coefficients[-1], (2, self.dof)).copy()
+        for h in coefficients[-2::-1]:
+            ends = ends * s + h
         lo, hi = ends.min(axis=0), ends.max(axis=0)
         # inside, the extremes are where the next derivative vanishes: its real roots in (0, 1)
         roots = _unit_roots(self._derivatives[order + 1] * self.duration)
@@ -442,8 +422,8 @@ def _bernstein_matrix(degree: int) -> Array:
 
 
 _TO_BERNSTEIN = _bernstein_matrix(5)
-#: control points within this bound: their differences up to the third cannot overflow
-_SAFE = 1e300
+#: where each order's control points start among the 6 + 5 + 4 + 3 rows of bound_lists
+_ORDER_ROWS = [0, 6, 11, 15]
 #: the k-th derivative of a degree-5 Bezier curve scales the k-th differences by 5!/(5-k)!
 _FALLING = (1.0, 5.0, 20.0, 60.0, 120.0)
 
