@@ -1,12 +1,13 @@
 """What the emulators of one process share: the controllers' clock, their servo wake-ups, the state topics' ticker.
 
 A fleet (:mod:`robot_server.fleet`) runs many controllers in one process and one event loop. Each
-as its own process would wake its control loop every interpolation period and keep a thread for
-its state topics' deadlines; together they would wake the process hundreds of times per period.
+as its own process would wake its control loop every interpolation period and keep a timer for its
+state topics' deadlines; together they would wake the process hundreds of times per period.
 :class:`Shared` gives them one :class:`~..control.SharedLoop` per interpolation period (one wake-up
-runs every controller's period), one :class:`~.ticker.Ticker` thread for every state topic, and
-spreads the state topics' deadlines over their period (:meth:`Shared.state_phase`), so that the
-controllers' rounds do not all fall due at the same instant and wait for one another.
+runs every controller's period), one :class:`~.ticker.Ticker` for every state topic, and one
+:class:`StateRounds` schedule per state period, whose slots spread the controllers' rounds over
+the period, so that they do not all fall due at the same instant and wait for one another. Each
+round, and each controller's period, runs in that controller's context (its log lines name it).
 """
 
 from __future__ import annotations
