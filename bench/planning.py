@@ -21,12 +21,14 @@ along a joint move plus a bump; by default 401 points over 8 s) as JOINT_TRAJ_PT
   refused point drops the download: the rest-to-rest policies' downloads of dense points are
   refused at their first segment, at the end, and cost little).
 
-The numbers are microseconds per point. ``--base DIR`` measures another checkout too (a git
-worktree of an earlier commit: ``git worktree add /tmp/plan-base COMMIT``): each tree runs in its
-own process with that tree first on ``PYTHONPATH``, the two alternating round by round, so both are
-measured in the same run under the same load. Each process makes ``--passes`` passes per cell after
-a warm-up pass; the table gives the median over all passes of all rounds (this VM shares its 2
-cores with other jobs: medians, and more rounds, steady the numbers).
+The numbers are microseconds of the thread's CPU time per point (``time.thread_time``: time that
+other jobs on the machine take from this one is not counted, the point's own work is). ``--base
+DIR`` measures another checkout too (a git worktree of an earlier commit: ``git worktree add
+/tmp/plan-base COMMIT``): each tree runs in its own process with that tree first on ``PYTHONPATH``,
+the two alternating round by round, so both are measured in the same run under the same load. Each
+process makes ``--passes`` passes per cell after a warm-up pass; the table gives the median over
+all passes of all rounds (this VM shares its 2 cores with other jobs: medians, and more rounds,
+steady the numbers).
 """
 
 from __future__ import annotations
@@ -74,16 +76,16 @@ def _measure(policies: list[str], points: int, duration: float, passes: int) -> 
         sub = ctl.servo_ticks_per_interpolation
         spent, sent, ticks, bad = 0.0, 0, 0, 0
         while sent < len(made):
-            begin = time.perf_counter()
+            begin = time.thread_time()
             try:
                 (ctl.start if sent == 0 else ctl.add)(made[sent])
             except PointRejected as exc:
                 if exc.reason is not Reason.QUEUE_FULL:  # planned and refused: the next one follows
-                    spent += time.perf_counter() - begin
+                    spent += time.thread_time() - begin
                     sent += 1
                     bad += 1
             else:
-                spent += time.perf_counter() - begin
+                spent += time.thread_time() - begin
                 sent += 1
             for _ in range(sub):
                 ctl.step()
@@ -95,7 +97,7 @@ def _measure(policies: list[str], points: int, duration: float, passes: int) -> 
 
     def downloaded(policy: str) -> float:
         ctl = Controller(model, ControllerConfig(policy=policy, download_capacity=len(made) + 1))
-        begin = time.perf_counter()
+        begin = time.thread_time()
         try:
             ctl.start_download(made[0])
             for point in made[1:-1]:
@@ -103,7 +105,7 @@ def _measure(policies: list[str], points: int, duration: float, passes: int) -> 
             ctl.finish_download(made[-1])
         except PointRejected:
             pass  # dropped whole (module doc)
-        return (time.perf_counter() - begin) / len(made) * 1e6
+        return (time.thread_time() - begin) / len(made) * 1e6
 
     out: Measured = {}
     for name in policies:
@@ -135,8 +137,11 @@ def _child(tree: Path, args: argparse.Namespace) -> Measured:
     done = subprocess.run(command, env=env, cwd=tree, capture_output=True, text=True, timeout=1800, check=False)
     if done.returncode != 0:
         raise SystemExit(f"measuring {tree} failed:\n{done.stderr}")
-    result: Measured = json.loads(done.stdout.splitlines()[-1])
-    return result
+    result = json.loads(done.stdout.splitlines()[-1])
+    if not Path(result["module"]).resolve().is_relative_to(tree):
+        raise SystemExit(f"measuring {tree} imported robot_server from {result['module']}")
+    cells: Measured = result["cells"]
+    return cells
 
 
 def main() -> None:
@@ -152,7 +157,10 @@ def main() -> None:
     )
     args = parser.parse_args()
     if args.action == "_measure":
-        print(json.dumps(_measure(args.policies, args.points, args.duration, args.passes)))
+        import robot_server
+
+        cells = _measure(args.policies, args.points, args.duration, args.passes)
+        print(json.dumps({"module": robot_server.__file__, "cells": cells}))
         return
     trees = [("this tree", ROOT)]
     if args.base is not None:

@@ -46,6 +46,7 @@ pays for it in jerk.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -296,9 +297,10 @@ def _jerk_limited(
     return _jerk_clamped(a, *bounds, jerk, acceleration, c3, c4, c5, t * t * t, _jerk_weights(t))
 
 
-def _jerk_weights(t: float) -> list[tuple[float, float]]:
+@functools.lru_cache(maxsize=64)  # dense points share their durations
+def _jerk_weights(t: float) -> tuple[tuple[float, float], ...]:
     """The jerk's samples and the end acceleration's weights in it over a segment of ``t`` seconds."""
-    return [(s, g / t) for s, g in zip(_JERK_SAMPLES, _JERK_WEIGHTS, strict=True)]
+    return tuple((s, g / t) for s, g in zip(_JERK_SAMPLES, _JERK_WEIGHTS, strict=True))
 
 
 def _jerk_clamped(  # noqa: PLR0917 - per joint, on the hot path
@@ -311,7 +313,7 @@ def _jerk_clamped(  # noqa: PLR0917 - per joint, on the hot path
     c4: float,
     c5: float,
     t3: float,
-    weights: list[tuple[float, float]],
+    weights: tuple[tuple[float, float], ...],
 ) -> float:
     """:func:`_jerk_limited`'s work, given the quintic's free coefficients (:func:`_free`), ``t``
     cubed and the weights (:func:`_jerk_weights`): what every joint of a point shares is computed

@@ -129,11 +129,14 @@ def swings(settings: Settings, entry: Entry) -> bool:
         rows.max_jerk,
         strict=True,
     ):
+        near, far = (p1, p0) if p1 < p0 else (p0, p1)  # min and max (equal values when p0 == p1)
+        if lo >= near - OVERSHOOT and hi <= far + OVERSHOOT:
+            continue  # within OVERSHOOT, so within OVERSHOOT plus the braking, whatever that is
         v0, a0 = abs(v0), abs(a0)
         ramp = (a0 + max_a) / max_j  # time to turn the acceleration round
         fastest = v0 + a0 * ramp
         braking = fastest * ramp + fastest * fastest / (2.0 * max_a) + OVERSHOOT
-        if lo < min(p0, p1) - braking or hi > max(p0, p1) + braking:
+        if lo < near - braking or hi > far + braking:
             return True
     return False
 
@@ -241,7 +244,7 @@ def state_need(state: State, limits: Limits) -> float:
     def fits(k: float) -> bool:
         k4, k2 = k**4, k * k
         for s, pushed, g, r, top, acc, jerk in zip(speed, push, gain, room, speed_limit, max_a, max_j, strict=True):
-            v, a = s / k, (0.0 if 0.0 > pushed else pushed) / k2
+            v, a = s / k, (0.0 if pushed < 0.0 else pushed) / k2
             if not v + g / k4 <= top:
                 return False
             ramp = (a + acc) / jerk  # to turn the acceleration round

@@ -320,20 +320,16 @@ def _fit(context: Context, point: Knot, draft: Plan, built: list[Entry], *, defe
     settings = context.settings
     for e in built:
         check_position(settings, e)
-    running, started, pending, trajectory = draft.running, draft.started, list(draft.pending), draft.trajectory
-    messages = list(draft.messages)
+    running, started, pending, trajectory = draft.running, draft.started, draft.pending, draft.trajectory
+    messages = draft.messages
     if defer:  # what the points' states ask for; the re-scale at the end settles the segments
         needed = max((end_need(settings, e) for e in built), default=1.0)
-        return Plan(running, started, tuple(pending), trajectory, tuple(messages), context.at, needed)
+        return Plan(running, started, pending, trajectory, messages, context.at, needed)
     needed = max((uniform_need(settings, e) for e in built), default=1.0)
+    planned = Plan(running, started, pending, trajectory, messages, context.at)
     if needed > 1.0:
-        return rescale(
-            context,
-            Plan(running, started, tuple(pending), trajectory, tuple(messages), context.at),
-            needed=needed,
-            knot=point,
-        )
-    return Plan(running, started, tuple(pending), trajectory, tuple(messages), context.at)
+        return rescale(context, planned, needed=needed, knot=point)
+    return planned
 
 
 def report_acceleration(settings: Settings, planned: Plan) -> Plan:
