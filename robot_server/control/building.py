@@ -15,7 +15,18 @@ import numpy as np
 
 from ..arrays import Array
 from . import blend
-from .checks import REFUSALS, check_duration, excess, follows, limit_of, state_need, swings, within_positions
+from .checks import (
+    REFUSALS,
+    check_duration,
+    excess,
+    follows,
+    limit_of,
+    state_need,
+    swings,
+    within_bounds,
+    within_positions,
+    within_symmetric,
+)
 from .entries import (
     MIN_REMAINDER,
     Context,
@@ -269,11 +280,15 @@ def rest_segment(settings: Settings, point: Knot, start: State) -> Segment | Non
     if segment is None:
         return None
     check_duration(settings, segment.duration, "this segment")
+    rows = lim.rows
     for order in (0, *orders):
-        lower, upper = (lim.lower, lim.upper) if order == 0 else (-limit_of(lim, order), limit_of(lim, order))
-        lo, hi = segment.bounds(order)  # cheap; the exact extremes only when the bounds do not settle it
-        if np.all(lo >= lower) and np.all(hi <= upper):
+        low, high = segment.bound_lists(order)  # cheap; the exact extremes only when the bounds do not settle it
+        if order == 0:
+            if within_bounds(low, high, rows.lower, rows.upper):
+                continue
+        elif within_symmetric(low, high, (rows.max_velocity, rows.max_acceleration, rows.max_jerk)[order - 1]):
             continue
+        lower, upper = (lim.lower, lim.upper) if order == 0 else (-limit_of(lim, order), limit_of(lim, order))
         lo, hi = segment.extremes(order)
         reason, what = REFUSALS[order]
         within(lo, lower, upper, reason, what)

@@ -92,7 +92,7 @@ def orders(settings: Settings, entry: Entry) -> tuple[float, float, float]:
     needed = [1.0, 1.0, 1.0, 1.0]
     for order in range(1, min(segment.bounded_order, 3) + 1):
         low, high = segment.bound_lists(order)
-        if _symmetric_within(low, high, (rows.max_velocity, rows.max_acceleration, rows.max_jerk)[order - 1]):
+        if within_symmetric(low, high, (rows.max_velocity, rows.max_acceleration, rows.max_jerk)[order - 1]):
             continue
         limit = limit_of(lim, order)
         lo, hi = segment.extremes(order)
@@ -104,7 +104,7 @@ def orders(settings: Settings, entry: Entry) -> tuple[float, float, float]:
     return result
 
 
-def _symmetric_within(low: list[float], high: list[float], limit: list[float]) -> bool:
+def within_symmetric(low: list[float], high: list[float], limit: list[float]) -> bool:
     """Every joint's ``[low, high]`` within ``[-limit, limit]`` (NaN is not)."""
     return all(-lo <= m and hi <= m for lo, hi, m in zip(low, high, limit, strict=True))
 
@@ -176,14 +176,14 @@ def within_positions(settings: Settings, entry: Entry) -> bool:
     segment = entry.segment
     assert segment is not None
     lim = settings.limits
-    if _bounds_within(*segment.bound_lists(0), lim.rows.lower, lim.rows.upper):
+    if within_bounds(*segment.bound_lists(0), lim.rows.lower, lim.rows.upper):
         return True
     lo, hi = segment.extremes(0)
     slack = SLACK * np.maximum(1.0, np.abs(lim.upper))
     return bool(np.all(lo >= lim.lower - slack) and np.all(hi <= lim.upper + slack))
 
 
-def _bounds_within(low: list[float], high: list[float], lower: list[float], upper: list[float]) -> bool:
+def within_bounds(low: list[float], high: list[float], lower: list[float], upper: list[float]) -> bool:
     """Every joint's ``[low, high]`` within ``[lower, upper]`` (NaN is not)."""
     return all(lo >= a and hi <= b for lo, hi, a, b in zip(low, high, lower, upper, strict=True))
 

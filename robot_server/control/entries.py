@@ -288,4 +288,4 @@ def at_rest(state: State) -> bool:
 
 def moving(values: Array) -> bool:
     """Not at rest: velocities or accelerations beyond floating-point noise."""
-    return any(abs(value) > 1e-09 for value in values.tolist())
+    return any(abs(value) > 1e-9 for value in values.tolist())

@@ -89,10 +89,10 @@ class _PeakShape(Policy):
     ) -> Segment | None:
         delta = target - start.position
         if duration is None:
-            if not np.any(delta):
+            if not delta.any():
                 return None
             duration = self.segment_time(delta, _ratio(ratio), limits)
-        if not np.any(delta):
+        if not delta.any():
             return hold(target, duration)
         return self._shape(start.position, target, duration)
 

@@ -689,20 +689,19 @@ class RuckigSegment(Segment):
         self.trajectory = trajectory
         self.dof = dof
         self.duration = float(trajectory.duration)
-        starts, jerk, acc, vel, pos = [], [], [], [], []
+        table = []
         for profiles in trajectory.profiles[0]:
             phases = _phases(profiles)
             # every joint gets as many phases: pad in front with empty ones holding the start state
             # (never selected, since the next phase starts at the same time)
-            phases = [(0.0, 0.0, *phases[0][2:])] * (_PHASES - len(phases)) + phases
-            begin = np.concatenate([[0.0], np.cumsum([ph[0] for ph in phases])[:-1]])
-            starts.append(begin)
-            jerk.append([ph[1] for ph in phases])
-            acc.append([ph[2] for ph in phases])
-            vel.append([ph[3] for ph in phases])
-            pos.append([ph[4] for ph in phases])
-        self._starts = np.array(starts)  # (dof, _PHASES)
-        self._jerk, self._a, self._v, self._p = (np.array(x) for x in (jerk, acc, vel, pos))
+            table.append([(0.0, 0.0, *phases[0][2:])] * (_PHASES - len(phases)) + phases)
+        # (dof, _PHASES, 5): duration, jerk, acceleration, velocity, position; each joint's starts
+        # are the running sums of its durations (np.cumsum adds along a row one after the other)
+        columns = np.array(table).transpose(2, 0, 1)
+        starts = np.zeros((len(table), _PHASES))
+        starts[:, 1:] = np.cumsum(columns[0], axis=1)[:, :-1]
+        self._starts = starts  # (dof, _PHASES)
+        self._jerk, self._a, self._v, self._p = (np.ascontiguousarray(x) for x in columns[1:])
 
     @classmethod
     def plan(
@@ -719,17 +718,17 @@ class RuckigSegment(Segment):
         """From ``start`` to ``target`` (each ``(position, velocity, acceleration)``), all joints
         finishing together (time synchronisation). With ``velocity_interface`` only the target
         velocity and acceleration count (a stop: ``target`` velocity and acceleration 0)."""
-        p0 = _vector(start[0], "start position")
-        n = p0.size
-        arrays = [p0, *(_vector(x, "start state", n) for x in start[1:])]
-        arrays += [_vector(x, "target state", n) for x in target]
-        limits = [_vector(x, "limit", n) for x in (max_velocity, max_acceleration, max_jerk)]
-        if not all(np.all(np.isfinite(a)) for a in arrays + limits):
+        p0 = _floats(start[0], "start position")
+        n = len(p0)
+        lists = [p0, *(_floats(x, "start state", n) for x in start[1:])]
+        lists += [_floats(x, "target state", n) for x in target]
+        lists += [_floats(x, "limit", n) for x in (max_velocity, max_acceleration, max_jerk)]
+        if not all(math.isfinite(x) for values in lists for x in values):
             raise PlanningError("ruckig inputs must be finite")
         inp = ruckig.InputParameter(n)
-        inp.current_position, inp.current_velocity, inp.current_acceleration = (a.tolist() for a in arrays[:3])
-        inp.target_position, inp.target_velocity, inp.target_acceleration = (a.tolist() for a in arrays[3:])
-        inp.max_velocity, inp.max_acceleration, inp.max_jerk = (a.tolist() for a in limits)
+        inp.current_position, inp.current_velocity, inp.current_acceleration = lists[:3]
+        inp.target_position, inp.target_velocity, inp.target_acceleration = lists[3:6]
+        inp.max_velocity, inp.max_acceleration, inp.max_jerk = lists[6:]
         if velocity_interface:
             inp.control_interface = ruckig.ControlInterface.Velocity
         if minimum_duration is not None:
@@ -752,7 +751,33 @@ class RuckigSegment(Segment):
         shape = (*times.shape, self.dof)
         return Samples(pos.reshape(shape), vel.reshape(shape), acc.reshape(shape), j.reshape(shape))
 
+    def _values(self, t: Array, order: int) -> Array:
+        """:meth:`sample`'s position, velocity or acceleration (``order`` 0 to 2) at the times
+        ``t`` (one axis), computed alone: the same operations for that one."""
+        times = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
+        flat = times.reshape(-1)
+        index = np.empty((flat.size, self.dof), dtype=np.intp)
+        for joint in range(self.dof):
+            index[:, joint] = np.searchsorted(self._starts[joint], flat, side="right") - 1
+        cols = np.arange(self.dof)
+        dt = flat[:, None] - self._starts[cols, index]
+        j, a = self._jerk[cols, index], self._a[cols, index]
+        if order == 2:
+            values: Array = a + j * dt
+        elif order == 1:
+            values = self._v[cols, index] + (a + j * dt / 2.0) * dt
+        else:
+            values = self._p[cols, index] + (self._v[cols, index] + (a / 2.0 + j * dt / 6.0) * dt) * dt
+        return values.reshape(*times.shape, self.dof)
+
     def extremes(self, order: int) -> tuple[Array, Array]:
+        key = ("extremes", order)
+        found = self.memo.get(key)
+        if found is None:
+            found = self.memo[key] = self._extremes(order)
+        return found  # type: ignore[return-value]
+
+    def _extremes(self, order: int) -> tuple[Array, Array]:
         if order == 3:  # constant in each phase: the phases that last
             lasting = np.diff(np.concatenate([self._starts, np.full((self.dof, 1), self.duration)], axis=1)) > 0.0
             jerk = np.where(lasting, self._jerk, 0.0)
@@ -773,7 +798,7 @@ class RuckigSegment(Segment):
                     zero = self._starts + dt
                     times.append(zero[np.isfinite(zero)])
         candidates: Array = np.clip(np.concatenate(times), 0.0, self.duration)
-        values = self.sample(candidates)[order]
+        values = self._values(candidates, order)
         return values.min(axis=0), values.max(axis=0)
 
     def __repr__(self) -> str:
