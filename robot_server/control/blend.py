@@ -383,11 +383,13 @@ def _beyond(a0: float, c3: float, c4: float, c5: float, t2: float, a: float, lim
     accelerates beyond ``limit`` at one of the eight instants sampled
     (:func:`_rest_accelerations`' numbers)."""
     q3, q4, q5 = 6.0 * c3, 12.0 * c4, 20.0 * c5
-    peak = 0.0  # the limit is >= 0: the largest sample is beyond it exactly when one is
-    for s, g in _ACCELERATION_TERMS:
-        value = abs(a0 + (q3 * s + q4 * s * s + q5 * s * s * s) / t2 + a * g)
-        peak = value if value > peak else peak
-    return peak > limit
+    for s, g in _ACCELERATION_TERMS:  # the largest |sample| is beyond the limit when one is
+        value = a0 + (q3 * s + q4 * s * s + q5 * s * s * s) / t2 + a * g
+        if value > limit or -value > limit:
+            break
+    else:
+        return False
+    return True
 
 
 def _acceleration_interval(
