@@ -125,14 +125,19 @@ class Limits:
         """The same limits as lists of floats, and the bounds :func:`within` checks positions and
         velocities against: for the planning, which works joint by joint on plain floats (numpy's
         cost per call on arrays of six is several times the arithmetic)."""
+        position_low, position_high = _slackened(self.lower, self.upper)
+        velocity_low, velocity_high = _slackened(-self.max_velocity, self.max_velocity)
         return LimitRows(
             self.lower.tolist(),
             self.upper.tolist(),
             self.max_velocity.tolist(),
             self.max_acceleration.tolist(),
             self.max_jerk.tolist(),
-            *(bound.tolist() for bound in _slackened(self.lower, self.upper)),
-            *(bound.tolist() for bound in _slackened(-self.max_velocity, self.max_velocity)),
+            position_low.tolist(),
+            position_high.tolist(),
+            velocity_low.tolist(),
+            velocity_high.tolist(),
+            bool(np.isfinite(position_low).all() and np.isfinite(position_high).all()),
         )
 
 
@@ -150,6 +155,8 @@ class LimitRows(NamedTuple):
     #: the velocities it accepts
     velocity_low: list[float]
     velocity_high: list[float]
+    #: the accepted positions are finite (a position within them is)
+    bounded: bool
 
 
 #: the shortest segment a point may ask for (s): a non-zero duration or time step below it is refused
@@ -158,11 +165,14 @@ MIN_DURATION = 1e-6
 
 def check_point(point: Point, limits: Limits, max_duration: float) -> Array:
     """Refuse a point a real controller refuses (module doc); returns its positions."""
-    dof = limits.dof
-    if point.positions is None:
+    rows = limits.rows
+    dof = len(rows.lower)
+    positions = point.positions
+    if positions is None:
         raise PointRejected(Reason.MISSING_FIELDS, "a point needs positions (velocity-only points are not supported)")
+    inside = False  # the positions within the (finite) limits: finite too, so not checked again
     for what, array in (
-        ("positions", point.positions),
+        ("positions", positions),
         ("velocities", point.velocities),
         ("accelerations", point.accelerations),
     ):
@@ -170,6 +180,10 @@ def check_point(point: Point, limits: Limits, max_duration: float) -> Array:
             continue
         if array.shape != (dof,):
             raise PointRejected(Reason.JOINT_COUNT, f"{what} has {array.size} values; this robot has {dof}")
+        if array is positions and rows.bounded:
+            inside = _inside(positions.tolist(), rows.position_low, rows.position_high)
+            if inside:
+                continue
         if not np.isfinite(array).all():
             raise PointRejected(Reason.NOT_FINITE, f"{what} contains NaN or infinity")
     for what, number in (("time", point.time), ("duration", point.duration), ("velocity ratio", point.velocity_ratio)):
@@ -191,12 +205,11 @@ def check_point(point: Point, limits: Limits, max_duration: float) -> Array:
         raise PointRejected(
             Reason.VELOCITY_LIMIT, f"the velocity ratio {point.velocity_ratio:g} asks for more than the maximum speed"
         )
-    rows = limits.rows
-    if not _inside(point.positions.tolist(), rows.position_low, rows.position_high):
-        within(point.positions, limits.lower, limits.upper, Reason.POSITION_LIMIT, "position")
+    if not inside and not _inside(positions.tolist(), rows.position_low, rows.position_high):
+        within(positions, limits.lower, limits.upper, Reason.POSITION_LIMIT, "position")
     if point.velocities is not None and not _inside(point.velocities.tolist(), rows.velocity_low, rows.velocity_high):
         within(point.velocities, -limits.max_velocity, limits.max_velocity, Reason.VELOCITY_LIMIT, "velocity")
-    return point.positions
+    return positions
 
 
 def _inside(values: list[float], low: list[float], high: list[float]) -> bool:

@@ -272,7 +272,8 @@ class PolynomialSegment(Segment):
         duration already checked): what the shapes below compute joint by joint."""
         n = len(rows[0])
         normalised = np.array(rows + [[0.0] * n] * (6 - len(rows)), dtype=float)
-        if not np.isfinite(normalised).all():
+        # a finite sum has no infinity or NaN in it (a sum that overflows is checked value by value)
+        if not math.isfinite(sum(map(sum, rows))) and not np.isfinite(normalised).all():
             raise PlanningError("polynomial coefficients must be finite")
         segment = cls.__new__(cls)
         segment._keep(normalised, duration, kind, bounded_order)
