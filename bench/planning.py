@@ -14,12 +14,13 @@ along a joint move plus a bump; by default 401 points over 8 s) as JOINT_TRAJ_PT
   streaming client keeps it fed; every ``start``/``add`` call is timed alone and the table gives
   their sum over the points (the steps are not counted). A point refused for another reason counts
   as planned and the next one follows, as industrial_robot_client's streamer goes on after a
-  FAILURE: the rest-to-rest policies refuse most dense points (a segment from rest to rest in 20 ms
-  is beyond the acceleration limit), and the table says how many;
+  FAILURE: ``quintic`` and ``cubic`` refuse most dense points (from rest to rest in 20 ms is beyond
+  the acceleration limit; ``linear`` checks the velocity only, ``ruckig`` takes the time it needs),
+  and the table says how many;
 * **downloaded**: ``start_download``, ``add`` for each point, ``finish_download`` (the whole
-  trajectory planned at once, slowed down once at the end), timed as a whole, over the points (a
-  refused point drops the download: the rest-to-rest policies' downloads of dense points are
-  refused at their first segment, at the end, and cost little).
+  trajectory planned at once, slowed down once at the end), timed as a whole, over the points. A
+  refused point drops the download: ``finish_download`` stops planning at the first segment beyond
+  a limit, so the ``quintic`` and ``cubic`` downloads of dense points cost little.
 
 The numbers are microseconds of the thread's CPU time per point (``time.thread_time``: time that
 other jobs on the machine take from this one is not counted, the point's own work is). ``--base
