@@ -236,6 +236,9 @@ class Settings:
     #: once per trajectory, not slowed down for: MotoROS checks the points' speeds only
     follow_given_acceleration: bool = False
 
+    def __post_init__(self) -> None:
+        self.limits.rows  # noqa: B018 - computed now, with the queue, rather than at its first point
+
 
 @dataclass(frozen=True, slots=True)
 class Context:

@@ -21,6 +21,7 @@ which the PyPI build ignores: :meth:`Segment.extremes` lets the caller check the
 
 from __future__ import annotations
 
+import functools
 import math
 from abc import ABC, abstractmethod
 from typing import NamedTuple
@@ -304,9 +305,8 @@ class PolynomialSegment(Segment):
         found = self.memo.get("derivatives")
         if found is None:
             derivatives = [self._normalised]
-            for _ in range(4):
-                prev = derivatives[-1]
-                derivatives.append(prev[1:] * np.arange(1, prev.shape[0])[:, None] / self.duration)
+            for powers in _POWERS:
+                derivatives.append(derivatives[-1][1:] * powers / self.duration)
             found = self.memo["derivatives"] = derivatives
         return found  # type: ignore[return-value]
 
@@ -455,6 +455,8 @@ def _bernstein_matrix(degree: int) -> Array:
 
 
 _TO_BERNSTEIN = _bernstein_matrix(5)
+#: the powers each derivative of the normalised coefficients multiplies by: 1..5, 1..4, 1..3, 1..2
+_POWERS = [np.arange(1, n)[:, None] for n in (6, 5, 4, 3)]
 #: control points within this bound (and not NaN): their differences up to the third cannot overflow
 _SAFE = 1e300
 #: the k-th derivative of a degree-5 Bezier curve scales the k-th differences by 5!/(5-k)!
@@ -466,7 +468,7 @@ def _unit_roots(slope: Array) -> Array:
     an end point, so the caller may evaluate them all). Joints sharing the full degree are solved
     together as companion-matrix eigenvalues."""
     degree = slope.shape[0] - 1
-    while degree > 0 and not np.any(slope[degree]):
+    while degree > 0 and not slope[degree].any():
         degree -= 1
     dof = slope.shape[1]
     if degree == 0:
@@ -475,7 +477,7 @@ def _unit_roots(slope: Array) -> Array:
     lead = slope[degree]
     scale = np.abs(slope[: degree + 1]).max(axis=0)
     full = np.abs(lead) > 1e-12 * scale
-    if np.any(full):
+    if full.any():
         companion = np.zeros((int(full.sum()), degree, degree))
         companion[:, np.arange(1, degree), np.arange(degree - 1)] = 1.0
         companion[:, :, -1] = -(slope[:degree, full] / lead[full]).T
@@ -629,7 +631,10 @@ def launch(
 
 
 def _hull(ranges: list[tuple[Array, Array]]) -> tuple[Array, Array]:
-    return np.min([lo for lo, _ in ranges], axis=0), np.max([hi for _, hi in ranges], axis=0)
+    # np.min/np.max over the stacked parts, one part after the other, without the stacking
+    return functools.reduce(np.minimum, [lo for lo, _ in ranges]), functools.reduce(
+        np.maximum, [hi for _, hi in ranges]
+    )
 
 
 #: a launch ramp shorter than this share of its segment is no ramp (rounding noise)
@@ -668,10 +673,18 @@ class Chain(Segment):
         return Samples(*(values.reshape(*times.shape, self.dof) for values in out))
 
     def extremes(self, order: int) -> tuple[Array, Array]:
-        return _hull([p.extremes(order) for p in self.parts])
+        key = ("extremes", order)
+        found = self.memo.get(key)
+        if found is None:
+            found = self.memo[key] = _hull([p.extremes(order) for p in self.parts])
+        return found  # type: ignore[return-value]
 
     def bounds(self, order: int) -> tuple[Array, Array]:
-        return _hull([p.bounds(order) for p in self.parts])
+        key = ("bounds", order)
+        found = self.memo.get(key)
+        if found is None:
+            found = self.memo[key] = _hull([p.bounds(order) for p in self.parts])
+        return found  # type: ignore[return-value]
 
     def __repr__(self) -> str:
         return f"Chain(kind={self.kind!r}, duration={self.duration!r}, parts={list(self.parts)!r})"
