@@ -16,7 +16,9 @@ along a joint move plus a bump; by default 401 points over 8 s) as JOINT_TRAJ_PT
   as planned and the next one follows, as industrial_robot_client's streamer goes on after a
   FAILURE: ``quintic`` and ``cubic`` refuse most dense points (from rest to rest in 20 ms is beyond
   the acceleration limit; ``linear`` checks the velocity only, ``ruckig`` takes the time it needs),
-  and the table says how many;
+  and the table says how many. The first three points, the costliest (the second decides the
+  first one's state, from rest), are also given alone: what a client starting a trajectory costs
+  the loop at once;
 * **downloaded**: ``start_download``, ``add`` for each point, ``finish_download`` (the whole
   trajectory planned at once, slowed down once at the end), timed as a whole, over the points. A
   refused point drops the download: ``finish_download`` stops planning at the first segment beyond
@@ -46,6 +48,9 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 MODES = ("streamed", "downloaded")
+#: a trajectory's start: its first points, the costliest (the second point decides the first one's
+#: state, from rest: a transient, time-optimal where it must be)
+START = 3
 
 
 Measured = dict[str, dict[str, list[float]]]
@@ -71,12 +76,15 @@ def _measure(policies: list[str], points: int, duration: float, passes: int) -> 
     ]
 
     refused: list[float] = []
+    starts: list[float] = []
 
     def streamed(policy: str) -> float:
         ctl = Controller(model, ControllerConfig(policy=policy))
         sub = ctl.servo_ticks_per_interpolation
         spent, sent, ticks, bad = 0.0, 0, 0, 0
         while sent < len(made):
+            if sent == START:
+                starts.append(spent * 1e6)
             begin = time.thread_time()
             try:
                 (ctl.start if sent == 0 else ctl.add)(made[sent])
@@ -117,6 +125,7 @@ def _measure(policies: list[str], points: int, duration: float, passes: int) -> 
             run(name)  # warm-up: imports, caches
             out[name][mode] = [run(name) for _ in range(passes)]
         out[name]["refused"] = refused[-1:]
+        out[name]["start"] = starts[-passes:]
     return out
 
 
@@ -198,6 +207,19 @@ def main() -> None:
             else:
                 cells.append(f"{after:,.0f}")
         print(f"| {policy} | " + " | ".join(cells) + " |")
+    print()
+    print(f"A trajectory's first {START} points, streamed (us in all: what each client starting a trajectory costs")
+    print("the fleet's loop at once):")
+    print()
+    print("| policy | before | after | speed-up |" if args.base is not None else "| policy | start |")
+    print("|---|---:|---:|---:|" if args.base is not None else "|---|---:|")
+    for policy, modes in samples[last].items():
+        after = statistics.median(modes["start"])
+        if args.base is not None and policy in samples["base"]:
+            before = statistics.median(samples["base"][policy]["start"])
+            print(f"| {policy} | {before:,.0f} | {after:,.0f} | {before / after:.2f}x |")
+        else:
+            print(f"| {policy} | {after:,.0f} |")
 
 
 if __name__ == "__main__":
