@@ -425,11 +425,11 @@ class PolynomialSegment(Segment):
 
     def _extremes(self, order: int) -> tuple[Array, Array]:
         coefficients = self._derivatives[order]
-        # at both ends: what :meth:`sample` computes there, for this derivative only
-        s = np.clip(np.array([0.0, self.duration]) / self.duration, 0.0, 1.0)[..., None]
-        ends = np.broadcast_to(coefficients[-1], (2, self.dof)).copy()
-        for h in coefficients[-2::-1]:
-            ends = ends * s + h
+        # at both ends: what :meth:`sample` computes there (its normalised times are 0 and T / T = 1,
+        # exactly), for this derivative only
+        ends = coefficients[-1] * _ENDS + coefficients[-2]
+        for h in coefficients[-3::-1]:
+            ends = ends * _ENDS + h
         lo, hi = ends.min(axis=0), ends.max(axis=0)
         # inside, the extremes are where the next derivative vanishes: its real roots in (0, 1)
         roots = _unit_roots(self._derivatives[order + 1] * self.duration)
@@ -455,6 +455,8 @@ def _bernstein_matrix(degree: int) -> Array:
 
 
 _TO_BERNSTEIN = _bernstein_matrix(5)
+#: the ends of a segment in normalised time, as :meth:`PolynomialSegment.sample` broadcasts them
+_ENDS = np.array([[0.0], [1.0]])
 #: the powers each derivative of the normalised coefficients multiplies by: 1..5, 1..4, 1..3, 1..2
 _POWERS = [np.arange(1, n)[:, None] for n in (6, 5, 4, 3)]
 #: control points within this bound (and not NaN): their differences up to the third cannot overflow
@@ -478,8 +480,7 @@ def _unit_roots(slope: Array) -> Array:
     scale = np.abs(slope[: degree + 1]).max(axis=0)
     full = np.abs(lead) > 1e-12 * scale
     if full.any():
-        companion = np.zeros((int(full.sum()), degree, degree))
-        companion[:, np.arange(1, degree), np.arange(degree - 1)] = 1.0
+        companion = np.repeat(_companion(degree)[None], int(full.sum()), axis=0)
         companion[:, :, -1] = -(slope[:degree, full] / lead[full]).T
         found[full] = np.linalg.eigvals(companion)
     for joint in np.flatnonzero(~full):  # lower degree for this joint (or no motion at all)
@@ -490,6 +491,16 @@ def _unit_roots(slope: Array) -> Array:
     real = found.real
     usable = (np.abs(found.imag) <= 1e-9) & (real > 0.0) & (real < 1.0)
     return np.where(usable, real, 0.0)
+
+
+@functools.cache
+def _companion(degree: int) -> Array:
+    """The companion matrix of a monic polynomial of ``degree`` but its last column (ones below the
+    diagonal; read only, copied for use)."""
+    matrix = np.zeros((degree, degree))
+    matrix[np.arange(1, degree), np.arange(degree - 1)] = 1.0
+    matrix.flags.writeable = False
+    return matrix
 
 
 def hold(position: ArrayLike, duration: float) -> PolynomialSegment:
@@ -626,8 +637,8 @@ def launch(
     if ramp <= _SHORTEST_RAMP * tf:  # no acceleration to speak of: the quintic from rest
         return quintic_hermite((p0, zero, zero), end, tf)
     up = PolynomialSegment.normalised([p0, zero, zero, a0 * ramp * ramp / 6.0], ramp, "ramp", 3)
-    s = up.end()
-    return Chain((up, quintic_hermite((s.position, s.velocity, s.acceleration), end, tf - ramp)), "launch")
+    ramped = up.state_at(up.duration)  # what up.end() gives, without sampling the jerk too
+    return Chain((up, quintic_hermite(ramped, end, tf - ramp)), "launch")
 
 
 def _hull(ranges: list[tuple[Array, Array]]) -> tuple[Array, Array]:
@@ -684,6 +695,20 @@ class Chain(Segment):
         found = self.memo.get(key)
         if found is None:
             found = self.memo[key] = _hull([p.bounds(order) for p in self.parts])
+        return found  # type: ignore[return-value]
+
+    def bound_lists(self, order: int) -> tuple[list[float], list[float]]:
+        # the parts' lists, combined as _hull combines their arrays (np.minimum and np.maximum
+        # choose the first of two values when it is NaN)
+        key = ("bound lists", order)
+        found = self.memo.get(key)
+        if found is None:
+            ranges = [p.bound_lists(order) for p in self.parts]
+            lo, hi = ranges[0]
+            for low, high in ranges[1:]:
+                lo = [x if x < y or math.isnan(x) else y for x, y in zip(lo, low, strict=True)]
+                hi = [x if x > y or math.isnan(x) else y for x, y in zip(hi, high, strict=True)]
+            found = self.memo[key] = (lo, hi)
         return found  # type: ignore[return-value]
 
     def __repr__(self) -> str:
