@@ -18,13 +18,14 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import functools
 import logging
 import os
 import signal
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -489,7 +490,13 @@ async def _scheduled(emulator: Emulator, at: float, command: str) -> None:
 
 
 def _read_commands(emulator: Emulator, loop: asyncio.AbstractEventLoop) -> None:
-    """Fault commands from stdin, read by a daemon thread (works for terminals, pipes and files)."""
+    """Fault commands from stdin, applied to ``emulator``."""
+    read_stdin_lines(loop, functools.partial(_apply, emulator))
+
+
+def read_stdin_lines(loop: asyncio.AbstractEventLoop, handle: Callable[[str], None]) -> None:
+    """Each non-blank line of stdin handed to ``handle`` on ``loop``, read by a daemon thread
+    (works for terminals, pipes and files): the fault commands of a lone server and of a fleet."""
 
     def reader() -> None:
         # os.read on the descriptor, not sys.stdin: a daemon thread blocked inside the buffered
@@ -501,6 +508,6 @@ def _read_commands(emulator: Emulator, loop: asyncio.AbstractEventLoop) -> None:
                 *lines, pending = pending.split(b"\n")
                 for line in lines:
                     if line.strip():
-                        loop.call_soon_threadsafe(_apply, emulator, line.decode(errors="replace"))
+                        loop.call_soon_threadsafe(handle, line.decode(errors="replace"))
 
     threading.Thread(target=reader, name="robot-server stdin", daemon=True).start()

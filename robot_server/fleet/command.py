@@ -13,19 +13,16 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import functools
 import logging
-import os
 import signal
 import sys
-import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from simple_message.endpoints import run
 
-from ..cli import check_writable, write_records
+from ..cli import check_writable, read_stdin_lines, write_records
 from ..emulator import FaultError
 from ..web import MAX_RATE, WebUnavailable, fleet_view
 from .config import FleetError, load_fleet
@@ -128,16 +125,5 @@ def _apply(fleet: Fleet, line: str) -> None:
 
 
 def _read_commands(fleet: Fleet, loop: asyncio.AbstractEventLoop) -> None:
-    """Fault commands from stdin (``NAME COMMAND``), read by a daemon thread."""
-
-    def reader() -> None:
-        pending = b""
-        with contextlib.suppress(OSError, RuntimeError):
-            while chunk := os.read(0, 4096):
-                pending += chunk
-                *lines, pending = pending.split(b"\n")
-                for line in lines:
-                    if line.strip():
-                        loop.call_soon_threadsafe(_apply, fleet, line.decode(errors="replace"))
-
-    threading.Thread(target=reader, name="robot-server stdin", daemon=True).start()
+    """Fault commands from stdin (``NAME COMMAND``)."""
+    read_stdin_lines(loop, functools.partial(_apply, fleet))
