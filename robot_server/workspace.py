@@ -236,6 +236,10 @@ class Supervision:
         """The TCP speed limit in force, m/s: ``manual_speed`` in MANUAL (teach) mode, else ``auto_speed``."""
         return self.manual_speed if manual else self.auto_speed
 
+    def watches(self, manual: bool) -> bool:
+        """Whether the TCP is supervised at all (a speed limit in force or any zone)."""
+        return self.speed_limit(manual) is not None or self.has_zones
+
 
 class Violation(NamedTuple):
     """A position that breaks a rule of a :class:`Supervision`.

@@ -161,7 +161,8 @@ class Tick(NamedTuple):
     actual_acceleration: list[float]
     following_error: list[float]
     points: int = 0
-    #: the TCP at the last interpolation instant (commanded and actual pose and speed)
+    #: the TCP at the last interpolation instant (commanded and actual pose and speed); None in the
+    #: tick :meth:`Controller.step_period` returns, which no recorder sees: read :attr:`Controller.tool`
     tool: ToolState | None = None
 
 
@@ -185,7 +186,8 @@ class Controller:
             start = np.clip(np.zeros(n), self.limits.lower, self.limits.upper)
         self.policy = policy(config.policy)
         slack = 1e-9 * np.maximum(1.0, np.abs(self.limits.lower)), 1e-9 * np.maximum(1.0, np.abs(self.limits.upper))
-        self._lower, self._upper = self.limits.lower - slack[0], self.limits.upper + slack[1]
+        self._lower = (self.limits.lower - slack[0]).tolist()
+        self._upper = (self.limits.upper + slack[1]).tolist()
         self.queue = MotionQueue(
             self.limits,
             self.policy,
@@ -209,8 +211,11 @@ class Controller:
         #: MANUAL (teach) mode: the TCP speed limit is the supervision's manual speed
         self.manual = False
         self.tool_meter = ToolMeter(model)
-        #: the TCP at the last interpolation instant
-        self.tool = self.tool_meter.measure(0.0, hold, zeros, hold, zeros)
+        self._tool: ToolState | None = self.tool_meter.measure(0.0, hold, zeros, hold, zeros)
+        #: what :attr:`tool` is computed from when it is read (the last instant's, see step_period)
+        self._tool_inputs: tuple[float, list[float], list[float], list[float], list[float]] = (
+            0.0, hold, zeros, hold, zeros
+        )  # fmt: skip
         self._zone_clear = point_violation(self.supervision, *self.tool.actual_position) is None
         #: a stop is braking the robot: the TCP speed limit is not supervised until the next motion
         #: (switching to MANUAL stops a fast motion: its braking is not an excursion)
@@ -593,32 +598,26 @@ class Controller:
                 self._unseen_tick(i)  # moving: no one sees this tick but the drives
             else:
                 self._servo_tick(i)
-        return self._servo_tick(sub - 1)
+        return self._servo_tick(sub - 1, seen=False)
 
     def _unseen_tick(self, i: int) -> None:
         """Servo tick ``i`` of the period (not its last) when no one sees its :class:`Tick`: the
         drives and their following-error supervision only, the same numbers as :meth:`_servo_tick`
         (which also makes the tick, and checks the robot settling: not while it moves)."""
         self._tick += 1
-        f = (i + 1) / self._sub
-        g = 1.0 - f
         (p0, v0, _), (p1, v1, _) = self._previous, self._next
-        cmd_p = [g * x + f * y for x, y in zip(p0, p1, strict=True)]
-        servo = self.servo
-        if self.config.increment_feedforward:
-            period = self.config.interpolation_period
-            servo.step(cmd_p, [(y - x) / period for x, y in zip(p0, p1, strict=True)])
-        else:
-            servo.step(cmd_p, [g * x + f * y for x, y in zip(v0, v1, strict=True)])
-        limits = servo.following_error_limit
-        for j, (c, a) in enumerate(zip(cmd_p, servo.position, strict=True)):
-            e = c - a
-            if abs(e) > limits[j]:
-                self.raise_alarm(
-                    FOLLOWING_ERROR_ALARM + j + 1,
-                    f"following error of joint {j + 1} ({self.model.joints[j].name}) is {e:.4g}, limit {limits[j]:g}",
-                )
-                break
+        config, servo = self.config, self.servo
+        f = (i + 1) / self._sub
+        j = servo.follow(
+            p0, p1, v0, v1, f, increment_period=config.interpolation_period if config.increment_feedforward else None
+        )
+        if j >= 0:
+            e = (1.0 - f) * p0[j] + f * p1[j] - servo.position[j]  # the command's own numbers
+            self.raise_alarm(
+                FOLLOWING_ERROR_ALARM + j + 1,
+                f"following error of joint {j + 1} ({self.model.joints[j].name}) is {e:.4g}, "
+                f"limit {servo.following_error_limit[j]:g}",
+            )
 
     def _instant(self) -> None:
         """At an interpolation instant: sample the motion for the next one, or find the coming
@@ -631,8 +630,20 @@ class Controller:
             self._command(state)
             self._rest.begin(self._rest_key(), state, self._previous == self._next, self.servo)
 
-    def _servo_tick(self, i: int) -> Tick:
-        """Servo tick ``i`` of the interpolation period (0-based)."""
+    @property
+    def tool(self) -> ToolState:
+        """The TCP at the last interpolation instant (computed when first read after it, unless
+        the supervision or a recorder needs it at once: the same numbers either way)."""
+        tool = self._tool
+        if tool is None:
+            tool = self._tool = self.tool_meter.measure(*self._tool_inputs)
+        return tool
+
+    def _servo_tick(self, i: int, *, seen: bool = True) -> Tick:
+        """Servo tick ``i`` of the interpolation period (0-based). Unless ``seen`` (the last tick
+        of :meth:`step_period`, which only the emulator's state reads), the TCP is computed when
+        :attr:`tool` is read, not at the instant, and the tick's ``tool`` is None; the supervision
+        still checks it at the instant."""
         replaying = self._replaying
         if replaying is not None:  # at rest: the last period again (:mod:`.rest`)
             if self._rest_key() == self._replay_key:
@@ -653,22 +664,24 @@ class Controller:
         else:
             servo.step(cmd_p, cmd_v)
         actual = list(servo.position)
+        velocity = list(servo.velocity)
         error = [c - a for c, a in zip(cmd_p, actual, strict=True)]
         if i + 1 == self._sub:  # an interpolation instant: where the tool is, and is it allowed
-            now = self._tick * self.config.servo_period
-            self.tool = self.tool_meter.measure(now, cmd_p, cmd_v, actual, servo.velocity)
-            self._supervise(self.tool)
+            self._tool = None
+            self._tool_inputs = (self._tick * self.config.servo_period, cmd_p, cmd_v, actual, velocity)
+            if seen or self.supervision.watches(self.manual):
+                self._supervise(self.tool)
         tick = self.command = Tick(
             self._tick * self.config.servo_period,
             cmd_p,
             cmd_v,
             cmd_a,
             actual,
-            list(servo.velocity),
+            velocity,
             list(servo.acceleration),
             error,
             self.points_accepted,
-            self.tool,
+            self._tool,
         )
         if not self._settled and not self.moving and cmd_p == self._next[0]:  # the last setpoint reached
             self._check_settled(tick)
@@ -710,18 +723,20 @@ class Controller:
     def _command(self, state: State) -> None:
         """Command the sampled setpoint from the next interpolation instant on, unless it is beyond
         a joint's position limit (the soft-limit alarm) or an alarm holds the robot."""
-        beyond = np.flatnonzero((state.position < self._lower) | (state.position > self._upper))
         if self.in_error:
-            pass
-        elif beyond.size:
-            j = int(beyond[0])
+            return
+        position = state.position.tolist()
+        bounds = zip(position, self._lower, self._upper, strict=True)
+        beyond = [j for j, (x, lo, hi) in enumerate(bounds) if x < lo or x > hi]
+        if beyond:
+            j = beyond[0]
             self.raise_alarm(
                 SOFT_LIMIT_ALARM + j + 1,
                 f"soft limit: joint {j + 1} ({self.model.joints[j].name}) commanded to "
                 f"{state.position[j]:.6g}, limits {self.limits.lower[j]:.6g}..{self.limits.upper[j]:.6g}",
             )
         else:
-            self._next = (state.position.tolist(), state.velocity.tolist(), state.acceleration.tolist())
+            self._next = (position, state.velocity.tolist(), state.acceleration.tolist())
 
     def _rest_key(self) -> tuple[object, ...]:
         """Everything besides the drives and the setpoint that a servo period's outcome depends on
@@ -745,8 +760,8 @@ class Controller:
         self._tick += 1
         now = self._tick * self.config.servo_period
         if i + 1 == self._sub:
-            self.tool = _new(ToolState, (now, *self.tool[1:]))
-        tick = self.command = _new(Tick, (now, *resting[1:9], self.tool))
+            self._tool = _new(ToolState, (now, *self.tool[1:]))
+        tick = self.command = _new(Tick, (now, *resting[1:9], self._tool))
         return tick
 
     def run_for(self, seconds: float, recorder: Recorder | None = None) -> None:

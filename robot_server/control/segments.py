@@ -328,18 +328,16 @@ class PolynomialSegment(Segment):
     def state_at(self, t: float) -> tuple[Array, Array, Array]:
         # one time, three derivatives, on plain floats joint by joint: the operations of sample's
         # Horner scheme in the same order (the same numbers, bit for bit), without numpy's cost
-        # per call on arrays of six (several times slower here)
-        rows = self.memo.get("rows")
-        if rows is None:
-            rows = self.memo["rows"] = [c.tolist() for c in self._derivatives[:3]]
+        # per call on arrays of six (several times slower here), each joint's polynomial unrolled
+        columns: tuple[list[list[float]], ...] | None = self.memo.get("columns")  # type: ignore[assignment]
+        if columns is None:
+            columns = self.memo["columns"] = tuple(d.T.tolist() for d in self._derivatives[:3])
+        p_columns, v_columns, a_columns = columns
         s = min(max(t / self.duration, 0.0), 1.0)
-        out = []
-        for coefficients in rows:  # type: ignore[attr-defined]
-            value = coefficients[-1]
-            for h in coefficients[-2::-1]:
-                value = [v * s + x for v, x in zip(value, h, strict=True)]
-            out.append(np.array(value, dtype=float))
-        return out[0], out[1], out[2]
+        p = [((((c5 * s + c4) * s + c3) * s + c2) * s + c1) * s + c0 for c0, c1, c2, c3, c4, c5 in p_columns]
+        v = [(((c4 * s + c3) * s + c2) * s + c1) * s + c0 for c0, c1, c2, c3, c4 in v_columns]
+        a = [((c3 * s + c2) * s + c1) * s + c0 for c0, c1, c2, c3 in a_columns]
+        return np.array(p), np.array(v), np.array(a)
 
     def bounds(self, order: int) -> tuple[Array, Array]:
         # the convex hull of the Bezier control points: the curve of degree 5 in s = t / T has

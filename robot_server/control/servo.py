@@ -65,11 +65,38 @@ class ServoDrives:
 
     def step(self, command_position: Sequence[float], command_velocity: Sequence[float]) -> None:
         """Advance one servo period towards the commanded position and velocity."""
+        self.follow(command_position, command_position, command_velocity, command_velocity, 1.0)
+
+    def follow(
+        self,
+        start: Sequence[float],
+        end: Sequence[float],
+        start_velocity: Sequence[float],
+        end_velocity: Sequence[float],
+        share: float,
+        *,
+        increment_period: float | None = None,
+    ) -> int:
+        """Advance one servo period towards the setpoint ``share`` of the way from ``start`` to
+        ``end`` (the linear interpolation between two interpolation instants), its velocity
+        interpolated the same way or, with ``increment_period``, the increment's rate ``(end -
+        start) / increment_period`` (MotoROS's feed-forward). Returns the first joint whose
+        following error (command - actual) is then beyond its limit, -1 if none. (One loop for
+        the interpolation, the drives and the check: this runs for every servo tick of every moving
+        controller of a fleet.)"""
+        f = share
+        g = 1.0 - f
         dt = self.period
         position, velocity, integral = self.position, self.velocity, self._integral
+        acceleration, torque, limits = self.acceleration, self.torque, self.following_error_limit
+        beyond = -1
         for i, (inv_j, peak, viscous, coulomb, kp, kff, kv, ki) in enumerate(self._constants):
+            x = start[i]
+            y = end[i]
+            c = g * x + f * y
+            v = g * start_velocity[i] + f * end_velocity[i] if increment_period is None else (y - x) / increment_period
             q, w = position[i], velocity[i]
-            error = kp * (command_position[i] - q) + kff * command_velocity[i] - w
+            error = kp * (c - q) + kff * v - w
             tau = kv * error + ki * integral[i]
             if tau > peak:
                 tau = peak
@@ -90,10 +117,13 @@ class ServoDrives:
             w_new = w + drive * inv_j * dt
             if (w > 0.0 > w_new or w < 0.0 < w_new) and abs(tau) <= coulomb:
                 w_new = 0.0  # friction stops the joint; it cannot reverse it
-            self.acceleration[i] = (w_new - w) / dt
-            self.torque[i] = tau
+            acceleration[i] = (w_new - w) / dt
+            torque[i] = tau
             velocity[i] = w_new
-            position[i] = q + w_new * dt
+            position[i] = p = q + w_new * dt
+            if beyond < 0 and abs(c - p) > limits[i]:
+                beyond = i
+        return beyond
 
     @property
     def integral(self) -> list[float]:
