@@ -349,13 +349,11 @@ def assert_within_limits(
             acceleration = np.diff(velocity, axis=0) / period
             jerk = np.diff(acceleration, axis=0) / period
             derivative_times = (at[1:], at[2:])
-            how = "commanded, difference at the interpolation instants"
         else:
             velocity, acceleration = record.get("actual_velocity")[keep], record.get("actual_acceleration")[keep]
             tick = float(np.median(np.diff(times))) if times.size > 1 else 1.0
             jerk = np.diff(acceleration, axis=0) / tick
             derivative_times = (times, times)
-            how = "actual"
         low, high = widen(limits.lower, limits.upper)
         series.append(_Series(times, positions, low, high, model.joint_names, f"{s} position", units, _LIMITS))
         for label, values, limit, t, unit in (
@@ -364,7 +362,7 @@ def assert_within_limits(
         ):
             low, high = widen(-limit, limit)
             per_second = tuple(u + unit for u in units)
-            series.append(_Series(t, values, low, high, model.joint_names, f"{label} ({how})", per_second, _SPEEDS))
+            series.append(_Series(t, values, low, high, model.joint_names, f"{s} {label}", per_second, _SPEEDS))
             if values.size:
                 peaks[label] = np.maximum(peaks[label], np.max(np.abs(values), axis=0))
         if jerk.size:
@@ -373,8 +371,13 @@ def assert_within_limits(
     report = LimitReport(
         model.joint_names, units, peaks["velocity"], peaks["acceleration"], peaks["jerk"], limits, exceeded
     )
-    note = [f"jerk (reported, not enforced): above the limit on {', '.join(exceeded)}"] if exceeded else []
-    _check(name, series, plot_dir, extra=[*note, "peaks over the ticks checked:", str(report)])
+    notes = [f"jerk (reported, not enforced): above the limit on {', '.join(exceeded)}"] if exceeded else []
+    if side != "actual":
+        notes.append(
+            "command velocity and acceleration: differences of the commanded positions at the interpolation "
+            "instants (what the drives are asked for)"
+        )
+    _check(name, series, plot_dir, extra=[*notes, "peaks over the ticks checked:", str(report)])
     return report
 
 
