@@ -12,7 +12,9 @@ In an async test, ``ctrl = await robot_controller(...)`` runs the controller in 
 event loop. ``speedup=10`` runs its clock ten times faster, ``speedup="step"`` lets the test move
 it (``ctrl.advance(20.0)``), ``process=True`` starts a ``robot-server`` process for clients in
 other languages. Each controller records its traffic; a failed test's report names the pcapng file
-and the controller's last state. docs/testing.md is the guide.
+and the controller's last state. The motion assertions (:mod:`.assertions`: ``assert_reached``,
+``assert_within_joints``, ``assert_within_box``, ``assert_within_limits``, ``assert_stopped_within``)
+read a handle's record and model. docs/testing.md is the guide.
 
 The names below are imported from their modules on first use: the plugin, which pytest loads in
 every run, costs nothing until a test asks for a controller.
@@ -25,6 +27,18 @@ from typing import TYPE_CHECKING
 from simple_message._lazy import LazyExports
 
 if TYPE_CHECKING:
+    from .assertions import (
+        LimitReport,
+        MotionAssertionError,
+        MotionSource,
+        Recorded,
+        Side,
+        assert_reached,
+        assert_stopped_within,
+        assert_within_box,
+        assert_within_joints,
+        assert_within_limits,
+    )
     from .core import ControllerError, ControllerTimeout
     from .handle import AsyncRobotController, ControllerFactory, RobotController
     from .settings import SettingsError
@@ -34,14 +48,36 @@ __all__ = [
     "ControllerError",
     "ControllerFactory",
     "ControllerTimeout",
+    "LimitReport",
+    "MotionAssertionError",
+    "MotionSource",
+    "Recorded",
     "RobotController",
     "SettingsError",
+    "Side",
+    "assert_reached",
+    "assert_stopped_within",
+    "assert_within_box",
+    "assert_within_joints",
+    "assert_within_limits",
 ]
 
 _EXPORTS = LazyExports(
     __name__,
     globals(),
     {
+        ".assertions": (
+            "LimitReport",
+            "MotionAssertionError",
+            "MotionSource",
+            "Recorded",
+            "Side",
+            "assert_reached",
+            "assert_stopped_within",
+            "assert_within_box",
+            "assert_within_joints",
+            "assert_within_limits",
+        ),
         ".core": ("ControllerError", "ControllerTimeout"),
         ".handle": ("AsyncRobotController", "ControllerFactory", "RobotController"),
         ".settings": ("SettingsError",),
