@@ -943,7 +943,7 @@ def _plot(
     try:
         from matplotlib.figure import Figure
     except ImportError:
-        return None, "plot: not drawn (matplotlib is not installed: pip install 'simple-message-stack[plot]')"
+        return None, "plot: not drawn (matplotlib is not installed; the project's plot extra installs it)"
     if span is not None:
         pad = max(0.25, span[1] - span[0])
         shown = (times >= span[0] - pad) & (times <= span[1] + pad)

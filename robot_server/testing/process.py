@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import IO
 
 from simple_message.connection import Subscription
-from simple_message.constants import MsgType, TriState
+from simple_message.constants import MsgType, TriState, ValidFields
 from simple_message.endpoints import Client
 from simple_message.messages import JointFeedback, JointPosition, Message, Status
 
@@ -43,7 +43,9 @@ __all__ = ["Process"]
 READY_TIMEOUT = 60.0
 ANSWER_TIMEOUT = 10.0
 EXIT_TIMEOUT = 20.0
-#: how long a real-time wait may overrun its controller-time limit in wall time (s)
+#: wall time (s) a wait for state rounds gives beyond its limit: the rounds' own delay, and (a
+#: wait for time passing) a controller that cannot keep up with its speed-up
+LATENCY = 1.0
 GRACE = 10.0
 #: the ready line's ports (the host may be an IPv6 address)
 PORT = re.compile(r"\b(motion|state|io) (\S+):(\d+)")
@@ -82,6 +84,8 @@ class Process:
         self._statuses = 0
         self._changed = asyncio.Event()
         self._ready_at = 0.0
+        #: the controller time of the last JOINT_FEEDBACK that carried one
+        self._clock: float | None = None
         self._records: list[Recorder] | None = None
 
     @property
@@ -131,7 +135,17 @@ class Process:
             subscription = client.subscribe(msg_types=(MsgType.JOINT_POSITION, MsgType.JOINT_FEEDBACK, MsgType.STATUS))
             self._client = client
             await client.start(ANSWER_TIMEOUT)
+            if config.profile == "generic":  # its state port sends JOINT_FEEDBACK, with the time, when asked
+                await client.send(JointFeedback())
             self._tasks.append(loop.create_task(self._read_state(subscription), name=f"{name} state"))
+            try:  # usable at once: joints and STATUS known
+                async with asyncio.timeout(ANSWER_TIMEOUT):
+                    while self._joints is None or self._status is None:
+                        await self._changed.wait()
+            except TimeoutError:
+                raise ControllerError(
+                    f"{name}: robot-server's state port sent no joints and STATUS within {ANSWER_TIMEOUT:g} s"
+                ) from None
 
     def _note(self, line: str) -> None:
         if self._log is not None:
@@ -162,6 +176,8 @@ class Process:
                     self._joints = tuple(message.joint_data[:dof])
                 elif isinstance(message, JointFeedback) and message.robot_id == 0:
                     self._joints = tuple(message.positions[:dof])
+                    if message.valid_fields & ValidFields.TIME:
+                        self._clock = message.time
                 elif isinstance(message, Status):
                     self._status = message
                     self._statuses += 1
@@ -218,8 +234,11 @@ class Process:
         return self._status
 
     def time(self) -> float:
-        """Controller time, from the wall clock since the ready line (the process's clock started
-        a moment before it)."""
+        """Controller time as of the last state round, where the state port says it (the generic
+        profile's JOINT_FEEDBACK); else the wall time since the ready line times the speed-up (a
+        controller that cannot keep up with its speed-up runs behind that estimate)."""
+        if self._clock is not None:
+            return self._clock
         speedup = self.settings.speedup
         assert isinstance(speedup, float)
         return (time.monotonic() - self._ready_at) * speedup
@@ -271,28 +290,23 @@ class Process:
             raise FaultError(text)
         return text
 
-    async def _rounds(self, predicate: Callable[[], bool], seconds: float, what: str) -> None:
-        """Wait for state rounds until ``predicate()`` holds, at most ``seconds`` of controller time."""
+    async def _rounds(self, predicate: Callable[[], bool], seconds: float, what: str, grace: float = LATENCY) -> None:
+        """Wait for state rounds until ``predicate()`` holds, at most ``seconds`` of the process's
+        clock (wall time times the speed-up), and ``grace`` s of wall time more."""
         speedup = self.settings.speedup
         assert isinstance(speedup, float)
-        bound = seconds / speedup + GRACE
-        end = self.time() + seconds
         try:
-            async with asyncio.timeout(bound):
+            async with asyncio.timeout(seconds / speedup + grace):
                 while not predicate():
-                    if self.time() > end:
-                        raise self._timeout(what, seconds)
                     await self._changed.wait()
-        except TimeoutError as exc:
-            if isinstance(exc, ControllerTimeout):
-                raise
+        except TimeoutError:
             raise self._timeout(what, seconds) from None
 
     async def advance(self, seconds: float) -> float:
         if not seconds >= 0.0:
             raise ValueError(f"time only moves forward, not by {seconds}")
         end = self.time() + seconds
-        await self._rounds(lambda: self.time() >= end, seconds + 1.0, f"{seconds:g} s passing")
+        await self._rounds(lambda: self.time() >= end, seconds, f"{seconds:g} s passing", GRACE)
         return self.time()
 
     async def advance_until(self, predicate: Callable[[], bool], limit: float, dt: float | None, what: str) -> float:
@@ -312,7 +326,7 @@ class Process:
 
     def _timeout(self, what: str, limit: float) -> ControllerTimeout:
         return ControllerTimeout(
-            f"{self.settings.name}: {what}: not within {limit:g} s of controller time; "
+            f"{self.settings.name}: {what}: not within {limit:g} s of the process's clock; "
             f"{describe_joints(self._joints)}; {describe_status(self._status)}"
         )
 
