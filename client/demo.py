@@ -626,7 +626,7 @@ async def run_demo(
         else:
             result.figure = _figure(records, waypoints, model, out, ticks)
             if result.figure is None:
-                result.no_figure = "install the plot extra: pip install 'simple-message-stack[plot]'"
+                result.no_figure = "matplotlib is not installed: pip install -e '.[plot]' (the plot extra)"
     return result
 
 
