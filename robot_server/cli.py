@@ -19,6 +19,7 @@ import argparse
 import asyncio
 import contextlib
 import functools
+import gc
 import logging
 import os
 import signal
@@ -458,6 +459,7 @@ async def _serve(
             raise
         ready += f", web view {view.token_url if view.token_generated else view.url}"
     print(ready, flush=True)
+    freeze_startup_objects()
     if emulator.capture is not None:
         log.info("recording every connection to %s", emulator.capture.path)
     tasks = [loop.create_task(_scheduled(emulator, at, command)) for at, command in faults]
@@ -492,6 +494,16 @@ async def _scheduled(emulator: Emulator, at: float, command: str) -> None:
 def _read_commands(emulator: Emulator, loop: asyncio.AbstractEventLoop) -> None:
     """Fault commands from stdin, applied to ``emulator``."""
     read_stdin_lines(loop, functools.partial(_apply, emulator))
+
+
+def freeze_startup_objects() -> None:
+    """Keep what the server made to start (modules, models, tables, its listening sockets) out of
+    the garbage collector's scans from now on (:func:`gc.freeze`): it lives as long as the
+    process, and a full collection would otherwise walk all of it, stalling the control loop
+    (27 ms once in a 20-controller fleet streaming, where the interpolation period is 4 ms).
+    What is made later is collected as before. (No collection first: it would stall the running
+    loop as long; the little garbage of the start stays.)"""
+    gc.freeze()
 
 
 def read_stdin_lines(loop: asyncio.AbstractEventLoop, handle: Callable[[str], None]) -> None:

@@ -165,6 +165,10 @@ class SharedLoop:
     #: loops that have joined so far (those that left included)
     joined: int = field(default=0, init=False)
     _running: bool = field(default=False, init=False)
+    #: the first deadline and the index of the next period to run (``origin + k x period``)
+    _origin: float = field(default=0.0, init=False)
+    _k: int = field(default=0, init=False)
+    _in_period: bool = field(default=False, init=False)
 
     def add(self, loop: ControlLoop) -> None:
         loop.check(self.period, self.sub)
@@ -185,27 +189,57 @@ class SharedLoop:
     async def run(self) -> LoopStats:
         """Wake every interpolation period until :meth:`stop`, running every member's period."""
         clock, period, stats = self.clock, self.period, self.stats
-        origin = clock.now()
+        self._origin = clock.now()
+        self._k = 0
         self._running = True
         wall0 = time.perf_counter()
-        k = 0
         try:
             while self._running:
-                await clock.sleep_until(origin + k * period)
-                # this period, and, late (the loop was busy with many clients' points), the ones due
-                # meanwhile at once: between two of them the loop would take as long again
-                for _ in range(CATCH_UP):
-                    if clock.realtime:
-                        _late(stats, clock.now() - (origin + k * period), period)
-                    self._period()
-                    k += 1
-                    if not clock.realtime or origin + k * period > clock.now():
-                        break
+                k = self._k
+                deadline = self._origin + k * period
+                await clock.sleep_until(deadline)
+                if not clock.realtime:  # a simulated or stepped clock: one period per wake-up
+                    self._run_period()
+                    continue
+                if self._k == k:  # not run meanwhile by catch_up
+                    _late(stats, clock.now() - deadline, period)
+                    self._run_period()
+                self._run_due()
         finally:
             self._running = False
-            stats.simulated += k * period
+            stats.simulated += self._k * period
             stats.wall += time.perf_counter() - wall0
         return stats
+
+    def catch_up(self) -> None:
+        """Run the periods now due, if any, at once: what a handler calls before it works (a
+        burst of many clients' points is planned on the event loop's thread, one handler after
+        another, and the wake-up would wait behind all of them). Like a controller whose
+        interpolation task preempts its planner: the periods run on time, the requests wait a
+        little. Nothing on a simulated or stepped clock (its periods are its wake-ups'), nor
+        inside a period."""
+        if self._running and not self._in_period and self.clock.realtime:
+            self._run_due()
+
+    def _run_due(self) -> None:
+        # the periods due (late: the ones due meanwhile at once, at most CATCH_UP, then the event
+        # loop goes on: between two of them it would take as long again)
+        clock, period, stats = self.clock, self.period, self.stats
+        for _ in range(CATCH_UP):
+            deadline = self._origin + self._k * period
+            now = clock.now()
+            if deadline > now:
+                break
+            _late(stats, now - deadline, period)
+            self._run_period()
+
+    def _run_period(self) -> None:
+        self._in_period = True
+        try:
+            self._period()
+        finally:
+            self._in_period = False
+        self._k += 1
 
     def _period(self) -> None:
         for loop in tuple(self._members):  # a member may leave during another's period

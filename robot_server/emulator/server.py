@@ -425,6 +425,8 @@ class Emulator:
             self.control.context = contextvars.copy_context()  # as this task's: the log names the controller
             self.shared.join(self.control)
             self.shared.state_rounds(self.state_stats.period).add(self._state_round, self._skip_rounds)
+            for server in self.servers.values():  # the periods due run before any request is handled
+                server.before_handler = self.shared.catch_up
             if cfg.serial is not None:
                 self.motion_server.start_serving(self.motion_server.serve_serial(cfg.serial, data={STATE_LINK: True}))
             return self

@@ -75,6 +75,12 @@ class Shared:
             )
         shared.add(loop)
 
+    def catch_up(self) -> None:
+        """Run the control periods now due (:meth:`SharedLoop.catch_up`): every controller's
+        servers call this before they handle a request."""
+        for shared in self.loops.values():
+            shared.catch_up()
+
     def leave(self, loop: ControlLoop) -> None:
         for shared in self.loops.values():
             shared.remove(loop)

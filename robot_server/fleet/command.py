@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 
 from simple_message.endpoints import run
 
-from ..cli import check_writable, read_stdin_lines, write_records
+from ..cli import check_writable, freeze_startup_objects, read_stdin_lines, write_records
 from ..emulator import FaultError
 from ..web import MAX_RATE, WebUnavailable, fleet_view
 from .config import FleetError, load_fleet
@@ -104,6 +104,7 @@ async def _serve(fleet: Fleet, view: FleetView | None, *, read_stdin: bool) -> i
             lines[-1] += f", web view {view.token_url if view.token_generated else view.url}"
         for line in lines:
             print(line, flush=True)
+        freeze_startup_objects()
         if read_stdin:
             _read_commands(fleet, loop)
         await done.wait()

@@ -195,6 +195,9 @@ class Server:
         self._unread_scan: tuple[float, dict[Session, int]] = (-_UNREAD_SCAN_AGE, {})
         #: PING is answered by the server itself (no handler, no arrival hook): the fast path
         self._ping_auto = True
+        #: called before every handler and arrival hook runs (e.g. an application's periodic work
+        #: that must not wait behind a burst of requests handled one after another)
+        self.before_handler: Callable[[], None] | None = None
 
     # -- configuration -----------------------------------------------------------------------------
 
@@ -518,6 +521,7 @@ class Server:
             if hook is not None and (
                 not self.validate_headers or _header_error(msg.msg_type, msg.comm_type, msg.reply_code) is None
             ):
+                self._before_handler()
                 try:
                     hook(msg, session)
                 except Exception:
@@ -615,6 +619,7 @@ class Server:
                 session.log(log, logging.INFO, "no handler for request type %s; FAILURE", msg.msg_type)
                 return HeaderOnly(msg.msg_type, reply_code=ReplyCode.FAILURE)
             handler = self.unknown_request
+        self._before_handler()
         try:
             result = handler(msg, session)
         except CloseConnection:
@@ -624,6 +629,15 @@ class Server:
         if result is not None and not isinstance(result, Message | int) and inspect.isawaitable(result):
             return _Later(msg, result)
         return self._finish(msg, result)
+
+    def _before_handler(self) -> None:
+        before = self.before_handler
+        if before is not None:
+            try:
+                before()
+            except Exception:  # the application's defect: logged once, dropped; the request is handled
+                self.before_handler = None
+                log.exception("%s: the before_handler hook failed (no longer called)", self.name)
 
     def _handler_failed(self, session: Session, msg: Message) -> Message | None:
         session.log(log, logging.ERROR, "handler for %s failed; answering FAILURE", msg.name, exc_info=True)

@@ -1,0 +1,194 @@
+"""SharedLoop.catch_up: the control periods due run before a request is handled, not behind a
+burst of them (robot_server.control.loop; the hook is simple_message's Server.before_handler).
+
+The clock here is moved by the test but says it is a real-time one, as the fleet's is: that is
+what makes periods "due" between two wake-ups."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+
+import pytest
+
+from robot_server.control import Clock, ControlLoop, SharedLoop, SteppedClock
+from robot_server.control.controller import Controller
+from robot_server.fleet import Fleet, parse_fleet
+from robot_server.loader import load_model
+from simple_message import Ping
+from simple_message.endpoints import Client, Server
+from tests.rawpeer import RawPeer, joint_traj_pt, vectors
+
+PERIOD = 0.004
+JTP = vectors("<")["JOINT_TRAJ_PT_REQUEST_SEQ3"]
+
+
+class HandClock(Clock):
+    """A real-time clock as far as the loop can tell, whose time the test sets."""
+
+    realtime = True
+
+    def __init__(self) -> None:
+        self._now = 0.0
+        self._moved = asyncio.Event()
+
+    def now(self) -> float:
+        return self._now
+
+    def set(self, now: float) -> None:
+        self._now = now
+        self._moved.set()
+
+    def move_quietly(self, now: float) -> None:
+        """Time passes while the event loop is busy: the sleeping loop is not woken."""
+        self._now = now
+
+    async def sleep_until(self, deadline: float) -> None:
+        while self._now < deadline:
+            self._moved.clear()
+            await self._moved.wait()
+
+
+async def _started(shared: SharedLoop, loops: list[ControlLoop], woke: asyncio.Event) -> asyncio.Task[object]:
+    for loop in loops:
+        shared.add(loop)
+    task = asyncio.get_running_loop().create_task(shared.run())
+    async with asyncio.timeout(5.0):
+        await woke.wait()  # the first period (deadline 0) runs at once
+    return task
+
+
+async def _stopped(shared: SharedLoop, task: asyncio.Task[object], clock: HandClock) -> None:
+    shared.stop()
+    clock.set(clock.now() + PERIOD)  # wake it to see the stop
+    async with asyncio.timeout(5.0):
+        await task
+
+
+def _controllers(count: int) -> list[Controller]:
+    model = load_model("jibot_zxs")
+    return [Controller(model) for _ in range(count)]
+
+
+async def test_catch_up_runs_the_periods_due_and_the_wake_up_then_runs_none_twice() -> None:
+    clock = HandClock()
+    controllers = _controllers(2)
+    woke = asyncio.Event()
+    loops = [ControlLoop(c, clock, on_wake=woke.set) for c in controllers]
+    shared = SharedLoop(clock, PERIOD, controllers[0].servo_ticks_per_interpolation)
+    task = await _started(shared, loops, woke)
+    assert [c.time for c in controllers] == [pytest.approx(PERIOD)] * 2
+
+    clock.move_quietly(3.5 * PERIOD)  # deadlines 1, 2 and 3 have passed; the loop has not woken
+    shared.catch_up()
+    assert shared.stats.wakes == 4
+    assert [c.time for c in controllers] == [pytest.approx(4 * PERIOD)] * 2
+    assert shared.stats.max_lateness == pytest.approx(2.5 * PERIOD), "period 1 ran 2.5 periods late"
+    assert shared.stats.overruns == 2, "periods 1 and 2 were more than a period late, period 3 not"
+
+    shared.catch_up()  # nothing more is due
+    assert shared.stats.wakes == 4
+
+    woke.clear()
+    clock.set(4.0 * PERIOD)  # the loop wakes for period 4, the one due now, and runs it once
+    async with asyncio.timeout(5.0):
+        await woke.wait()
+    for _ in range(3):
+        await asyncio.sleep(0)
+    assert shared.stats.wakes == 5
+    assert [c.time for c in controllers] == [pytest.approx(5 * PERIOD)] * 2
+    await _stopped(shared, task, clock)
+
+
+async def test_catch_up_does_nothing_inside_a_period_nor_before_the_loop_runs() -> None:
+    clock = HandClock()
+    (controller,) = _controllers(1)
+    shared = SharedLoop(clock, PERIOD, controller.servo_ticks_per_interpolation)
+    shared.catch_up()  # not running yet
+    assert shared.stats.wakes == 0
+    calls: list[int] = []
+    woke = asyncio.Event()
+
+    def on_wake() -> None:  # a member's callback that would call back into the loop
+        calls.append(shared.stats.wakes)
+        shared.catch_up()
+        woke.set()
+
+    task = await _started(shared, [ControlLoop(controller, clock, on_wake=on_wake)], woke)
+    clock.move_quietly(2.0 * PERIOD)
+    shared.catch_up()
+    assert calls == [0, 1, 2], "one call per period, none nested"
+    assert controller.time == pytest.approx(3 * PERIOD)
+    await _stopped(shared, task, clock)
+
+
+async def test_catch_up_leaves_a_stepped_clock_to_its_steps() -> None:
+    clock = SteppedClock()
+    (controller,) = _controllers(1)
+    shared = SharedLoop(clock, PERIOD, controller.servo_ticks_per_interpolation)
+    shared.add(ControlLoop(controller, clock))
+    task = asyncio.get_running_loop().create_task(shared.run())
+    async with asyncio.timeout(5.0):
+        await clock.advance(PERIOD)
+    before = controller.time
+    shared.catch_up()
+    assert controller.time == before
+    shared.stop()
+    task.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await task
+
+
+async def test_the_server_calls_before_handler_before_each_request_and_drops_a_failing_one(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    server = Server()
+    seen: list[str] = []
+
+    def on_ping(msg: object, session: object) -> None:
+        seen.append("handler")
+
+    server.handle(Ping.MSG_TYPE, on_ping)
+    server.before_handler = lambda: seen.append("before")
+    port = await server.serve_tcp()
+    try:
+        async with Client.tcp("127.0.0.1", port) as client:
+            await client.request(Ping(), 5.0)
+            assert seen == ["before", "handler"]
+
+            def broken() -> None:
+                raise RuntimeError("defect")
+
+            server.before_handler = broken
+            with caplog.at_level(logging.ERROR, logger="simple_message"):
+                await client.request(Ping(), 5.0)
+                await client.request(Ping(), 5.0)
+            failures = [r for r in caplog.records if "before_handler hook failed" in r.getMessage()]
+            assert len(failures) == 1, "logged once, then no longer called"
+            assert server.before_handler is None
+            assert seen == ["before", "handler", "handler", "handler"], "the requests were still handled"
+    finally:
+        await server.close()
+
+
+async def test_in_a_fleet_a_request_runs_every_controllers_due_periods_before_it_is_handled() -> None:
+    """A burst of requests (many clients' points) is handled one after another on the event loop;
+    the fleet's control periods due meanwhile run before each one, for every controller."""
+    clock = HandClock()
+    data = {"controller": [{"name": n, "motion_port": 0, "state_port": 0} for n in ("r1", "r2")]}
+    fleet = Fleet(parse_fleet(data), clock=clock)
+    await fleet.start()
+    try:
+        r1, r2 = fleet["r1"], fleet["r2"]
+        start = r2.cell.time
+        clock.move_quietly(clock.now() + 3.5 * PERIOD)  # the event loop was busy: no wake-up
+        motion = await RawPeer.connect(r1.ports["motion"])
+        try:
+            reply = await motion.request(joint_traj_pt(JTP, 0, [0.0] * 6))
+        finally:
+            await motion.close()
+        assert reply.reply_code == 1
+        assert r2.cell.time >= start + 3 * PERIOD - 1e-9, "r2's periods due ran before r1's request"
+    finally:
+        clock.set(clock.now() + PERIOD)
+        await fleet.close(settle_timeout=1.0)
