@@ -324,8 +324,17 @@ def test_stopped_within_fails_when_the_robot_moves_again() -> None:
     assert error.where == "joint_3" and error.time == pytest.approx(0.7)
     assert error.duration == pytest.approx(0.02)
     assert "it came to rest for good at t = 0.7200 s" in str(error)
-    short = fails(assert_stopped_within, record, 0.5, 600)
-    assert "record ends at t = 0.9990 s, before t = 1.1000 s" in str(short)
+    # a record that ends before the time allowed: at rest by then, it passes ...
+    assert assert_stopped_within(record, 0.5, 600) == pytest.approx(0.22)
+    # ... still moving, it cannot tell
+    velocity[900:, 0] = 0.5
+    moving = synthetic(times, np.cumsum(velocity, axis=0) * TICK, velocity)
+    short = str(fails(assert_stopped_within, moving, 0.85, 500))
+    assert (
+        "the record ends at t = 0.9990 s, 149 ms after the stop at t = 0.8500 s, with the robot still moving" in short
+    )
+    with pytest.raises(MotionAssertionError, match=r"before the stop at t = 2\.0000 s"):
+        assert_stopped_within(record, 2.0, 100)
 
 
 # -- plots -----------------------------------------------------------------------------------------

@@ -391,27 +391,24 @@ def assert_stopped_within(
     plot_dir: str | Path | None = None,
 ) -> float:
     """After controller time ``since`` (when the STOP was sent), every joint's speed was at most
-    ``tol`` (rad/s or m/s) within ``ms`` milliseconds, and stayed so to the end of the record (which
-    must reach that time). ``side="actual"`` (the default) reads the drives' speeds, ``"command"``
-    the commanded ones. Returns how long the robot took to come to rest for good (s after
-    ``since``)."""
+    ``tol`` (rad/s or m/s) within ``ms`` milliseconds, and stayed so to the end of the record.
+    ``side="actual"`` (the default) reads the drives' speeds, ``"command"`` the commanded ones.
+    Returns how long the robot took to come to rest for good (s after ``since``). A record that
+    ends before ``since + ms`` with the robot still moving cannot tell: that fails too."""
     name = "assert_stopped_within"
     if ms < 0 or tol < 0:
         raise ValueError(f"{name}: ms and tol must be >= 0")
     record, model = source.record, source.model
     times = record.time()
     deadline = since + ms / 1000.0
-    if times.size == 0 or times[-1] < deadline - _TIME_EPS:
+    after = times >= since - _TIME_EPS
+    if not after.any():
         ends = f"ends at t = {times[-1]:.4f} s" if times.size else "is empty"
-        raise MotionAssertionError(
-            f"{name}: the record {ends}, before t = {deadline:.4f} s ({ms:g} ms after the stop at "
-            f"t = {since:.4f} s): record longer to tell whether the robot stopped in time"
-        )
+        raise MotionAssertionError(f"{name}: the record {ends}, before the stop at t = {since:.4f} s")
     if times[0] > since + _TIME_EPS:
         warnings.warn(
             f"{name}: the record starts at t = {times[0]:.4f} s, after the stop", RuntimeWarning, stacklevel=2
         )
-    after = times >= since - _TIME_EPS
     units = _units(model)
     speeds = [(s, np.abs(record.get(f"{s}_velocity")[after])) for s in _sides(side)]
     t = times[after]
@@ -419,8 +416,15 @@ def assert_stopped_within(
     for _, speed in speeds:
         moving |= np.any(speed > tol, axis=1)
     late = np.flatnonzero(moving)
-    at_rest = float(t[late[-1] + 1] - since) if late.size and late[-1] + 1 < t.size else 0.0
     still = bool(late.size) and late[-1] + 1 >= t.size
+    if still and t[-1] < deadline - _TIME_EPS:
+        raise MotionAssertionError(
+            f"{name}: the record ends at t = {t[-1]:.4f} s, {(t[-1] - since) * 1000:.4g} ms after the stop at "
+            f"t = {since:.4f} s, with the robot still moving: record until t = {deadline:.4f} s ({ms:g} ms after "
+            "the stop) to tell whether it stopped in time",
+            time=float(t[-1]),
+        )
+    at_rest = float(t[late[-1] + 1] - since) if late.size and not still else 0.0
     if not late.size or t[late[-1]] < deadline - _TIME_EPS:
         return at_rest
     checked = t >= deadline - _TIME_EPS
