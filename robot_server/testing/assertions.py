@@ -66,7 +66,7 @@ _TAIL = 8
 #: the columns of the tool in Recorder.tool(): (x, y, z, qw, qx, qy, qz, speed) per side, then time
 _TOOL_OFFSET = {"command": 0, "actual": 8}
 _TOOL_TIME = 16
-#: a tick at ``since + ms`` counts as within the time (the clock's own rounding)
+#: controller times this close count as the same (the clock's own rounding)
 _TIME_EPS = 1e-9
 #: what the low and the high bound of each kind of check are called in a message
 _ENVELOPE = ("the envelope's lower bound", "the envelope's upper bound")
@@ -130,7 +130,7 @@ class LimitReport:
     """What :func:`assert_within_limits` measured: per joint, the largest magnitude of each
     derivative (``velocity``, ``acceleration``, ``jerk``) over the ticks checked, beside the model's
     limits. The jerk is reported, not enforced: ``jerk_exceeded`` names the joints above their jerk
-    limit (a velocity step, a rest-to-rest cubic), which do not fail the assertion."""
+    limit (a rest-to-rest cubic's steps of acceleration), which do not fail the assertion."""
 
     joint_names: tuple[str, ...]
     units: tuple[str, ...]
