@@ -382,9 +382,7 @@ class AsyncRobotController(_Handle):
 
     async def stop(self) -> None:
         """As :meth:`RobotController.stop`."""
-        if not self._starting.done():
-            self._starting.cancel()
-        await asyncio.wait({self._starting})
+        await asyncio.wait({self._starting})  # a start half done is not undone by cancelling it: bounded
         if not self._starting.cancelled():
             self._starting.exception()  # a start that failed was reported where it was awaited
         await self._core.close()

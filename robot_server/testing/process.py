@@ -181,6 +181,9 @@ class Process:
                 elif isinstance(message, Status):
                     self._status = message
                     self._statuses += 1
+                    continue
+                # the waits look at the state when joints come: after a round's STATUS where the round
+                # ends with JOINT_FEEDBACK (generic), so its time and STATUS are the same round's
                 self._changed.set()
                 self._changed = asyncio.Event()
 

@@ -1,0 +1,363 @@
+"""The pytest plugin's ``robot_controller`` fixture used by this repository's own tests, as any
+project's tests use it (the package's ``pytest11`` entry point provides it): in process, sync and
+async, on the stepped and the sped-up clock, and as a ``robot-server`` process. The leak guard of
+tests/conftest.py checks that each test leaves no task, thread, descriptor or logging filter
+behind, after a timeout too. No wall time is measured: "finished" is the controller's time.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import socket
+import struct
+from collections.abc import Iterator
+
+import pytest
+
+from robot_server.cli import parser as robot_server_parser
+from robot_server.emulator import FaultError
+from robot_server.testing import (
+    ControllerError,
+    ControllerTimeout,
+    RobotController,
+    SettingsError,
+    assert_reached,
+    assert_stopped_within,
+    assert_within_limits,
+)
+from robot_server.testing.settings import OPTION_KEYS, command_line, read_settings
+from simple_message import Client
+from simple_message.constants import MotoCommand, MsgType, ReplyCode, TriState, ValidFields
+from simple_message.messages import JointTrajPt, JointTrajPtFull, MotoMotionCtrl, MotoMotionReply, encode
+from simple_message.wire import WireFormat
+
+TARGET = (0.5, -0.3, 0.4, 0.2, 0.3, -0.5)
+REQUEST = 2  # comm_type SERVICE_REQUEST
+
+
+# -- a client that knows only sockets and struct (as one in another language would) -------------------
+
+
+def frame(msg_type: int, body: bytes = b"") -> bytes:
+    return struct.pack("<4i", 12 + len(body), msg_type, REQUEST, 0) + body
+
+
+def joint_traj_pt(sequence: int, joints: tuple[float, ...], velocity: float, duration: float) -> bytes:
+    padded = list(joints) + [0.0] * (10 - len(joints))
+    return frame(MsgType.JOINT_TRAJ_PT, struct.pack("<i10f2f", sequence, *padded, velocity, duration))
+
+
+def read_frame(sock: socket.socket) -> tuple[int, int, int, bytes]:
+    """(msg_type, comm_type, reply_code, body) of the next frame."""
+
+    def exactly(count: int) -> bytes:
+        data = b""
+        while len(data) < count:
+            chunk = sock.recv(count - len(data))
+            assert chunk, "the controller closed the connection"
+            data += chunk
+        return data
+
+    (length,) = struct.unpack("<i", exactly(4))
+    data = exactly(length)
+    msg_type, comm_type, reply_code = struct.unpack_from("<3i", data)
+    return msg_type, comm_type, reply_code, data[12:]
+
+
+@contextlib.contextmanager
+def moving(ctrl: RobotController, target: tuple[float, ...], duration: float) -> Iterator[socket.socket]:
+    """A JOINT_TRAJ_PT trajectory from where the robot is to ``target`` in ``duration`` s: inside
+    the block both points are acknowledged (queued) and the motion connection is open (the
+    controller stops the robot when its motion client leaves)."""
+    with socket.create_connection((ctrl.host, ctrl.motion_port), timeout=10) as sock:
+        for sequence, point, seconds in ((0, ctrl.joints, 0.0), (1, target, duration)):
+            sock.sendall(joint_traj_pt(sequence, tuple(point), 0.5, seconds))
+            assert read_frame(sock)[:3] == (MsgType.JOINT_TRAJ_PT, 3, ReplyCode.SUCCESS)
+        yield sock
+
+
+# -- settings ------------------------------------------------------------------------------------------
+
+
+def test_a_misspelt_or_ill_typed_setting_is_refused_naming_the_key(robot_controller) -> None:
+    with pytest.raises(
+        SettingsError, match=r"robot_controller\(c1\): state_rat: unknown key; did you mean state_rate\?"
+    ):
+        robot_controller(state_rat=40)
+    with pytest.raises(SettingsError, match=r"robot_controller\(c1\): queue_size: must be a whole number, not 'many'"):
+        robot_controller(queue_size="many")
+    with pytest.raises(SettingsError, match=r"unknown profile 'yaskawa' \(known: abb, fanuc, generic, motoros"):
+        robot_controller(profile="yaskawa")
+    with pytest.raises(SettingsError, match=r'speedup must be a number > 0, "step" or None'):
+        robot_controller(speedup="fast")
+    with pytest.raises(SettingsError, match=r"process keeps its own clock"):
+        robot_controller(speedup="step", process=True)
+    with pytest.raises(SettingsError, match=r"initial_position: robot-server has no such option"):
+        robot_controller(process=True, initial_position=[0.0] * 6)
+    assert robot_controller.handles == []
+
+
+def test_a_taken_port_is_refused_before_anything_starts(robot_controller) -> None:
+    with socket.socket() as holder:
+        holder.bind(("127.0.0.1", 0))
+        holder.listen()
+        port = holder.getsockname()[1]
+        with pytest.raises(SettingsError, match=rf"robot_controller\(c1\): motion_port: cannot bind 127.0.0.1:{port}"):
+            robot_controller(motion_port=port)
+
+
+def test_every_setting_is_an_option_of_robot_server() -> None:
+    known = {action.dest for action in robot_server_parser()._actions}
+    assert set(OPTION_KEYS) - {"model", "faults", "profile_options", "queue_size"} <= known
+    assert {"model", "fault", "profile_option", "queue_size"} <= known
+
+
+def test_a_process_s_command_line_is_read_back_to_the_same_settings() -> None:
+    settings = read_settings(
+        "arm",
+        "motoros",
+        ["jibot_zxs", "puma560"],
+        speedup=20,
+        process=True,
+        settings={
+            "state_rate": 50,
+            "interpolation": "quintic",
+            "lenient": True,
+            "faults": ["1.5:estop", "2:reset"],
+            "profile_options": {},
+            "record_seconds": 30,
+        },
+    )
+    args = robot_server_parser().parse_args(command_line(settings))
+    assert args.model == ["jibot_zxs", "puma560"]
+    assert (args.profile, args.state_rate, args.interpolation, args.lenient) == ("motoros", 50.0, "quintic", True)
+    assert (args.motion_port, args.state_port, args.io_port, args.speedup) == (0, 0, 0, 20.0)
+    assert args.fault == [(1.5, "estop"), (2.0, "reset")]
+    assert args.record_seconds == 30.0
+
+
+# -- in process, sync -----------------------------------------------------------------------------------
+
+
+def test_a_generic_and_a_motoros_controller_at_once_over_raw_sockets(robot_controller) -> None:
+    generic = robot_controller(speedup="step")
+    motoros = robot_controller(profile="motoros", speedup="step")
+    assert generic.host == motoros.host == "127.0.0.1"
+    assert generic.io_port is None and motoros.io_port is not None
+    assert len({generic.motion_port, generic.state_port, motoros.motion_port, motoros.state_port}) == 4
+    wire = WireFormat()
+    for ctrl in (generic, motoros):
+        with socket.create_connection((ctrl.host, ctrl.motion_port), timeout=10) as sock:
+            sock.sendall(frame(MsgType.PING))
+            assert read_frame(sock)[:3] == (MsgType.PING, 3, ReplyCode.SUCCESS)
+
+    with moving(generic, TARGET, 2.0), socket.create_connection((motoros.host, motoros.motion_port), 10) as sock:
+        sock.sendall(encode(MotoMotionCtrl(0, 0, MotoCommand.START_TRAJ_MODE, comm_type=REQUEST), wire))
+        read_frame(sock)
+        start = motoros.joints
+        fields = ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY
+        for sequence, (at, point) in enumerate(((0.0, start), (2.0, TARGET))):
+            sock.sendall(encode(JointTrajPtFull(0, sequence, fields, at, point, comm_type=REQUEST), wire))
+            msg_type, _, _, body = read_frame(sock)
+            assert msg_type == MsgType.MOTO_MOTION_REPLY
+            assert MotoMotionReply.LAYOUT[3][0] == "result"
+            assert struct.unpack_from("<4i", body)[3] == 0, "MotoROS refused the point"
+        done = [generic.wait_idle(10.0), motoros.wait_idle(10.0)]
+    assert all(2.0 <= t < 3.0 for t in done), done
+    for ctrl in (generic, motoros):
+        assert ctrl.joints == pytest.approx(TARGET, abs=1e-4)
+        assert_reached(ctrl, TARGET, tol=1e-4, settled=True)
+        assert ctrl.status.in_motion == TriState.FALSE
+
+
+@pytest.mark.parametrize("speedup", ["step", 40.0], ids=["stepped", "sped-up"])
+def test_a_20_s_move_finishes_by_the_controller_s_clock_where_it_should(robot_controller, speedup: object) -> None:
+    ctrl = robot_controller(speedup=speedup)
+    begin = ctrl.time
+    with moving(ctrl, TARGET, 20.0):
+        done = ctrl.wait_idle(60.0)
+    assert 20.0 <= done - begin < 21.0
+    assert ctrl.time >= done
+    record = ctrl.record
+    assert record.time()[0] < 0.01 and record.time()[-1] >= 20.0
+    assert_reached(ctrl, TARGET, tol=1e-4, settled=True)
+    assert_within_limits(ctrl)
+
+
+def test_the_stepped_clock_moves_only_when_the_test_says(robot_controller) -> None:
+    ctrl = robot_controller(speedup="step")
+    assert ctrl.stepped and ctrl.time == pytest.approx(0.004)
+    assert ctrl.advance(0.5) == pytest.approx(0.504)
+    assert ctrl.time == pytest.approx(0.504)
+    assert ctrl.advance_until(lambda: ctrl.time >= 1.0, 5.0) == pytest.approx(1.0)
+    with pytest.raises(ControllerTimeout, match=r"c1: the robot moving: not within 0.5 s of controller time"):
+        ctrl.advance_until(lambda: ctrl.in_motion, 0.5, what="the robot moving")
+    assert ctrl.time == pytest.approx(1.5)
+
+
+def test_a_stop_in_the_middle_of_a_move_is_seen_in_the_record(robot_controller) -> None:
+    ctrl = robot_controller(speedup="step")
+    with moving(ctrl, TARGET, 20.0):
+        ctrl.advance(5.0)
+        since = ctrl.time
+        assert ctrl.in_motion
+        assert ctrl.fault("stop") == "stop"
+        ctrl.wait_idle(5.0)
+    took = assert_stopped_within(ctrl, since, ms=1000)
+    assert 0.0 < took < 1.0
+    assert ctrl.joints != pytest.approx(TARGET, abs=1e-2)
+
+
+def test_fault_commands_are_robot_server_s(robot_controller) -> None:
+    ctrl = robot_controller(speedup="step")
+    assert ctrl.fault("estop") == "estop"
+    status = ctrl.status
+    assert (status.e_stopped, status.drives_powered) == (TriState.TRUE, TriState.FALSE)
+    with pytest.raises(FaultError, match="the drives cannot be powered while the emergency stop is engaged"):
+        ctrl.fault("drives on")
+    with pytest.raises(FaultError, match=r"unknown fault command 'explode'"):
+        ctrl.fault("explode")
+    ctrl.fault("reset")
+    ctrl.fault("alarm 42 overheated")
+    assert (ctrl.status.in_error, ctrl.status.error_code) == (TriState.TRUE, 42)
+
+
+def test_the_record_a_test_reads_does_not_grow_under_it(robot_controller) -> None:
+    ctrl = robot_controller(speedup=10.0)
+    record = ctrl.record
+    ticks = len(record)
+    ctrl.advance(0.5)
+    assert len(record) == ticks == record.time().size == record.get("actual_position").shape[0]
+    assert len(ctrl.record) > ticks
+    assert ctrl.model.name == "jibot_zxs" and [m.name for m in ctrl.models] == ["jibot_zxs"]
+
+
+def test_a_wait_that_times_out_says_where_the_robot_was_and_teardown_stops_it(robot_controller) -> None:
+    ctrl = robot_controller(speedup="step")
+    with moving(ctrl, TARGET, 20.0):
+        with pytest.raises(ControllerTimeout, match=r"c1: the robot at rest: not within 1 s of controller time"):
+            ctrl.wait_idle(1.0)
+        assert ctrl.in_motion  # moving still: the teardown brings it to rest and stops everything
+
+
+def test_stop_frees_the_ports_at_once(robot_controller) -> None:
+    ctrl = robot_controller()
+    ports = ctrl.ports
+    ctrl.stop()
+    assert ctrl.closed
+    for port in ports.values():
+        with socket.socket() as probe:
+            probe.bind(("127.0.0.1", port))
+    ctrl.stop()  # again: nothing
+    assert ctrl.time > 0  # the last state stays readable
+
+
+def test_a_controller_that_cannot_start_is_an_error_and_leaves_nothing(robot_controller) -> None:
+    with pytest.raises(ValueError, match="no_such_cell"):
+        robot_controller(cell="no_such_cell")
+
+
+def test_the_controllers_get_names_and_a_name_is_one_controller_s(robot_controller) -> None:
+    first = robot_controller(speedup="step")
+    left = robot_controller(speedup="step", name="left_arm")
+    assert (first.name, left.name) == ("c1", "left_arm")
+    assert left.capture_path is not None and left.capture_path.name == "left_arm.pcapng"
+    with pytest.raises(ValueError, match="this test has a controller 'left_arm' already"):
+        robot_controller(name="left_arm")
+
+
+# -- in process, async ------------------------------------------------------------------------------------
+
+
+async def test_an_async_test_s_controllers_run_in_its_own_loop(robot_controller) -> None:
+    stepped = await robot_controller(speedup="step")
+    fast = await robot_controller(speedup=40.0)
+    assert stepped.emulator.control is not None
+    for ctrl in (stepped, fast):
+        begin = ctrl.time
+        async with Client.tcp(ctrl.host, ctrl.motion_port) as client:
+            for sequence, point, duration in ((0, ctrl.joints, 0.0), (1, TARGET, 20.0)):
+                reply = await client.request(JointTrajPt(sequence, point, 0.5, duration, comm_type=REQUEST))
+                assert reply.reply_code == ReplyCode.SUCCESS
+            done = await ctrl.wait_idle(60.0)
+        assert 20.0 <= done - begin < 21.0
+        assert_reached(ctrl, TARGET, tol=1e-4, settled=True)
+    assert await stepped.advance(1.0) == pytest.approx(stepped.time)
+    assert await stepped.fault("estop") == "estop"
+    assert stepped.status.e_stopped == TriState.TRUE
+
+
+async def test_an_async_controller_not_awaited_says_so_and_is_stopped_anyway(robot_controller) -> None:
+    ctrl = robot_controller(speedup="step")
+    with pytest.raises(ControllerError, match=r"c1 has not started: in an async test, ctrl = await robot_controller"):
+        _ = ctrl.motion_port
+    await asyncio.sleep(0)  # (its start runs meanwhile; the teardown stops it)
+
+
+async def test_an_async_wait_that_times_out_leaves_nothing_behind(robot_controller) -> None:
+    ctrl = await robot_controller(speedup=40.0)
+    async with Client.tcp(ctrl.host, ctrl.motion_port) as client:
+        for sequence, point, duration in ((0, ctrl.joints, 0.0), (1, TARGET, 20.0)):
+            await client.request(JointTrajPt(sequence, point, 0.5, duration, comm_type=REQUEST))
+        with pytest.raises(ControllerTimeout, match="the robot at rest"):
+            await ctrl.wait_idle(0.5)
+
+
+def test_a_sync_controller_cannot_be_awaited(robot_controller) -> None:
+    ctrl = robot_controller(speedup="step")
+
+    async def wrong() -> None:
+        await ctrl
+
+    with pytest.raises(TypeError, match="started outside an event loop"):
+        asyncio.run(wrong())
+
+
+# -- robot-server processes -------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_a_robot_server_process_moves_takes_faults_on_stdin_and_leaves_its_record(robot_controller) -> None:
+    ctrl = robot_controller(speedup=20.0, process=True)
+    assert ctrl.process and ctrl.pid is not None and ctrl.log_path is not None
+    with socket.create_connection((ctrl.host, ctrl.motion_port), timeout=10) as sock:
+        sock.sendall(frame(MsgType.PING))
+        assert read_frame(sock)[:3] == (MsgType.PING, 3, ReplyCode.SUCCESS)
+    begin = ctrl.time
+    with moving(ctrl, TARGET, 20.0):
+        done = ctrl.wait_idle(60.0)
+    assert done - begin >= 20.0
+    assert ctrl.joints == pytest.approx(TARGET, abs=1e-4)
+    with pytest.raises(ControllerError, match="writes its record when it exits"):
+        _ = ctrl.record
+    assert ctrl.fault("estop") == "estop"
+    ctrl.advance_until(lambda: ctrl.status.e_stopped == TriState.TRUE, 5.0)
+    with pytest.raises(FaultError, match="unknown fault command 'explode'"):
+        ctrl.fault("explode")
+    pid = ctrl.pid
+    ctrl.stop()
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)
+    assert ctrl.record.time()[-1] >= 20.0
+    assert_reached(ctrl, TARGET, tol=1e-4)
+    assert "applied: estop" in ctrl.log_path.read_text()
+
+
+@pytest.mark.slow
+async def test_an_async_test_s_robot_server_process(robot_controller) -> None:
+    ctrl = await robot_controller(profile="motoros", process=True)
+    assert set(ctrl.ports) == {"motion", "state", "io"}
+    _, writer = await asyncio.open_connection(ctrl.host, ctrl.io_port)
+    writer.close()
+    await writer.wait_closed()
+    assert ctrl.status.motion_possible == TriState.FALSE  # MotoROS: not in trajectory mode
+    assert await ctrl.fault("alarm 7") == "alarm 7"
+    await ctrl.advance_until(lambda: ctrl.status.error_code == 7, 5.0)
+
+
+@pytest.mark.slow
+def test_a_robot_server_process_that_cannot_start_says_why(robot_controller) -> None:
+    with pytest.raises(ControllerError, match=r"robot-server did not start \(exit status 2\):\n.*no_such_cell"):
+        robot_controller(process=True, cell="no_such_cell")
