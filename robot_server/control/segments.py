@@ -21,6 +21,7 @@ which the PyPI build ignores: :meth:`Segment.extremes` lets the caller check the
 
 from __future__ import annotations
 
+import bisect
 import functools
 import math
 from abc import ABC, abstractmethod
@@ -819,6 +820,27 @@ class RuckigSegment(Segment):
         pos = p + (v + (a / 2.0 + j * dt / 6.0) * dt) * dt
         shape = (*times.shape, self.dof)
         return Samples(pos.reshape(shape), vel.reshape(shape), acc.reshape(shape), j.reshape(shape))
+
+    def state_at(self, t: float) -> tuple[Array, Array, Array]:
+        # one time on plain floats joint by joint: sample's operations in the same order (the same
+        # numbers, bit for bit; bisect_right finds the phase as searchsorted(side="right") does)
+        rows = self.memo.get("rows")
+        if rows is None:
+            rows = self.memo["rows"] = [
+                (self._starts[i].tolist(), self._jerk[i].tolist(), self._a[i].tolist(), self._v[i].tolist(),
+                 self._p[i].tolist())
+                for i in range(self.dof)
+            ]  # fmt: skip
+        t = min(max(float(t), 0.0), self.duration)
+        pos, vel, acc = [], [], []
+        for starts, jerks, accs, vels, poss in rows:  # type: ignore[attr-defined]
+            k = bisect.bisect_right(starts, t) - 1
+            dt = t - starts[k]
+            j, a, v = jerks[k], accs[k], vels[k]
+            acc.append(a + j * dt)
+            vel.append(v + (a + j * dt / 2.0) * dt)
+            pos.append(poss[k] + (v + (a / 2.0 + j * dt / 6.0) * dt) * dt)
+        return np.array(pos), np.array(vel), np.array(acc)
 
     def _values(self, t: Array, order: int) -> Array:
         """:meth:`sample`'s position, velocity or acceleration (``order`` 0 to 2) at the times
