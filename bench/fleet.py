@@ -260,10 +260,10 @@ async def _stream_client(ports: str, seconds: float) -> None:
     end = time.monotonic() + seconds
     done = 0
 
-    failed = 0
+    failed: dict[str, int] = {}
 
     async def one(motion: int, state: int) -> None:
-        nonlocal done, failed
+        nonlocal done
         try:
             async with RobotDriver("127.0.0.1", motion, state, model=model) as robot:
                 trajectories = (out, back)
@@ -272,14 +272,18 @@ async def _stream_client(ports: str, seconds: float) -> None:
                     await robot.execute(trajectories[k % 2])
                     k += 1
                     done += 1
-        except Exception:  # the controller fell behind (no state within the driver's watchdog...)
-            failed += 1
+        except Exception as exc:  # the controller fell behind (no state within the driver's watchdog...)
+            reason = f"{type(exc).__name__}: {str(exc)[:60]}"
+            failed[reason] = failed.get(reason, 0) + 1
 
     pairs = [tuple(int(p) for p in item.split(":")) for item in ports.split(",")]
     with contextlib.suppress(TimeoutError):
         async with asyncio.timeout(seconds + 30.0):
             await asyncio.gather(*(one(m, s) for m, s in pairs))
-    print(f"{done}" + (f", {failed} clients gave up" if failed else ""))
+    gave_up = sum(failed.values())
+    print(f"{done}" + (f", {gave_up} clients gave up" if gave_up else ""))
+    for reason, count in failed.items():
+        print(f"{count} x {reason}", file=sys.stderr)
 
 
 # -- jitter --------------------------------------------------------------------------------------
