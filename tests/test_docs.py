@@ -33,6 +33,7 @@ PAGES = [
     "troubleshooting.md",
     "conformance.md",
     "web.md",
+    "testing.md",
 ]
 BLOCK = re.compile(r"^```(bash|python)\n(.*?)^```\s*$", re.MULTILINE | re.DOTALL)
 #: one block's bound (s): the longest, the demo, takes a few seconds
