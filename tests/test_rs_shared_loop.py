@@ -192,3 +192,72 @@ async def test_in_a_fleet_a_request_runs_every_controllers_due_periods_before_it
     finally:
         clock.set(clock.now() + PERIOD)
         await fleet.close(settle_timeout=1.0)
+
+
+class HandTicker:
+    """The state rounds' ticker on a time the test sets."""
+
+    def __init__(self) -> None:
+        self.t = 0.0
+        self._moved = asyncio.Event()
+
+    def now(self) -> float:
+        return self.t
+
+    def set(self, t: float) -> None:
+        self.t = t
+        self._moved.set()
+
+    async def sleep_until(self, deadline: float) -> None:
+        while self.t < deadline - 1e-12:
+            self._moved.clear()
+            await self._moved.wait()
+
+
+async def test_state_rounds_run_every_slot_due_at_a_late_wake_up_and_each_round_once_after_a_stall() -> None:
+    from robot_server.emulator.shared import StateRounds
+
+    ticker = HandTicker()
+    rounds = StateRounds(0.006, ticker, now=ticker.now)  # type: ignore[arg-type]
+    assert rounds.slots == 3
+    published: list[tuple[str, float]] = []
+    skipped: dict[str, int] = {}
+    arrived = asyncio.Event()
+
+    def member(name: str) -> None:
+        def publish(deadline: float) -> None:
+            published.append((name, round(deadline, 6)))
+            arrived.set()
+
+        def skip(count: int) -> None:
+            skipped[name] = skipped.get(name, 0) + count
+
+        rounds.add(publish, skip)
+
+    for name in ("a", "b", "c"):  # slots 0, 1, 2
+        member(name)
+    task = asyncio.get_running_loop().create_task(rounds.run())
+    await asyncio.sleep(0)  # its first step: origin 0, asleep until the first slot
+
+    async def at(t: float, count: int) -> None:
+        arrived.clear()
+        ticker.set(t)
+        async with asyncio.timeout(5.0):
+            while len(published) < count:
+                arrived.clear()
+                await arrived.wait()
+
+    try:
+        await at(0.002, 1)  # on time: slot 1's round
+        assert published == [("b", 0.002)]
+        await at(0.0065, 3)  # late by a slot: slots 2 and 0 (3) run at this one wake-up
+        assert published[1:] == [("c", 0.004), ("a", 0.006)]
+        await at(0.0261, 6)  # stalled: rounds 4..10 skipped, then 11, 12, 13 once each
+        assert published[3:] == [("c", 0.022), ("a", 0.024), ("b", 0.026)]
+        assert skipped == {"a": 2, "b": 3, "c": 2}
+        await at(0.0281, 7)  # on schedule again
+        assert published[6:] == [("c", 0.028)]
+    finally:
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task

@@ -117,10 +117,14 @@ class StateRounds:
     (so that their rounds spread over the period); one wake-up runs every round of its slot, in the
     order they joined. A process with hundreds of controllers wakes a few hundred times a second
     for their state, however many they are, and no round waits for more than its slot's share of
-    the others. Falling more than a period behind (a stalled machine) skips rounds, never bursts."""
+    the others. A late wake-up (a busy loop) runs the rounds due meanwhile; over a period behind (a
+    stalled machine) each controller's round runs once and the ones before are skipped: never a
+    burst of one controller's rounds. ``now`` is the clock of the deadlines (a test's, else
+    ``time.monotonic``; the ticker's sleeps must be on the same)."""
 
-    def __init__(self, period: float, ticker: Ticker | None) -> None:
+    def __init__(self, period: float, ticker: Ticker | None, now: Callable[[], float] = time.monotonic) -> None:
         self.period = period
+        self._now = now
         self.slots = min(MAX_SLOTS, max(1, round(period / SLOT)))
         self.spacing = period / self.slots
         self._ticker = ticker
@@ -143,33 +147,35 @@ class StateRounds:
         if self._ticker is not None:
             await self._ticker.sleep_until(deadline)
         else:  # a simulated or stepped clock keeps the loop busy: its own timers serve
-            await asyncio.sleep(max(0.0, deadline - time.monotonic()))
+            await asyncio.sleep(max(0.0, deadline - self._now()))
 
     async def run(self) -> None:
-        members, slots, spacing = self._members, self.slots, self.spacing
-        origin = time.monotonic()
-        j = 0
+        members, slots, spacing, now = self._members, self.slots, self.spacing, self._now
+        origin = now()
+        j = 0  # the last slot run, counted from origin (its rounds are members[j % slots])
         while True:
             if not any(members):
                 self._joined.clear()
                 await self._joined.wait()
-                origin, j = time.monotonic(), 0  # no rounds were due meanwhile
+                origin, j = now(), 0  # no rounds were due meanwhile
             j += 1
             for _ in range(slots):  # on to the next slot that has rounds to run
                 if members[j % slots]:
                     break
                 j += 1
-            deadline = origin + j * spacing
-            await self._sleep_until(deadline)
-            late = time.monotonic() - deadline
-            if late > self.period:  # fell behind: on to the slot due now, the rounds between skipped
-                missed = int(late // spacing)
+            await self._sleep_until(origin + j * spacing)
+            # every slot due by now runs (a busy loop's wake-up comes late: the rounds due meanwhile
+            # run in it, else each wake-up would run one slot's and the others would fall behind)
+            due = max(j, int((now() - origin) // spacing))
+            if due - j >= slots:  # over a period behind: each round once, the rounds before skipped
+                missed = due - slots + 1 - j
                 for slot in range(slots):
                     count = missed // slots + (1 if (slot - j) % slots < missed % slots else 0)
                     if count:
                         for _, skipped, context in members[slot]:
                             context.run(skipped, count)
                 j += missed
-                deadline = origin + j * spacing
-            for publish, _, context in tuple(members[j % slots]):
-                context.run(publish, deadline)
+            for k in range(j, due + 1):
+                for publish, _, context in tuple(members[k % slots]):
+                    context.run(publish, origin + k * spacing)
+            j = due
