@@ -13,6 +13,7 @@ import os
 import socket
 import struct
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
@@ -20,6 +21,7 @@ from robot_server.cli import parser as robot_server_parser
 from robot_server.emulator import FaultError
 from robot_server.testing import (
     ControllerError,
+    ControllerFactory,
     ControllerTimeout,
     RobotController,
     SettingsError,
@@ -313,6 +315,24 @@ def test_a_sync_controller_cannot_be_awaited(robot_controller) -> None:
 
     with pytest.raises(TypeError, match="started outside an event loop"):
         asyncio.run(wrong())
+
+
+# -- outside pytest -----------------------------------------------------------------------------------------
+
+
+def test_the_factory_outside_pytest_stops_its_controllers(tmp_path: Path) -> None:
+    with ControllerFactory(tmp_path) as start:
+        ctrl = start(speedup="step")
+        assert ctrl.advance(1.0) == pytest.approx(1.004)
+    assert ctrl.closed and (tmp_path / "c1.pcapng").is_file()
+
+
+async def test_the_factory_outside_pytest_in_an_event_loop(tmp_path: Path) -> None:
+    async with ControllerFactory(tmp_path, captures=False) as start:
+        ctrl = await start(speedup="step")
+        assert ctrl.capture_path is None
+        await ctrl.advance(1.0)
+    assert ctrl.closed
 
 
 # -- robot-server processes -------------------------------------------------------------------------------

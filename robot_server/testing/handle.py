@@ -504,12 +504,26 @@ class ControllerFactory:
         with contextlib.suppress(OSError):
             self.folder.rmdir()
 
+    # -- outside pytest: ``with ControllerFactory(folder) as robot_controller:`` (or ``async with``) ---------
+
     def __enter__(self) -> ControllerFactory:
         return self
 
     def __exit__(
         self, kind: type[BaseException] | None, error: BaseException | None, traceback: TracebackType | None
     ) -> None:
-        errors = self.close()
+        self._raise(self.close(), kind)
+
+    async def __aenter__(self) -> ControllerFactory:
+        return self
+
+    async def __aexit__(
+        self, kind: type[BaseException] | None, error: BaseException | None, traceback: TracebackType | None
+    ) -> None:
+        self.errors += await self.aclose_in(asyncio.get_running_loop())
+        self._raise(self.close(), kind)
+
+    @staticmethod
+    def _raise(errors: list[BaseException], kind: type[BaseException] | None) -> None:
         if errors and kind is None:
             raise ControllerError("; ".join(str(e) for e in errors)) from errors[0]
