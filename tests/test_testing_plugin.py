@@ -234,6 +234,9 @@ def test_the_record_a_test_reads_does_not_grow_under_it(robot_controller) -> Non
     assert len(record) == ticks == record.time().size == record.get("actual_position").shape[0]
     assert len(ctrl.record) > ticks
     assert ctrl.model.name == "jibot_zxs" and [m.name for m in ctrl.models] == ["jibot_zxs"]
+    two = robot_controller(speedup="step", model=["jibot_zxs", "puma560"])
+    two.advance(0.1)
+    assert [len(r) for r in two.records] == [104, 104]
 
 
 def test_a_wait_that_times_out_says_where_the_robot_was_and_teardown_stops_it(robot_controller) -> None:
@@ -367,14 +370,18 @@ def test_a_robot_server_process_moves_takes_faults_on_stdin_and_leaves_its_recor
 
 @pytest.mark.slow
 async def test_an_async_test_s_robot_server_process(robot_controller) -> None:
-    ctrl = await robot_controller(profile="motoros", process=True)
+    ctrl = await robot_controller(profile="motoros", model=["jibot_zxs", "puma560"], process=True)
     assert set(ctrl.ports) == {"motion", "state", "io"}
+    assert [m.name for m in ctrl.models] == ["jibot_zxs", "puma560"]
     _, writer = await asyncio.open_connection(ctrl.host, ctrl.io_port)
     writer.close()
     await writer.wait_closed()
     assert ctrl.status.motion_possible == TriState.FALSE  # MotoROS: not in trajectory mode
     assert await ctrl.fault("alarm 7") == "alarm 7"
     await ctrl.advance_until(lambda: ctrl.status.error_code == 7, 5.0)
+    await ctrl.stop()
+    assert [record.dof for record in ctrl.records] == [6, 6]
+    assert ctrl.records[1].time()[-1] == ctrl.records[0].time()[-1] > 0
 
 
 @pytest.mark.slow

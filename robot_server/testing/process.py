@@ -29,6 +29,7 @@ from simple_message.constants import MsgType, TriState, ValidFields
 from simple_message.endpoints import Client
 from simple_message.messages import JointFeedback, JointPosition, Message, Status
 
+from ..cli import record_path
 from ..control import Recorder
 from ..emulator import FaultError
 from ..loader import load_model
@@ -256,9 +257,11 @@ class Process:
                     f"{self.settings.name}: a robot-server process writes its record when it exits: stop it first "
                     "(ctrl.stop()), then read ctrl.record"
                 )
-            if self.record_path is None or not self.record_path.exists():
+            target = self.record_path
+            files = [] if target is None else [record_path(target, k) for k in range(len(self.models))]
+            if not files or not all(f.exists() for f in files):
                 raise ControllerError(f"{self.settings.name}: robot-server wrote no record")
-            self._records = [read_npz(self.record_path, self.models[0].joint_names)]
+            self._records = [read_npz(f, m.joint_names) for f, m in zip(files, self.models, strict=True)]
         return self._records
 
     # -- acting ------------------------------------------------------------------------------------
