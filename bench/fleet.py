@@ -24,7 +24,7 @@ anonymous memory (RssAnon: the heap, what a leak grows; the flatness is judged o
 may drop the shared libraries' pages from RSS at any time), its errors (tracebacks, ERROR lines)
 and its overruns.
 
-    python bench/fleet.py [--counts 1,10,50,100,200] [--process-counts 1,10,50] [--moving 20,40]
+    python bench/fleet.py [--counts 1,10,50,100,200] [--process-counts 1,10,50] [--moving 20,40] [--jitter 50]
                           [--seconds 10] [--skip idle,moving,jitter] [--soak MINUTES]
 """
 
@@ -179,12 +179,16 @@ async def processes(count: int, profiles: Sequence[str], folder: Path) -> AsyncI
         await running.stop()
 
 
-async def measure(running: Running, seconds: float) -> tuple[float, float]:
-    """(share of a core, resident MB) of the processes over ``seconds`` after 2 s of settling."""
+async def measure(running: Running, seconds: float, beside: Running | None = None) -> tuple[float, float, float]:
+    """(share of a core, resident MB) of the processes over ``seconds`` after 2 s of settling, and
+    the share of a core of the processes ``beside`` them (e.g. their clients) meanwhile."""
     await asyncio.sleep(2.0)
     cpu0, wall0 = running.cpu(), time.monotonic()
+    other0 = beside.cpu() if beside is not None else 0.0
     await asyncio.sleep(seconds)
-    return (running.cpu() - cpu0) / (time.monotonic() - wall0), running.rss()
+    wall = time.monotonic() - wall0
+    other = (beside.cpu() - other0) / wall if beside is not None else 0.0
+    return (running.cpu() - cpu0) / wall, running.rss(), other
 
 
 # -- idle ----------------------------------------------------------------------------------------
@@ -199,12 +203,12 @@ async def idle(counts: Sequence[int], process_counts: Sequence[int], seconds: fl
     for count in sorted(set(counts) | set(process_counts)):
         if count in counts:
             async with fleet(count, PROFILES, folder) as running:
-                share, rss = await measure(running, seconds)
+                share, rss, _ = await measure(running, seconds)
             rows.append((count, "one fleet process", share, rss))
             print(_idle_row(count, "one fleet process", share, rss), flush=True)
         if count in process_counts:
             async with processes(count, PROFILES, folder) as running:
-                share, rss = await measure(running, seconds)
+                share, rss, _ = await measure(running, seconds)
             print(_idle_row(count, "one process each", share, rss), flush=True)
     good = [r for r in rows if r[0] >= 100 and r[2] / r[0] <= 0.01 and r[3] / r[0] <= 10.0]
     print(f"\ntarget (>= 100 controllers per core, <= 1 % and <= 10 MB each): {'met' if good else 'NOT met'}")
@@ -220,15 +224,15 @@ def _idle_row(count: int, how: str, share: float, rss: float) -> str:
 async def moving(counts: Sequence[int], seconds: float, folder: Path) -> None:
     print("\n## Moving: every controller streaming (a RobotDriver each, in another process)\n")
     print("| controllers | CPU per controller (% of a core) | CPU total (%) | wake-ups | overruns |", end="")
-    print(" latest wake-up (ms) | trajectories run |")
-    print("|---:|---:|---:|---:|---:|---:|---:|")
+    print(" latest wake-up (ms) | trajectories run | the clients' CPU (%) |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
     for count in counts:
         async with fleet(count, ("generic",), folder) as running:
             ports = ",".join(f"{c.motion}:{c.state}" for c in running.controllers)
             client = await asyncio.create_subprocess_exec(
                 sys.executable, __file__, "_stream", ports, str(seconds + 4.0), stdout=asyncio.subprocess.PIPE
             )
-            share, _ = await measure(running, seconds)
+            share, _, client_share = await measure(running, seconds, Running([client], []))
             out, _ = await asyncio.wait_for(client.communicate(), 120.0)
             log = (await running.stop())[0]
         runs = out.decode().strip()
@@ -238,7 +242,7 @@ async def moving(counts: Sequence[int], seconds: float, folder: Path) -> None:
         print(
             f"| {count} | {100 * share / count:.2f} | {100 * share:.0f} | {wakes} | {overruns} | {latest} | {runs}"
             + (f" ({errors} tracebacks)" if errors else "")
-            + " |",
+            + f" | {100 * client_share:.0f} |",
             flush=True,
         )
 
@@ -510,7 +514,8 @@ async def main(args: argparse.Namespace) -> None:
         if "moving" not in skip:
             await moving(_ints(args.moving), args.seconds, folder)
         if "jitter" not in skip:
-            await jitter(50, args.seconds, folder)
+            for count in _ints(args.jitter):
+                await jitter(count, args.seconds, folder)
 
 
 if __name__ == "__main__":
@@ -522,6 +527,7 @@ if __name__ == "__main__":
     parser.add_argument("--counts", default="1,10,50,100,200", help="fleet sizes at rest")
     parser.add_argument("--process-counts", default="1,10,50", help="one-process-per-controller comparison sizes")
     parser.add_argument("--moving", default="20,40", help="fleet sizes moving")
+    parser.add_argument("--jitter", default="50", help="fleet sizes whose state rounds are timed (a client each)")
     parser.add_argument("--seconds", type=float, default=10.0, help="each measurement's window")
     parser.add_argument("--skip", default="", help="idle, moving, jitter: parts to leave out")
     parser.add_argument("--soak", type=float, metavar="MINUTES", help="run the soak instead of the tables")
