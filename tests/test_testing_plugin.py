@@ -269,6 +269,8 @@ def test_the_controllers_get_names_and_a_name_is_one_controller_s(robot_controll
     left = robot_controller(speedup="step", name="left_arm")
     assert (first.name, left.name) == ("c1", "left_arm")
     assert left.capture_path is not None and left.capture_path.name == "left_arm.pcapng"
+    quiet = robot_controller(speedup="step", capture=None, state_rate=None)
+    assert quiet.capture_path is None and quiet.emulator.config.rate == 40.0
     with pytest.raises(ValueError, match="this test has a controller 'left_arm' already"):
         robot_controller(name="left_arm")
 

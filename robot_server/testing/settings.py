@@ -87,8 +87,9 @@ def read_settings(
     record: Path | None = None,
 ) -> Settings:
     """Check one controller's settings; the ports not given are 0 (free ones), the capture and
-    (process) record go to ``capture`` and ``record`` unless the settings name files of their own.
-    Raises :class:`SettingsError`."""
+    (process) record go to ``capture`` and ``record`` unless the settings name files of their own
+    (``capture=None``: no capture). A setting given as None keeps its default. Raises
+    :class:`SettingsError`."""
     if not isinstance(name, str) or NAME.fullmatch(name) is None:
         raise SettingsError(f"name: {name!r} is not a controller name (letters, digits, _ and -, at most 63)")
     clock = _speedup(speedup, process)
@@ -98,7 +99,10 @@ def read_settings(
         if key in settings:
             raise SettingsError(f"{key}: give it as robot_controller({key}=...), once")
     values: dict[str, object] = {"name": name, "profile": profile, "model": _plain(model)}
-    values.update({k: _plain(v) for k, v in settings.items()})
+    # a setting given as None keeps its default; capture=None records no traffic
+    values.update({k: _plain(v) for k, v in settings.items() if v is not None})
+    if "capture" in settings and settings["capture"] is None:
+        capture = None
     values.setdefault("motion_port", 0)
     values.setdefault("state_port", 0)
     if profile_named(profile).default_port("io") is not None:
