@@ -136,12 +136,13 @@ class Process:
             subscription = client.subscribe(msg_types=(MsgType.JOINT_POSITION, MsgType.JOINT_FEEDBACK, MsgType.STATUS))
             self._client = client
             await client.start(ANSWER_TIMEOUT)
-            if config.profile == "generic":  # its state port sends JOINT_FEEDBACK, with the time, when asked
+            timed = config.profile == "generic"
+            if timed:  # its state port sends JOINT_FEEDBACK, with the controller's time, when asked
                 await client.send(JointFeedback())
             self._tasks.append(loop.create_task(self._read_state(subscription), name=f"{name} state"))
-            try:  # usable at once: joints and STATUS known
+            try:  # usable at once: joints, STATUS (and the time) known
                 async with asyncio.timeout(ANSWER_TIMEOUT):
-                    while self._joints is None or self._status is None:
+                    while self._joints is None or self._status is None or (timed and self._clock is None):
                         await self._changed.wait()
             except TimeoutError:
                 raise ControllerError(
@@ -169,22 +170,29 @@ class Process:
                 answer.set_result((False, refused.group(1)))
 
     async def _read_state(self, subscription: Subscription) -> None:
+        """The state port's messages into what the handle reads. A STATUS is taken in with the
+        joints that follow it, which end its round where the round ends with JOINT_FEEDBACK
+        (generic), so the controller time read with a STATUS is its round's: the state read
+        changes only there, all at once, however late a waiting task looks at it."""
         dof = self.models[0].dof
+        received: Status | None = None
         with contextlib.suppress(Exception):  # the connection closed: the last state stays
             while True:
                 message: Message = await subscription.get()
+                if isinstance(message, Status):
+                    received = message
+                    continue
                 if isinstance(message, JointPosition):
                     self._joints = tuple(message.joint_data[:dof])
                 elif isinstance(message, JointFeedback) and message.robot_id == 0:
                     self._joints = tuple(message.positions[:dof])
                     if message.valid_fields & ValidFields.TIME:
                         self._clock = message.time
-                elif isinstance(message, Status):
-                    self._status = message
-                    self._statuses += 1
+                else:
                     continue
-                # the waits look at the state when joints come: after a round's STATUS where the round
-                # ends with JOINT_FEEDBACK (generic), so its time and STATUS are the same round's
+                if received is not None:
+                    self._status, received = received, None
+                    self._statuses += 1
                 self._changed.set()
                 self._changed = asyncio.Event()
 
