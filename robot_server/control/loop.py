@@ -212,20 +212,22 @@ class SharedLoop:
         return stats
 
     def catch_up(self) -> None:
-        """Run the periods now due, if any, at once: what a handler calls before it works (a
-        burst of many clients' points is planned on the event loop's thread, one handler after
-        another, and the wake-up would wait behind all of them). Like a controller whose
-        interpolation task preempts its planner: the periods run on time, the requests wait a
-        little. Nothing on a simulated or stepped clock (its periods are its wake-ups'), nor
-        inside a period."""
+        """Run the period now due, if one is: what a handler calls before it works (a burst of
+        many clients' points is planned on the event loop's thread, one handler after another,
+        and the wake-up would wait behind all of them). Like a controller whose interpolation
+        task preempts its planner: the periods run on time, the requests wait a little. One
+        period at most: a handler takes far less than a period, and a loop far behind (more work
+        than the machine can do) catches up at its wake-ups, not at the cost of every request.
+        Nothing on a simulated or stepped clock (its periods are its wake-ups'), nor inside a
+        period."""
         if self._running and not self._in_period and self.clock.realtime:
-            self._run_due()
+            self._run_due(1)
 
-    def _run_due(self) -> None:
-        # the periods due (late: the ones due meanwhile at once, at most CATCH_UP, then the event
+    def _run_due(self, limit: int = CATCH_UP) -> None:
+        # the periods due (late: the ones due meanwhile at once, at most ``limit``, then the event
         # loop goes on: between two of them it would take as long again)
         clock, period, stats = self.clock, self.period, self.stats
-        for _ in range(CATCH_UP):
+        for _ in range(limit):
             deadline = self._origin + self._k * period
             now = clock.now()
             if deadline > now:
