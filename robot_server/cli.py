@@ -50,6 +50,7 @@ from .control import DEFAULT_POLICY, POLICIES, Recorder
 from .emulator import FAULT_COMMANDS, PROFILES, Emulator, EmulatorConfig, FaultError
 from .emulator.owner import OnDisconnect
 from .emulator.server import MAX_STATE_RATE
+from .fleet.config import MAX_CAPTURE_MB, MAX_INTERPOLATION_PERIOD, MAX_RECORD_SECONDS, MAX_SERVO_TICKS
 from .loader import load_model, shipped_cells, shipped_models
 from .model import ModelError
 from .web import MAX_RATE, TOKEN_ENV, WebUnavailable, web_address, web_view
@@ -59,8 +60,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("robot_server.cli")
 
-#: the longest record kept in memory (s of controller time)
-MAX_RECORD_SECONDS = 3600.0
 #: the record kept by default: the last minute (about 45 MB of CSV for six joints moving all the time)
 DEFAULT_RECORD_SECONDS = 60.0
 
@@ -327,6 +326,19 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ValueError(f"--web-rate is at most {MAX_RATE:g} updates a second")
         if args.record_seconds > MAX_RECORD_SECONDS:
             raise ValueError(f"--record-seconds is at most {MAX_RECORD_SECONDS:g} s")
+        for option, period in (
+            ("--interpolation-period", args.interpolation_period),
+            ("--servo-period", args.servo_period),
+        ):
+            if period > MAX_INTERPOLATION_PERIOD:
+                raise ValueError(f"{option} is at most {MAX_INTERPOLATION_PERIOD:g} s")
+        if args.interpolation_period / args.servo_period > MAX_SERVO_TICKS:
+            raise ValueError(
+                f"--servo-period {args.servo_period:g} s is more than {MAX_SERVO_TICKS} ticks per "
+                f"--interpolation-period {args.interpolation_period:g} s"
+            )
+        if args.capture_max_mb > MAX_CAPTURE_MB:
+            raise ValueError(f"--capture-max-mb is at most {MAX_CAPTURE_MB:g}")
         for _, command in args.fault:
             _check_command(command)
         if args.record is not None:

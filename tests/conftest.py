@@ -260,3 +260,14 @@ def _uvloop_opened_once() -> None:
     except ImportError:
         return
     uvloop.new_event_loop().close()
+
+
+@pytest.fixture
+def plain_imports(monkeypatch: pytest.MonkeyPatch) -> None:
+    """For ``runpy.run_module`` of this project's packages (``python -m ...`` in process): the
+    package is a pytest plugin (entry point ``pytest11``), so pytest rewrites the asserts of its
+    modules, and its import hook lacks the ``get_code`` runpy needs; without the hook the module
+    loads as ``python -m`` loads it."""
+    import sys
+
+    monkeypatch.setattr(sys, "meta_path", [f for f in sys.meta_path if type(f).__name__ != "AssertionRewritingHook"])

@@ -343,6 +343,7 @@ def test_help_names_every_command(capsys: pytest.CaptureFixture[str]) -> None:
         assert f"    {command} " in out, command
 
 
+@pytest.mark.usefixtures("plain_imports")
 def test_python_dash_m_client_is_the_command(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:

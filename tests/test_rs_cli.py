@@ -253,6 +253,10 @@ def test_a_taken_port_fails_with_one_line(capsys: pytest.CaptureFixture[str]) ->
         (["--record", "{tmp}/missing/run.csv"], "no directory"),  # refused before, not after
         (["--record", "{tmp}"], "is a directory"),
         (["--record-seconds", "7200"], "record-seconds"),
+        # the fleet file's bounds: no period of years, no servo tick of a nanosecond, no capture of 1e308 MB
+        (["--interpolation-period", "1e300"], "--interpolation-period is at most 1 s"),
+        (["--servo-period", "1e-9"], "more than 1000 ticks per --interpolation-period"),
+        (["--capture-max-mb", "1e308"], "--capture-max-mb is at most 1e+06"),
         (["--profile", "nosuch"], "unknown profile 'nosuch'"),
         (["--interpolation", "nosuch"], "nosuch"),
         (["--import", "tests.no_such_module"], "cannot import tests.no_such_module"),
@@ -311,6 +315,7 @@ def test_help_lists_the_fault_commands_profiles_and_policies(capsys: pytest.Capt
         assert words in out, words
 
 
+@pytest.mark.usefixtures("plain_imports")
 def test_python_dash_m_robot_server_is_the_command(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -250,6 +250,7 @@ def test_help_and_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
         assert "error: " in err and "--help')" in err, err
 
 
+@pytest.mark.usefixtures("plain_imports")
 def test_python_dash_m_in_process(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     monkeypatch.setattr(sys, "argv", ["simple_message", "decode", str(DATA / "vectors_le.txt")])
     with pytest.raises(SystemExit) as info:
