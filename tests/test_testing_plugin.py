@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import os
 import socket
 import struct
@@ -399,3 +400,24 @@ async def test_an_async_test_s_robot_server_process(robot_controller) -> None:
 def test_a_robot_server_process_that_cannot_start_says_why(robot_controller) -> None:
     with pytest.raises(ControllerError, match=r"robot-server did not start \(exit status 2\):\n.*no_such_cell"):
         robot_controller(process=True, cell="no_such_cell")
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -1.0])
+def test_a_wait_of_no_finite_length_is_refused_naming_the_argument(robot_controller, value: float) -> None:
+    ctrl = robot_controller(speedup="step")
+    with pytest.raises(ValueError, match="timeout must be a finite number of seconds >= 0"):
+        ctrl.wait_idle(value)
+    with pytest.raises(ValueError, match="seconds must be a finite number"):
+        ctrl.advance(value)
+    with pytest.raises(ValueError, match="limit must be a finite number"):
+        ctrl.advance_until(lambda: False, value)
+    with pytest.raises(ValueError, match="dt must be a finite number of seconds > 0"):
+        ctrl.advance_until(lambda: False, 1.0, dt=0.0)
+
+
+async def test_an_async_wait_of_no_finite_length_is_refused(robot_controller) -> None:
+    ctrl = await robot_controller(speedup="step")
+    with pytest.raises(ValueError, match="timeout must be"):
+        await ctrl.wait_idle(math.nan)
+    with pytest.raises(ValueError, match="limit must be"):
+        await ctrl.advance_until(lambda: False, math.inf)

@@ -8,6 +8,7 @@ coroutines run there, and so do its plain methods when a sync test calls them (t
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
@@ -72,6 +73,16 @@ class Core(Protocol):
 
     def describe(self) -> str:
         """The controller's state as of now, for a failed test's report."""
+
+
+def bounded(name: str, value: float, *, positive: bool = False) -> float:
+    """A wait's length as given by a test: a finite number of seconds, >= 0 (> 0 when ``positive``),
+    else ValueError naming the argument (a NaN or infinite limit would make a wait that never ends,
+    a negative one a wait that silently does not happen)."""
+    seconds = float(value)
+    if not math.isfinite(seconds) or seconds < 0.0 or (positive and seconds == 0.0):
+        raise ValueError(f"{name} must be a finite number of seconds {'> 0' if positive else '>= 0'}, not {value!r}")
+    return seconds
 
 
 def loopback(host: str) -> str:

@@ -24,7 +24,7 @@ from simple_message.messages import Status
 from ..control import Recorder
 from ..emulator import Emulator
 from ..model import RobotModel
-from .core import ControllerError, ControllerTimeout, Core
+from .core import ControllerError, ControllerTimeout, Core, bounded
 from .inprocess import InProcess
 from .process import Process
 from .settings import read_settings
@@ -279,7 +279,7 @@ class RobotController(_Handle):
     def wait_idle(self, timeout: float = DEFAULT_LIMIT) -> float:
         """Wait until the robot is at rest, at most ``timeout`` s of controller time (a stepped clock
         is advanced until then); returns the controller time. Raises :class:`ControllerTimeout`."""
-        return self._thread.run(self._core.wait_idle(timeout))
+        return self._thread.run(self._core.wait_idle(bounded("timeout", timeout)))
 
     def fault(self, command: str) -> str:
         """Apply a fault command as ``robot-server`` reads them on stdin (``estop``, ``drives off``,
@@ -290,7 +290,7 @@ class RobotController(_Handle):
     def advance(self, seconds: float) -> float:
         """Let ``seconds`` of controller time pass (a stepped clock is moved; a real-time one waited
         for); returns the controller time."""
-        return self._thread.run(self._core.advance(seconds))
+        return self._thread.run(self._core.advance(bounded("seconds", seconds)))
 
     def advance_until(
         self, predicate: Callable[[], bool], limit: float = DEFAULT_LIMIT, *, dt: float | None = None, what: str = ""
@@ -299,6 +299,8 @@ class RobotController(_Handle):
         stepped clock; default: one interpolation period) or every control period; at most ``limit``
         s of controller time, else :class:`ControllerTimeout` (``what`` names the condition in its
         message). In process, ``predicate`` runs on the controller's thread: it may read this handle."""
+        limit = bounded("limit", limit)
+        dt = None if dt is None else bounded("dt", dt, positive=True)
         return self._thread.run(self._core.advance_until(predicate, limit, dt, what or "the condition"))
 
     def stop(self) -> None:
@@ -360,6 +362,7 @@ class AsyncRobotController(_Handle):
 
     async def wait_idle(self, timeout: float = DEFAULT_LIMIT) -> float:
         """As :meth:`RobotController.wait_idle`."""
+        timeout = bounded("timeout", timeout)
         await self._started()
         return await self._core.wait_idle(timeout)
 
@@ -370,6 +373,7 @@ class AsyncRobotController(_Handle):
 
     async def advance(self, seconds: float) -> float:
         """As :meth:`RobotController.advance`."""
+        seconds = bounded("seconds", seconds)
         await self._started()
         return await self._core.advance(seconds)
 
@@ -377,6 +381,8 @@ class AsyncRobotController(_Handle):
         self, predicate: Callable[[], bool], limit: float = DEFAULT_LIMIT, *, dt: float | None = None, what: str = ""
     ) -> float:
         """As :meth:`RobotController.advance_until`."""
+        limit = bounded("limit", limit)
+        dt = None if dt is None else bounded("dt", dt, positive=True)
         await self._started()
         return await self._core.advance_until(predicate, limit, dt, what or "the condition")
 
