@@ -395,3 +395,16 @@ def test_a_record_that_dropped_ticks_warns(moved: Recorded) -> None:
         small.add(Tick(0.0, list(Q0), [0.0] * 6, [0.0] * 6, list(Q0), [0.0] * 6, [0.0] * 6, [0.0] * 6))
     with pytest.warns(RuntimeWarning, match="dropped its 50 oldest ticks"):
         assert_within_joints(Recorded(small, MODEL), MODEL.lower, MODEL.upper)
+
+
+def test_a_nan_target_bound_or_time_is_refused_not_passed(moved: Recorded) -> None:
+    nan = float("nan")
+    with pytest.raises(ValueError, match="the target must be finite"):
+        assert_reached(moved, [nan] * MODEL.dof)
+    with pytest.raises(ValueError, match="the target must be finite"):
+        assert_reached(moved, {MODEL.joint_names[0]: nan})
+    with pytest.raises(ValueError, match="has a NaN"):
+        assert_within_joints(moved, nan, nan)
+    for kwargs in ({"since": 0.0, "ms": nan}, {"since": nan, "ms": 100.0}, {"since": 0.0, "ms": 100.0, "tol": nan}):
+        with pytest.raises(ValueError, match="must be finite"):
+            assert_stopped_within(moved, **kwargs)

@@ -396,8 +396,8 @@ def assert_stopped_within(
     Returns how long the robot took to come to rest for good (s after ``since``). A record that
     ends before ``since + ms`` with the robot still moving cannot tell: that fails too."""
     name = "assert_stopped_within"
-    if ms < 0 or tol < 0:
-        raise ValueError(f"{name}: ms and tol must be >= 0")
+    if not (ms >= 0 and tol >= 0 and math.isfinite(ms) and math.isfinite(tol) and math.isfinite(since)):
+        raise ValueError(f"{name}: since must be finite, ms and tol finite and >= 0")
     record, model = source.record, source.model
     times = record.time()
     deadline = since + ms / 1000.0
@@ -802,11 +802,18 @@ def _joint_targets(
             known = ", ".join(model.joint_names)
             raise ValueError(f"{model.name} has no joint {', '.join(map(repr, unknown))} (its joints: {known})")
         index = np.array([model.joint_names.index(n) for n in joints], dtype=np.intp)
-        return index, np.array(list(joints.values()), dtype=float)
+        return index, _finite_target(np.array(list(joints.values()), dtype=float))
     target = np.asarray(joints, dtype=float).reshape(-1)
     if target.size != model.dof:
         raise ValueError(f"joints: {target.size} values for the {model.dof} joints of {model.name}")
-    return np.arange(model.dof, dtype=np.intp), target
+    return np.arange(model.dof, dtype=np.intp), _finite_target(target)
+
+
+def _finite_target(target: Array) -> Array:
+    """A target with a NaN would be reached by any motion (every comparison with it is false)."""
+    if not np.isfinite(target).all():
+        raise ValueError(f"joints: the target must be finite, not {target.tolist()}")
+    return target
 
 
 def _pose(pose: ArrayLike) -> tuple[Array, Array | None]:
@@ -855,11 +862,11 @@ def _names(model: RobotModel, index: Sequence[int] | NDArray[np.intp]) -> str:
 def _per_joint(value: float | Sequence[float] | ArrayLike, n: int, what: str) -> Array:
     array = np.asarray(value, dtype=float)
     if array.ndim == 0:
-        return np.full(n, float(array))
+        array = np.full(n, float(array))
     array = array.reshape(-1)
     if array.size != n:
         raise ValueError(f"{what}: one value or {n}, not {array.size}")
-    if np.isnan(array).any():
+    if np.isnan(array).any():  # a NaN bound or tolerance would pass every motion
         raise ValueError(f"{what} has a NaN")
     return array
 
