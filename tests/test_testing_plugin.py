@@ -421,3 +421,10 @@ async def test_an_async_wait_of_no_finite_length_is_refused(robot_controller) ->
         await ctrl.wait_idle(math.nan)
     with pytest.raises(ValueError, match="limit must be"):
         await ctrl.advance_until(lambda: False, math.inf)
+
+
+@pytest.mark.slow
+async def test_an_async_robot_server_process_that_cannot_start_is_reported_once(robot_controller) -> None:
+    # the teardown that follows must not report it again ("did not stop cleanly"): the test would error
+    with pytest.raises(ControllerError, match=r"robot-server did not start \(exit status 2\):\n.*no_such_cell"):
+        await robot_controller(process=True, cell="no_such_cell")

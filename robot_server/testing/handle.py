@@ -389,8 +389,11 @@ class AsyncRobotController(_Handle):
     async def stop(self) -> None:
         """As :meth:`RobotController.stop`."""
         await asyncio.wait({self._starting})  # a start half done is not undone by cancelling it: bounded
-        if not self._starting.cancelled():
-            self._starting.exception()  # a start that failed was reported where it was awaited
+        if not self._starting.cancelled() and self._starting.exception() is not None:
+            # a start that failed was reported where it was awaited: what is left is closed, not reported again
+            with contextlib.suppress(Exception):
+                await self._core.close()
+            return
         await self._core.close()
 
     def stop_blocking(self) -> None:
