@@ -100,6 +100,8 @@ def test_a_misspelt_or_ill_typed_setting_is_refused_naming_the_key(robot_control
         robot_controller(speedup="step", process=True)
     with pytest.raises(SettingsError, match=r"initial_position: robot-server has no such option"):
         robot_controller(process=True, initial_position=[0.0] * 6)
+    with pytest.raises(SettingsError, match=r"record: a process's record is read back from .npz, not 'run.csv'"):
+        robot_controller(process=True, record="run.csv")
     assert robot_controller.handles == []
 
 

@@ -120,6 +120,11 @@ def read_settings(
         for key in _NO_OPTION[1:]:
             if key in values:
                 raise SettingsError(f"robot_controller({name}): {key}: robot-server has no such option (process=False)")
+        given = values.get("record")
+        if given is not None and not str(given).endswith(".npz"):  # the handle reads it back exactly
+            raise SettingsError(
+                f"robot_controller({name}): record: a process's record is read back from .npz, not {given!r}"
+            )
         if values.get("float64") is False and spec.config.emulated.dialect.wire.real_size == 8:
             raise SettingsError(
                 f"robot_controller({name}): float64: robot-server cannot turn its profile's float64 off"
