@@ -29,7 +29,7 @@ import csv
 import gzip
 import io
 import zipfile
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
@@ -124,6 +124,50 @@ class Recorder:
     def clear(self) -> None:
         self._count = 0
         self._seen = 0
+
+    @classmethod
+    def from_columns(
+        cls, dof: int, columns: Mapping[str, NDArray[np.generic]], *, decimation: int = 1, dropped: int = 0
+    ) -> Recorder:
+        """A recorder holding ``columns`` (oldest first: ``time``, one ``(ticks, dof)`` array per
+        quantity of :data:`QUANTITIES`, ``points``, ``tool``), as if it had recorded them and
+        overwritten ``dropped`` older ticks."""
+        ticks = len(columns["time"])
+        made = cls(dof, capacity=max(1, ticks), decimation=decimation)
+        if ticks:
+            shift = dropped % ticks  # the oldest row where the dropped ticks would have left it
+            made._time[:] = np.roll(columns["time"], shift)
+            for index, quantity in enumerate(QUANTITIES):
+                made._data[:, index, :] = np.roll(columns[quantity], shift, axis=0)
+            made._points[:] = np.roll(columns["points"], shift)
+            made._tool[:] = np.roll(columns["tool"], shift, axis=0)
+        made._count = ticks + dropped
+        made._seen = (ticks + dropped) * decimation
+        return made
+
+    def copy(self) -> Recorder:
+        """A copy that no longer grows: the same ticks, the same ``dropped``."""
+        columns: dict[str, NDArray[np.generic]] = {"time": self.time(), "points": self.points(), "tool": self.tool()}
+        for quantity in QUANTITIES:
+            columns[quantity] = self.get(quantity)
+        return Recorder.from_columns(self.dof, columns, decimation=self.decimation, dropped=self.dropped)
+
+    @classmethod
+    def from_npz(cls, path: str | Path, joint_names: Sequence[str]) -> Recorder:
+        """What :meth:`to_npz` wrote, as a recorder (its ``time`` the controller's clock)."""
+        dof = len(joint_names)
+        header = cls(dof).header(joint_names)
+        with np.load(path, allow_pickle=False) as archive:
+            data = {name: archive[name] for name in header}
+        columns: dict[str, NDArray[np.generic]] = {}
+        at = 1
+        for quantity in _ORDER:  # the header's order
+            names = header[at : at + dof]
+            columns[quantity] = np.stack([data[n] for n in names], axis=1) if names else np.zeros((0, dof))
+            at += dof
+        columns["time"], columns["points"] = data[header[at]], data[header[at + 1]]
+        columns["tool"] = np.stack([data[n] for n in header[at + 2 :]], axis=1)
+        return cls.from_columns(dof, columns)
 
     def time(self) -> NDArray[np.float64]:
         return self._ordered(self._time)
