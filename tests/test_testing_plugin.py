@@ -208,6 +208,27 @@ def test_the_stepped_clock_moves_only_when_the_test_says(robot_controller) -> No
     assert ctrl.time == pytest.approx(1.5)
 
 
+def test_a_predicate_that_raises_fails_the_wait_not_the_controller(robot_controller) -> None:
+    ctrl = robot_controller(speedup="step")
+    calls = 0
+
+    def broken() -> bool:
+        nonlocal calls
+        calls += 1
+        if calls == 10:
+            raise KeyError("the test's own defect")
+        return False
+
+    before = ctrl.time
+    with pytest.raises(KeyError, match="the test's own defect"):
+        ctrl.advance_until(broken, 5.0)
+    stood = ctrl.time
+    assert stood == pytest.approx(before + 8 * 0.004), "checked once, then before every period: eight ran"
+    assert ctrl.advance(0.1) == pytest.approx(stood + 0.1), "the control loop runs on"
+    with moving(ctrl, TARGET, 1.0):
+        assert ctrl.wait_idle(5.0) >= stood + 1.1
+
+
 def test_a_stop_in_the_middle_of_a_move_is_seen_in_the_record(robot_controller) -> None:
     ctrl = robot_controller(speedup="step")
     with moving(ctrl, TARGET, 20.0):

@@ -20,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import time
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 
 __all__ = ["Clock", "RealTimeClock", "SimulatedClock", "SteppedClock"]
 
@@ -76,26 +77,58 @@ class SteppedClock(Clock):
         self._limit = float(start)
         self._wake = asyncio.Event()
         self._idle = asyncio.Event()
+        #: while an :meth:`advance` with ``until`` runs: the condition, and what it raised
+        self._until: Callable[[], bool] | None = None
+        self._raised: BaseException | None = None
 
     def now(self) -> float:
         return self._now
 
     async def sleep_until(self, deadline: float) -> None:
-        while deadline > self._limit + 1e-9:
+        while True:
+            if self._until is not None:
+                await asyncio.sleep(0)  # servers and clients run between two periods, as between two advances
+            until = self._until
+            if deadline <= self._limit + 1e-9 and (until is None or not self._holds(until)):
+                break
             self._wake.clear()
             self._idle.set()
             await self._wake.wait()
         self._now = max(self._now, deadline)
 
-    async def advance(self, seconds: float) -> None:
+    def _holds(self, until: Callable[[], bool]) -> bool:
+        """``until()``; what it raises ends the advance (and is raised there), not the loop."""
+        try:
+            return bool(until())
+        except Exception as exc:
+            self._raised = exc
+            return True
+
+    async def advance(self, seconds: float, until: Callable[[], bool] | None = None) -> None:
         """Let the loop run ``seconds`` further; returns once it waits for a later deadline. Bound
-        it with a timeout: it waits for as long as no loop runs on this clock."""
+        it with a timeout: it waits for as long as no loop runs on this clock.
+
+        With ``until``, the advance ends early, at the first deadline the loop waits for where
+        ``until()`` holds (checked before every period, on the loop's task; what it raises is
+        raised here), and the loop yields to the event loop before every period, so I/O goes on
+        between them as between two advances: a wait for a condition in one call instead of a
+        call per period. Ended early or cancelled, the clock stays where the loop stands."""
         if not seconds >= 0.0:
             raise ValueError(f"time only moves forward, not by {seconds}")
         self._limit += seconds
+        self._until = until
+        self._raised = None
         self._idle.clear()
         self._wake.set()
-        await self._idle.wait()
+        try:
+            await self._idle.wait()
+        finally:
+            if until is not None:
+                self._until = None
+                self._limit = min(self._limit, self._now)
+        raised, self._raised = self._raised, None
+        if raised is not None:
+            raise raised
 
     async def advance_to(self, time: float) -> None:
         """:meth:`advance` up to controller time ``time``."""
