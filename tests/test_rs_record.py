@@ -16,7 +16,8 @@ import pytest
 from client.trajectory import Trajectory
 from robot_server import cli
 from robot_server.control import Controller, ControllerConfig, Point, Recorder
-from robot_server.control.recorder import CSV_DECIMALS, format_rows, format_value, record_format
+from robot_server.control.controller import Tick
+from robot_server.control.recorder import CSV_DECIMALS, QUANTITIES, format_rows, format_value, record_format
 from robot_server.loader import load_model
 
 MODEL = load_model("jibot_zxs")
@@ -221,12 +222,7 @@ def test_the_command_logs_what_each_file_holds(
     whole = Recorder(N, capacity=3000)  # a second group at rest, without a TCP, that kept every tick
     zeros = np.zeros(N)
     for tick in range(1200):
-        at_rest = SimpleNamespace(time=tick * SERVO, points=0, tool=None)
-        for name in ("position", "velocity", "acceleration"):
-            setattr(at_rest, f"command_{name}", zeros)
-            setattr(at_rest, f"actual_{name}", zeros)
-        at_rest.following_error = zeros
-        whole.add(at_rest)  # type: ignore[arg-type]
+        whole.add(Tick(tick * SERVO, *[zeros] * 7, points=0, tool=None))  # type: ignore[arg-type]
     group = SimpleNamespace(model=MODEL)
     emulator = SimpleNamespace(cell=SimpleNamespace(config=SimpleNamespace(servo_period=SERVO), groups=[group, group]))
     caplog.set_level(logging.INFO, logger="robot_server")
@@ -244,3 +240,44 @@ def test_the_command_logs_what_each_file_holds(
     assert len(lines) == 1201 and lines[1].endswith(
         ",0,nan,nan,nan,nan,nan,nan,nan,nan,nan,nan,nan,nan,nan,nan,nan,nan,nan"
     )
+
+
+@pytest.fixture(scope="module")
+def ticks() -> list[Tick]:
+    """3000 ticks of a robot that moves, some of them without a TCP (as a tick of step_period)."""
+    ctl = Controller(MODEL, ControllerConfig(policy="quintic", servo_period=SERVO))
+    ctl.start(Point(np.zeros(N)))
+    ctl.add(Point(0.3 * MODEL.upper, velocity_ratio=0.5))
+    made = [ctl.step() for _ in range(3000)]
+    return [t._replace(tool=None) if k < 7 or 1500 <= k < 1530 else t for k, t in enumerate(made)]
+
+
+@pytest.mark.parametrize("decimation", [1, 3])
+@pytest.mark.parametrize("capacity", [1, 10, 1000, 1024, 1500, 5000])
+def test_a_recorder_holds_exactly_the_last_ticks_it_was_given(
+    ticks: list[Tick], capacity: int, decimation: int
+) -> None:
+    """The ticks are written into the ring a block at a time: read in the middle of a block, across
+    blocks, with a ring smaller or larger than a block, every value is the tick's own."""
+    recorder = Recorder(N, capacity=capacity, decimation=decimation)
+    for k, tick in enumerate(ticks):
+        recorder.add(tick)
+        if k in (2, 700, 1023, 2100):  # a read between two adds flushes; the adds go on after it
+            kept = ticks[: k + 1 : decimation]
+            assert len(recorder) == min(capacity, len(kept))
+            assert recorder.time()[-1] == kept[-1].time
+    kept = ticks[::decimation][-capacity:]
+    assert len(recorder) == len(kept)
+    assert recorder.dropped == max(0, len(ticks[::decimation]) - capacity)
+    assert np.array_equal(recorder.time(), [t.time for t in kept])
+    for index, quantity in enumerate(QUANTITIES):
+        assert np.array_equal(recorder.get(quantity), [t[1 + index] for t in kept]), quantity
+    assert np.array_equal(recorder.points(), [t.points for t in kept])
+    tools = [[*t.tool.values(), t.tool.time] if t.tool is not None else [np.nan] * 17 for t in kept]
+    assert np.array_equal(recorder.tool(), tools, equal_nan=True)
+    assert ticks[0].tool is None and ticks[-1].tool is not None
+    copy = recorder.copy()
+    assert np.array_equal(copy.get("actual_position"), recorder.get("actual_position"))
+    assert copy.dropped == recorder.dropped
+    recorder.clear()
+    assert len(recorder) == 0 and recorder.time().size == 0

@@ -10,11 +10,13 @@ mode, a supervision swapped.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pytest
 
-from robot_server.control import Controller, ControllerConfig, Point, Tick
+from robot_server.control import Controller, ControllerConfig, Point, Recorder, Tick
+from robot_server.control.recorder import QUANTITIES
 from robot_server.control.rest import RestWatch
 from robot_server.loader import load_model
 from robot_server.workspace import Supervision
@@ -130,3 +132,76 @@ def test_a_period_stepped_at_once_ends_as_its_ticks_one_by_one() -> None:
     assert alarms == [4101, 4101], "the following-error alarm tripped in both"
     assert whole.error_code == 0 and ticks.error_code == 0
     assert whole.points_accepted == 3 and whole._rest.periods > 0
+
+
+def test_a_recorded_period_is_its_ticks_one_by_one() -> None:
+    """Controller.step_period(recorder) (what a control loop with a recorder runs: a rest replayed
+    tick by tick, a moving tick's numbers handed over with its two setpoints, the command computed
+    by the recorder a block at a time) records exactly the ticks step() gives, the TCP of each
+    included, through motion, a verb between two instants, a following-error alarm in mid-period,
+    a stop, drives off and on, and rests; decimated too."""
+    robot = load_model("jibot_zxs")
+    whole, ticks = Controller(robot, ControllerConfig()), Controller(robot, ControllerConfig())
+    sub = whole.servo_ticks_per_interpolation
+    by_period, one_by_one = Recorder(6, capacity=100_000), Recorder(6, capacity=100_000)
+    every_third, third = Recorder(6, capacity=3000, decimation=3), Recorder(6, capacity=3000, decimation=3)
+
+    class Both(Recorder):  # what step_period hands one recorder, to two
+        def add(self, tick: Tick) -> None:
+            by_period.add(tick)
+            every_third.add(tick)
+
+        def add_between(self, *args: Any, **kwargs: Any) -> None:
+            by_period.add_between(*args, **kwargs)
+            every_third.add_between(*args, **kwargs)
+
+    both = Both(6)
+
+    def one_tick(c: Controller) -> None:  # one tick into a period: the next step_period ends it
+        c.step()
+
+    def periods(count: int) -> None:
+        for _ in range(count):
+            before = len(one_by_one)
+            last = whole.step_period(both)
+            for _ in range(len(by_period) - before):
+                tick = ticks.step()
+                one_by_one.add(tick)
+                third.add(tick)
+            assert last == tick and round(last.time / whole.config.servo_period) % sub == 0, "to an instant"
+            assert whole.servo.position == ticks.servo.position and whole.servo.integral == ticks.servo.integral
+
+    script: list[tuple[int, Verb]] = [
+        (50, lambda c: c.add_move(np.full(6, 0.4), speed=0.8)),
+        (100, lambda c: c.stop()),
+        (300, lambda c: c.add_move(np.full(6, -0.3), speed=0.5)),
+        (40, lambda c: setattr(c.servo, "following_error_limit", [1e-6] * 6)),  # moving: trips at once
+        (300, lambda c: alarms.append(c.error_code)),
+        (0, lambda c: setattr(c.servo, "following_error_limit", [1.0] * 6)),
+        (10, lambda c: c.reset()),
+        (10, lambda c: c.add_move(np.full(6, 0.1), speed=0.5)),
+        (30, one_tick),
+        (1, lambda c: c.power_off()),
+        (20, lambda c: c.power_on()),
+        (10, lambda c: c.add_move(np.full(6, 0.2), speed=0.5)),
+        (1500, lambda c: None),
+    ]
+    alarms: list[int] = []
+    for count, verb in script:
+        periods(count)
+        _both(whole, ticks, verb)
+        if verb is one_tick:
+            one_by_one.add(ticks.command)  # the tick the verb made, in both records
+            third.add(ticks.command)
+            by_period.add(whole.command)
+            every_third.add(whole.command)
+    assert alarms == [4101, 4101], "the following-error alarm tripped in both"
+    assert whole.points_accepted == 4 and whole._rest.periods > 0
+    assert len(by_period) == len(one_by_one) > 9000
+    for a, b in ((by_period, one_by_one), (every_third, third)):
+        assert np.array_equal(a.time(), b.time())
+        for quantity in QUANTITIES:
+            assert np.array_equal(a.get(quantity), b.get(quantity)), quantity
+        assert np.array_equal(a.points(), b.points())
+        assert np.array_equal(a.tool(), b.tool(), equal_nan=True)
+    assert not np.isnan(by_period.tool()[-1]).any()

@@ -579,38 +579,61 @@ class Controller:
             self._instant()
         return self._servo_tick(i)
 
-    def step_period(self) -> Tick:
+    def step_period(self, recorder: Recorder | None = None) -> Tick:
         """The servo ticks up to the next interpolation instant at once (a whole interpolation
         period from one); returns the last. At rest (:mod:`.rest`) only that one is made: the others
-        would be the same ticks, their times aside, and no one sees them (a recorder steps)."""
+        would be the same ticks, their times aside, and no one sees them. With ``recorder``, every
+        tick of the period is recorded, as :meth:`step` makes them one by one: at rest replayed,
+        moving the drives' numbers of each tick handed over with the two setpoints it lies between
+        (:meth:`Recorder.add_between`: no tick made), the period's last tick made whole."""
         sub = self._sub
         i = self._tick % sub
         if i or not self._powered:
-            for _ in range(sub - i - 1):
-                self.step()
-            return self.step()
+            for _ in range(sub - i):
+                tick = self.step()
+                if recorder is not None:
+                    recorder.add(tick)
+            return tick
         self._instant()
-        if self._replaying is not None:  # nothing can happen between the instant and its period
-            self._tick += sub - 1
-            return self._replay(self._replaying[-1], sub - 1)
+        replaying = self._replaying
+        if replaying is not None:  # nothing can happen between the instant and its period
+            if recorder is None:
+                self._tick += sub - 1
+                return self._replay(replaying[-1], sub - 1)
+            for i in range(sub):
+                tick = self._replay(replaying[i], i)
+                recorder.add(tick)
+            return tick
         for i in range(sub - 1):
             if self._replaying is None and not self._rest.watching and (self.moving or self._settled):
-                self._unseen_tick(i)  # moving: no one sees this tick but the drives
+                self._unseen_tick(i, recorder)  # moving: no one needs this tick but the drives (and a recorder)
             else:
-                self._servo_tick(i)
-        return self._servo_tick(sub - 1, seen=False)
+                tick = self._servo_tick(i)
+                if recorder is not None:
+                    recorder.add(tick)
+        tick = self._servo_tick(sub - 1, seen=recorder is not None)
+        if recorder is not None:
+            recorder.add(tick)
+        return tick
 
-    def _unseen_tick(self, i: int) -> None:
+    def _unseen_tick(self, i: int, recorder: Recorder | None = None) -> None:
         """Servo tick ``i`` of the period (not its last) when no one sees its :class:`Tick`: the
         drives and their following-error supervision only, the same numbers as :meth:`_servo_tick`
-        (which also makes the tick, and checks the robot settling: not while it moves)."""
+        (which also makes the tick, and checks the robot settling: not while it moves). A
+        ``recorder`` gets the tick's numbers (:meth:`Recorder.add_between`), as the tick has them
+        before an alarm."""
         self._tick += 1
-        (p0, v0, _), (p1, v1, _) = self._previous, self._next
+        ends = self._previous, self._next
+        (p0, v0, _), (p1, v1, _) = ends
         config, servo = self.config, self.servo
         f = (i + 1) / self._sub
         j = servo.follow(
             p0, p1, v0, v1, f, increment_period=config.interpolation_period if config.increment_feedforward else None
         )
+        if recorder is not None:
+            recorder.add_between(
+                self._tick * config.servo_period, f, ends, servo, points=self.points_accepted, tool=self._tool
+            )
         if j >= 0:
             e = (1.0 - f) * p0[j] + f * p1[j] - servo.position[j]  # the command's own numbers
             self.raise_alarm(

@@ -99,11 +99,8 @@ class ControlLoop:
                     other_tick = other.step()
                     if other_recorder is not None:
                         other_recorder.add(other_tick)
-        elif recorder is not None:
-            for _ in range(sub):
-                recorder.add(ctl.step())
-        else:  # no one sees the period's ticks but its last: at rest, only that one is made
-            ctl.step_period()
+        else:  # no one sees the period's ticks but its last (a recorder aside): at rest, only that one is made
+            ctl.step_period(recorder)
         if self.on_wake is not None:
             self.on_wake()
         stats = self.stats

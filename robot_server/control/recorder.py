@@ -31,12 +31,12 @@ import io
 import zipfile
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
-from .tool import TOOL_FIELDS
+from .tool import TOOL_FIELDS, ToolState
 
 if TYPE_CHECKING:
     from .controller import Tick
@@ -44,6 +44,21 @@ if TYPE_CHECKING:
 __all__ = ["CSV_DECIMALS", "QUANTITIES", "Recorder", "record_format"]
 
 _T = TypeVar("_T", bound=np.generic)
+
+#: a setpoint at an interpolation instant: position, velocity and acceleration of each joint
+Setpoint = tuple[Sequence[float], Sequence[float], Sequence[float]]
+
+
+class DriveState(Protocol):
+    """The drives' actual state (:class:`~.servo.ServoDrives`), per joint."""
+
+    @property
+    def position(self) -> Sequence[float]: ...
+    @property
+    def velocity(self) -> Sequence[float]: ...
+    @property
+    def acceleration(self) -> Sequence[float]: ...
+
 
 #: per joint, in this order after the time column
 QUANTITIES = (
@@ -87,43 +102,159 @@ class Recorder:
         self._tool = np.full((capacity, len(_TOOL)), np.nan)
         self._count = 0  # ticks stored so far (including overwritten ones)
         self._seen = 0
+        # the ticks added but not yet in the arrays (:meth:`_flush`, before anything reads them):
+        # their numbers (time, then the quantities) one after another, their points, their TCPs
+        # (each ToolState once) and which TCP each has (-1: none); the ticks of add_between, their
+        # rows, shares and periods (each period's two setpoints once, position, velocity and
+        # acceleration of each, one after another)
+        self._flat: list[float] = []
+        self._pending_points: list[int] = []
+        self._tools: list[tuple[float, ...]] = []
+        self._tool_rows: list[int] = []
+        self._last_tool: ToolState | None = None
+        self._between: list[tuple[int, float, int]] = []
+        self._ends: list[float] = []
+        self._last_ends: tuple[Setpoint, Setpoint] | None = None
+        self._holes = [0.0] * (3 * dof)  # the command of a tick of add_between, until the flush,
+        self._hole = [0.0] * dof  # and its following error
 
     def add(self, tick: Tick) -> None:
         seen = self._seen
         self._seen = seen + 1
         if seen % self.decimation:
             return
-        row = self._count % self.capacity
-        self._time[row] = tick.time
-        self._data[row] = (
-            tick.command_position,
-            tick.command_velocity,
-            tick.command_acceleration,
-            tick.actual_position,
-            tick.actual_velocity,
-            tick.actual_acceleration,
-            tick.following_error,
-        )
-        self._points[row] = tick.points
-        tool = tick.tool
-        if tool is not None:
-            self._tool[row, :-1] = tool.values()
-            self._tool[row, -1] = tool.time
+        # the numbers go to one flat list (no object per tick outlives the call: a list of ticks
+        # kept until the flush costs more in the garbage collector than the flush itself)
+        flat = self._flat
+        flat.append(tick[0])
+        extend = flat.extend  # (not +=: a numpy array on the right would add, not extend)
+        extend(tick[1])
+        extend(tick[2])
+        extend(tick[3])
+        extend(tick[4])
+        extend(tick[5])
+        extend(tick[6])
+        extend(tick[7])
+        self._tool_row(tick[9])
+        points = self._pending_points
+        points.append(tick[8])
+        if len(points) >= _BLOCK:
+            self._flush()
+
+    def add_between(
+        self,
+        time: float,
+        share: float,
+        ends: tuple[Setpoint, Setpoint],
+        drives: DriveState,
+        *,
+        points: int,
+        tool: ToolState | None,
+    ) -> None:
+        """Record a tick whose command is the setpoint ``share`` of the way between the two of
+        ``ends`` (each ``(position, velocity, acceleration)``, the interpolation instants around
+        the tick), as :meth:`~.controller.Controller.step` makes it: ``(1 - share) x first + share
+        x second`` of each, the following error the position's minus the actual one; ``drives``:
+        the actual position, velocity and acceleration. The same numbers as :meth:`add` of that
+        tick, computed for a block of ticks at once when they are written: what a moving
+        controller's recorded period costs, without making its ticks."""
+        seen = self._seen
+        self._seen = seen + 1
+        if seen % self.decimation:
+            return
+        last = self._last_ends
+        if last is None or last[0] is not ends[0] or last[1] is not ends[1]:  # once per period
+            self._last_ends = ends
+            for setpoint in ends:
+                for values in setpoint:
+                    self._ends.extend(values)
+        pending = self._pending_points
+        self._between.append((len(pending), share, len(self._ends)))
+        flat = self._flat
+        flat.append(time)
+        extend = flat.extend
+        extend(self._holes)
+        extend(drives.position)
+        extend(drives.velocity)
+        extend(drives.acceleration)
+        extend(self._hole)
+        self._tool_row(tool)
+        pending.append(points)
+        if len(pending) >= _BLOCK:
+            self._flush()
+
+    def _tool_row(self, tool: ToolState | None) -> None:
+        if tool is None:
+            self._tool_rows.append(-1)
         else:
-            self._tool[row] = np.nan
-        self._count += 1
+            if tool is not self._last_tool:  # a period's ticks share their ToolState
+                self._last_tool = tool
+                self._tools.append((*tool.values(), tool.time))
+            self._tool_rows.append(len(self._tools) - 1)
+
+    def _flush(self) -> None:
+        """Write the ticks added since the last flush into the arrays, a block at a time (several
+        times faster than a row at a time)."""
+        count = len(self._pending_points)
+        if not count:
+            return
+        dof = self.dof
+        flat = np.fromiter(self._flat, dtype=np.float64, count=len(self._flat))
+        width = 1 + len(QUANTITIES) * dof
+        if flat.size != count * width:
+            self._forget_pending()
+            raise ValueError(f"a recorded tick does not hold {len(QUANTITIES)} quantities of {dof} joints")
+        table = flat.reshape(count, len(QUANTITIES) * dof + 1)
+        if self._between:
+            # (1 - f) x previous + f x next, per value: what the controller computes one tick at a time
+            rows, shares, ends = (np.array(column) for column in zip(*self._between, strict=True))
+            setpoints = np.array(self._ends).reshape(-1, 2, 3, dof)[ends // (6 * dof) - 1]
+            f = shares[:, None, None]
+            command = (1.0 - f) * setpoints[:, 0] + f * setpoints[:, 1]  # (ticks, 3, dof)
+            table[rows, 1 : 1 + 3 * dof] = command.reshape(-1, 3 * dof)  # the three command quantities
+            table[rows, 1 + 6 * dof :] = command[:, 0] - table[rows, 1 + 3 * dof : 1 + 4 * dof]  # error: - actual
+        points = self._pending_points
+        tools = np.vstack([np.array(self._tools).reshape(-1, len(_TOOL)), np.full((1, len(_TOOL)), np.nan)])
+        tool_rows = self._tool_rows
+        self._forget_pending()
+        kept = min(count, self.capacity)  # a block longer than the ring: its newest ticks
+        first = (self._count + count - kept) % self.capacity
+        table = table[-kept:]
+        tool = tools[tool_rows[-kept:]]  # -1: the NaN row
+        kept_points = points[-kept:]
+        at = 0
+        while at < kept:  # one slice of the ring, or two where it wraps
+            row = (first + at) % self.capacity
+            n = min(kept - at, self.capacity - row)
+            self._time[row : row + n] = table[at : at + n, 0]
+            self._data[row : row + n] = table[at : at + n, 1:].reshape(n, len(QUANTITIES), dof)
+            self._points[row : row + n] = kept_points[at : at + n]
+            self._tool[row : row + n] = tool[at : at + n]
+            at += n
+        self._count += count
+
+    def _forget_pending(self) -> None:
+        self._flat = []
+        self._pending_points = []
+        self._tools = []
+        self._tool_rows = []
+        self._last_tool = None
+        self._between = []
+        self._ends = []
+        self._last_ends = None
 
     def __len__(self) -> int:
-        return min(self._count, self.capacity)
+        return min(self._count + len(self._pending_points), self.capacity)
 
     @property
     def dropped(self) -> int:
         """Recorded ticks overwritten because the buffer was full."""
-        return max(0, self._count - self.capacity)
+        return max(0, self._count + len(self._pending_points) - self.capacity)
 
     def clear(self) -> None:
         self._count = 0
         self._seen = 0
+        self._forget_pending()
 
     @classmethod
     def from_columns(
@@ -186,6 +317,7 @@ class Recorder:
         return self._ordered(self._data[:, QUANTITIES.index(quantity), :])
 
     def _ordered(self, array: NDArray[_T]) -> NDArray[_T]:
+        self._flush()
         n = len(self)
         if self._count <= self.capacity:
             return array[:n].copy()
@@ -250,6 +382,7 @@ class Recorder:
         text = io.StringIO()
         csv.writer(text, lineterminator="\n").writerow(self.header(joint_names))
         write(text.getvalue().encode("utf-8"))
+        self._flush()
         n = len(self)
         if not n:
             return
@@ -274,6 +407,9 @@ class Recorder:
             out[:, at + 2 :] = self._tool[rows]
             write(format_rows(out, whole, scratch))
 
+
+#: ticks a recorder collects before it writes them into its arrays at once (:meth:`Recorder._flush`)
+_BLOCK = 1024
 
 #: rows formatted at once: the work space (200 kB) stays in the processor's cache; blocks of 512 rows
 #: took a fifth longer, of 32 rows longer still (numpy's overhead per call)
