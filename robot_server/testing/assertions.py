@@ -17,13 +17,13 @@ of the first violation, and how long it lasted), and by how much (the value, the
 with units), then a short table of the motion around that moment. Given ``plot_dir`` and with
 matplotlib installed (the ``plot`` extra), it also draws the offending quantity over that stretch of
 time into a PNG file there, and the message names the file. The checks work on the record's arrays
-at once (numpy), not tick by tick.
+at once (numpy), not tick by tick. They decide whether the motion failed and its facts; the message
+and the plot are written by :mod:`.failures`.
 """
 
 from __future__ import annotations
 
 import math
-import re
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -37,6 +37,7 @@ from ..arrays import Array
 from ..control.points import Limits
 from ..kinematics.rotations import rotation_to_quaternion
 from ..model import JointType
+from .failures import joints_off, orientation_off, out_of_bounds, position_off, table
 
 if TYPE_CHECKING:
     from ..control.recorder import Recorder
@@ -59,10 +60,6 @@ __all__ = [
 #: drives did, or both
 Side = Literal["actual", "command", "both"]
 
-#: rows of the table around a violation, before its first tick and after it
-_CONTEXT = 3
-#: samples in the table of how a joint ended (assert_reached)
-_TAIL = 8
 #: the columns of the tool in Recorder.tool(): (x, y, z, qw, qx, qy, qz, speed) per side, then time
 _TOOL_OFFSET = {"command": 0, "actual": 8}
 _TOOL_TIME = 16
@@ -150,7 +147,7 @@ class LimitReport:
             )
             for j, (name, unit) in enumerate(zip(self.joint_names, self.units, strict=True))
         ]
-        return _table(("joint", "peak velocity / limit", "peak acceleration / limit", "peak jerk / limit"), rows)
+        return table(("joint", "peak velocity / limit", "peak acceleration / limit", "peak jerk / limit"), rows)
 
 
 # -- the assertions -------------------------------------------------------------------------------
@@ -538,89 +535,36 @@ def _check(
     if not found:
         return
     _, k, s, f, excess = min(found, key=lambda item: (item[0], item[1]))
-    c, t, v = f.column, s.times, s.values[:, f.column]
-    unit = s.units[c]
-    value = float(v[f.first])
-    above = value > s.high[c]
-    bound = float(s.high[c] if above else s.low[c])
-    bound_name = s.bound_names[1 if above else 0]
-    first_excess = float(excess[f.first, c])
-    duration: float | None = None
-    if f.last + 1 < t.size:
-        duration = float(t[f.last + 1] - t[f.first])
-        lasted = f"for {duration * 1000:.4g} ms (back within at t = {t[f.last + 1]:.4f} s)"
-    else:
-        lasted = f"and was still beyond it at the end of the record (t = {t[-1]:.4f} s)"
-    direction = "above" if above else "below"
-    lines = [
-        f"{name}: {s.where[c]} {s.what} {s.went} {direction} {bound_name} at t = {t[f.first]:.4f} s "
-        f"{lasted}: {value:.6g} {unit} {'>' if above else '<'} {bound:.6g} {unit}, by {first_excess:.4g} {unit}"
-    ]
-    if f.worst != f.first:
-        lines.append(
-            f"the worst of that excursion: {v[f.worst]:.6g} {unit}, by {excess[f.worst, c]:.4g} {unit} "
-            f"at t = {t[f.worst]:.4f} s"
-        )
-    others = [item for item in found if item[1] != k]
-    if f.excursions > 1 or others:
-        row, column = f.largest
-        names = ", ".join(dict.fromkeys(s.where[j] for j in f.columns))
-        lines.append(
-            f"{f.excursions} excursion(s) of the {s.what} in all (on {names}); the largest: "
-            f"{s.where[column]}, by {excess[row, column]:.4g} {s.units[column]} at t = {t[row]:.4f} s"
-        )
-        for _, _, other, g, other_excess in others:
-            oc = g.column
-            beyond = other.bound_names[0 if other.values[g.first, oc] < other.low[oc] else 1]
-            lines.append(
-                f"also: {other.where[oc]} {other.what} beyond {beyond} from t = {other.times[g.first]:.4f} s, "
-                f"by {other_excess[g.first, oc]:.4g} {other.units[oc]}"
-            )
-    lines.extend(extra)
-    lines.append(_around(s, f, excess, unit))
-    plot_times, plot_values = (full[0], full[1][k][:, c]) if full is not None else (t, v)
-    plot, said = _plot(
-        plot_dir,
+    c, t = f.column, s.times
+    value = float(s.values[f.first, c])
+    bound = float(s.high[c] if value > s.high[c] else s.low[c])
+    duration = float(t[f.last + 1] - t[f.first]) if f.last + 1 < t.size else None
+    others = [(other, g, other_excess) for _, j, other, g, other_excess in found if j != k]
+    message, plot = out_of_bounds(
         name,
-        f"{s.where[c]} {s.what}",
-        unit=unit,
-        times=plot_times,
-        values=plot_values,
+        s,
+        f,
+        excess,
+        others,
+        value=value,
         bound=bound,
-        span=(float(t[f.first]), float(t[f.last])),
+        duration=duration,
+        plot_dir=plot_dir,
+        extra=extra,
+        full=(full[0], full[1][k]) if full is not None else None,
         marks=marks,
     )
-    if said:
-        lines.append(said)
     raise MotionAssertionError(
-        "\n".join(lines),
+        message,
         where=s.where[c],
         time=float(t[f.first]),
         duration=duration,
         value=value,
         bound=bound,
-        excess=first_excess,
-        unit=unit,
+        excess=float(excess[f.first, c]),
+        unit=s.units[c],
         plot=plot,
     )
-
-
-def _around(s: _Series, f: _Found, excess: Array, unit: str) -> str:
-    """The table of the offending column around its first violation (``*``: beyond the bound)."""
-    n = s.times.size
-    picked = sorted(
-        {*range(max(0, f.first - _CONTEXT), min(n, f.first + _CONTEXT + 1)), f.worst, f.last, min(n - 1, f.last + 1)}
-    )
-    c = f.column
-    rows: list[tuple[str, ...]] = []
-    previous = None
-    for i in picked:
-        if previous is not None and i > previous + 1:
-            rows.append(("", "...", "", ""))
-        e = float(excess[i, c])
-        rows.append(("*" if e > 0 else "", f"{s.times[i]:.4f}", f"{s.values[i, c]:.6g}", f"{e:.4g}" if e > 0 else ""))
-        previous = i
-    return _table(("", "time (s)", f"{s.where[c]} {s.what} ({unit})", f"excess ({unit})"), rows)
 
 
 # -- assert_reached's parts -----------------------------------------------------------------------
@@ -648,33 +592,24 @@ def _check_joints_reached(
     j = int(index[k])
     joint, unit = model.joint_names[j], units[j]
     inside = np.all(np.abs(error) <= tol, axis=1)
-    lines = [
-        f"{name}: {joint} {side} position ended {abs(error[-1, k]):.4g} {unit} from its target at "
-        f"t = {times[-1]:.4f} s: {positions[-1, j]:.6g} {unit}, target {target[k]:.6g} {unit}, "
-        f"tolerance {tol[k]:.4g} {unit}, by {excess[k]:.4g} {unit} beyond it",
-        _history(inside, times, np.max(np.abs(error) / tol, axis=1), "the target"),
-        _table(
-            ("", "joint", "target", side, "error", "tolerance"),
-            [
-                (
-                    "*" if excess[i] > 0 else "",
-                    model.joint_names[int(jj)],
-                    f"{target[i]:.6g}",
-                    f"{positions[-1, int(jj)]:.6g}",
-                    f"{error[-1, i]:+.4g}",
-                    f"{tol[i]:.4g} {units[int(jj)]}",
-                )
-                for i, jj in enumerate(index)
-            ],
-        ),
-        _tail(times, positions[:, j], f"{joint} {side} position", unit, target[k]),
-    ]
-    what = f"{joint} {side} position"
-    plot, said = _plot(plot_dir, name, what, unit=unit, times=times, values=positions[:, j], band=(target[k], tol[k]))
-    if said:
-        lines.append(said)
+    message, plot = joints_off(
+        name,
+        model,
+        times,
+        positions,
+        side=side,
+        index=index,
+        target=target,
+        tol=tol,
+        units=units,
+        error=error,
+        excess=excess,
+        k=k,
+        inside=inside,
+        plot_dir=plot_dir,
+    )
     raise MotionAssertionError(
-        "\n".join(lines),
+        message,
         where=joint,
         time=float(times[-1]),
         value=float(positions[-1, j]),
@@ -706,24 +641,23 @@ def _check_pose_reached(
     if distance[-1] > tol:
         axis = int(np.argmax(np.abs(offset[-1])))
         inside = (distance <= tol) & (angle <= angle_tol)
-        lines = [
-            f"{name}: the {side} TCP ended {distance[-1]:.4g} m from the target position at t = {times[-1]:.4f} s "
-            f"(tolerance {tol:.4g} m, by {distance[-1] - tol:.4g} m beyond it); the largest offset is along "
-            f"{'xyz'[axis]}: {offset[-1, axis]:+.4g} m",
-            _history(inside, times, np.maximum(distance / tol, angle / angle_tol), "the target pose"),
-            _table(
-                ("axis", "target (m)", f"{side} (m)", "offset (m)"),
-                [(a, f"{position[i]:.6g}", f"{xyz[-1, i]:.6g}", f"{offset[-1, i]:+.4g}") for i, a in enumerate("xyz")],
-            ),
-            _tail(times, distance, f"TCP distance from the target ({side})", "m"),
-        ]
-        plot, said = _plot(
-            plot_dir, name, f"TCP distance from the target ({side})", unit="m", times=times, values=distance, bound=tol
+        message, plot = position_off(
+            name,
+            times,
+            side=side,
+            position=position,
+            xyz=xyz,
+            offset=offset,
+            distance=distance,
+            angle=angle,
+            tol=tol,
+            angle_tol=angle_tol,
+            axis=axis,
+            inside=inside,
+            plot_dir=plot_dir,
         )
-        if said:
-            lines.append(said)
         raise MotionAssertionError(
-            "\n".join(lines),
+            message,
             where=f"TCP {'xyz'[axis]}",
             time=float(times[-1]),
             value=float(distance[-1]),
@@ -734,27 +668,21 @@ def _check_pose_reached(
         )
     if orientation is not None and angle[-1] > angle_tol:
         inside = (distance <= tol) & (angle <= angle_tol)
-        lines = [
-            f"{name}: the {side} TCP ended turned {angle[-1]:.4g} rad from the target orientation at t = "
-            f"{times[-1]:.4f} s (tolerance {angle_tol:.4g} rad, by {angle[-1] - angle_tol:.4g} rad beyond it): "
-            f"(qw, qx, qy, qz) = ({', '.join(f'{x:.6g}' for x in quaternion[-1])}), target "
-            f"({', '.join(f'{x:.6g}' for x in orientation)})",
-            _history(inside, times, np.maximum(distance / tol, angle / angle_tol), "the target pose"),
-            _tail(times, angle, f"TCP angle from the target ({side})", "rad"),
-        ]
-        plot, said = _plot(
-            plot_dir,
+        message, plot = orientation_off(
             name,
-            f"TCP angle from the target ({side})",
-            unit="rad",
-            times=times,
-            values=angle,
-            bound=angle_tol,
+            times,
+            side=side,
+            quaternion=quaternion,
+            orientation=orientation,
+            distance=distance,
+            angle=angle,
+            tol=tol,
+            angle_tol=angle_tol,
+            inside=inside,
+            plot_dir=plot_dir,
         )
-        if said:
-            lines.append(said)
         raise MotionAssertionError(
-            "\n".join(lines),
+            message,
             where="TCP orientation",
             time=float(times[-1]),
             value=float(angle[-1]),
@@ -763,34 +691,6 @@ def _check_pose_reached(
             unit="rad",
             plot=plot,
         )
-
-
-def _history(inside: NDArray[np.bool_], times: Array, ratio: Array, what: str) -> str:
-    """Whether, and when, the robot had been within tolerance of ``what`` before it ended out of it."""
-    if not inside.any():
-        k = int(np.argmin(ratio))
-        closest = f"closest at t = {times[k]:.4f} s ({ratio[k]:.3g} x the tolerance)"
-        return f"it never came within tolerance of {what}; {closest}"
-    last = int(np.flatnonzero(inside)[-1])
-    outside = np.flatnonzero(~inside[: last + 1])
-    begin = int(outside[-1]) + 1 if outside.size else 0
-    return (
-        f"it was within tolerance of {what} from t = {times[begin]:.4f} s to t = {times[last]:.4f} s, "
-        f"then left it at t = {times[last + 1]:.4f} s"
-    )
-
-
-def _tail(times: Array, values: Array, what: str, unit: str, target: float | None = None) -> str:
-    """How ``values`` ended: a few samples over the last second of the record."""
-    n = times.size
-    begin = int(np.searchsorted(times, times[-1] - 1.0))
-    picked = np.unique(np.linspace(begin, n - 1, min(_TAIL, n - begin)).round().astype(int))
-    header = ("time (s)", f"{what} ({unit})") + (() if target is None else (f"minus target ({unit})",))
-    rows = [
-        (f"{times[i]:.4f}", f"{values[i]:.6g}") + (() if target is None else (f"{values[i] - target:+.4g}",))
-        for i in picked
-    ]
-    return "how it ended:\n" + _table(header, rows)
 
 
 def _joint_targets(
@@ -923,69 +823,3 @@ def _instants_of_tool(name: str, record: Recorder, start: float | None, end: flo
     if not new.any():
         raise MotionAssertionError(f"{name}: the record holds no TCP{_between(start, end)} (no tool.* values)")
     return at[new], tool[new]
-
-
-# -- output -------------------------------------------------------------------------------------
-
-
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(header)]
-    lines = ["  ".join(cell.rjust(w) for cell, w in zip(row, widths, strict=True)) for row in [header, *rows]]
-    return "\n".join("  " + line.rstrip() for line in lines)
-
-
-def _plot(
-    plot_dir: str | Path | None,
-    name: str,
-    what: str,
-    *,
-    unit: str,
-    times: Array,
-    values: Array,
-    bound: float | None = None,
-    band: tuple[float, float] | None = None,
-    span: tuple[float, float] | None = None,
-    marks: Sequence[tuple[float, str]] = (),
-) -> tuple[Path | None, str]:
-    """Draw ``values`` over the stretch of time around ``span`` (the violation) into a PNG under
-    ``plot_dir``; returns the file and the line the message says about it."""
-    if plot_dir is None:
-        return None, ""
-    try:
-        from matplotlib.figure import Figure
-    except ImportError:
-        return None, "plot: not drawn (matplotlib is not installed; the project's plot extra installs it)"
-    if span is not None:
-        pad = max(0.25, span[1] - span[0])
-        shown = (times >= span[0] - pad) & (times <= span[1] + pad)
-    else:
-        shown = times >= times[-1] - 5.0  # how it ended: the last seconds
-    for mark, _ in marks:
-        shown |= times >= mark - 0.05
-    figure = Figure(figsize=(7.0, 3.2), layout="constrained")
-    axes = figure.subplots()
-    axes.plot(times[shown], values[shown], linewidth=1.0, label=what)
-    if bound is not None and math.isfinite(bound):
-        axes.axhline(bound, color="tab:red", linewidth=0.8, linestyle="--", label=f"bound {bound:.6g} {unit}")
-    if band is not None:
-        centre, width = band
-        axes.axhspan(centre - width, centre + width, color="tab:green", alpha=0.2, label="target ± tolerance")
-    if span is not None:
-        axes.axvspan(span[0], max(span[1], span[0] + 1e-4), color="tab:red", alpha=0.15, label="violation")
-    for (mark, label), style in zip(marks, (":", "-."), strict=False):
-        axes.axvline(mark, color="grey", linewidth=0.8, linestyle=style, label=label)
-    axes.set_xlabel("controller time (s)")
-    axes.set_ylabel(f"{what} ({unit})")
-    axes.grid(True, alpha=0.3)
-    axes.legend(loc="best", fontsize=7)
-    axes.set_title(f"{name}: {what}", fontsize=9)
-    folder = Path(plot_dir)
-    folder.mkdir(parents=True, exist_ok=True)
-    stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{name}-{what}").strip("_")
-    path = folder / f"{stem}.png"
-    number = 1
-    while path.exists():
-        number += 1
-        path = folder / f"{stem}-{number}.png"
-    figure.savefig(path, dpi=100)
-    return path, f"plot: {path}"
