@@ -451,3 +451,77 @@ async def test_an_async_robot_server_process_that_cannot_start_is_reported_once(
     # the teardown that follows must not report it again ("did not stop cleanly"): the test would error
     with pytest.raises(ControllerError, match=r"robot-server did not start \(exit status 2\):\n.*no_such_cell"):
         await robot_controller(process=True, cell="no_such_cell")
+
+
+# -- bad input: a typed error, raised before anything starts or is sent -----------------------------------
+
+#: hosts the fixture refuses (its controllers are reached on loopback), and why
+BAD_HOSTS = (
+    ("no.such.host.invalid", "is not an IP address"),
+    ("127.0.0.300", "is not an IP address"),
+    ("8.8.8.8", "is not a loopback address"),
+    ("fe80::1", "is not a loopback address"),
+)
+
+
+def _no_lookup(*args: object, **kwargs: object) -> object:
+    raise AssertionError(f"a host name was looked up: {args}")
+
+
+@pytest.mark.parametrize("process", [False, True], ids=["in-process", "process"])
+def test_a_host_off_loopback_is_refused_naming_the_key_and_the_value(
+    robot_controller, monkeypatch: pytest.MonkeyPatch, process: bool
+) -> None:
+    with monkeypatch.context() as patch:
+        patch.setattr(socket, "getaddrinfo", _no_lookup)  # refused as written, no resolver asked
+        for host, why in BAD_HOSTS:
+            with pytest.raises(SettingsError) as error:
+                robot_controller(host=host, process=process)
+            text = str(error.value)
+            assert text.startswith(f"robot_controller(c1): host: {host!r} {why}") and "give 127.0.0.1" in text
+    assert robot_controller.handles == []
+    ctrl = robot_controller(host="localhost", speedup="step")
+    assert ctrl.host == "localhost" and ctrl.advance(0.1) > 0.0
+
+
+async def test_an_async_test_s_host_off_loopback_is_refused_at_the_call(robot_controller) -> None:
+    for process in (False, True):
+        with pytest.raises(SettingsError, match=r"robot_controller\(c1\): host: 'no.such.host.invalid' is not an IP"):
+            robot_controller(host="no.such.host.invalid", process=process)  # (not even awaited)
+    assert robot_controller.handles == []
+
+
+#: fault commands that are not text, and how the TypeError names them
+NOT_TEXT = ((1, "1 (int)"), (None, "None (NoneType)"), (b"estop", "b'estop' (bytes)"), (["estop"], "['estop'] (list)"))
+
+
+def test_a_fault_command_that_is_not_text_is_a_type_error(robot_controller) -> None:
+    ctrl = robot_controller(speedup="step")
+    for command, named in NOT_TEXT:
+        with pytest.raises(TypeError) as error:
+            ctrl.fault(command)
+        assert str(error.value).startswith("fault: a fault command is text") and str(error.value).endswith(named)
+    assert ctrl.status.e_stopped == TriState.FALSE  # nothing was applied
+    assert ctrl.fault("estop") == "estop"
+
+
+async def test_an_async_fault_command_that_is_not_text_is_a_type_error(robot_controller) -> None:
+    ctrl = await robot_controller(speedup="step")
+    for command, named in NOT_TEXT:
+        with pytest.raises(TypeError) as error:
+            await ctrl.fault(command)
+        assert str(error.value).endswith(named)
+    assert ctrl.status.e_stopped == TriState.FALSE
+    assert await ctrl.fault("estop") == "estop"
+
+
+@pytest.mark.slow
+def test_a_robot_server_process_s_fault_command_that_is_not_text_is_a_type_error(robot_controller) -> None:
+    ctrl = robot_controller(process=True)
+    with pytest.raises(TypeError, match=r"^fault: a fault command is text.*, not 1 \(int\)$"):
+        ctrl.fault(1)
+    assert ctrl.fault("estop") == "estop"  # nothing was typed before: the process answers the next one
+    ctrl.stop()
+    assert ctrl.log_path is not None
+    applied = [line for line in ctrl.log_path.read_text().splitlines() if "applied:" in line]
+    assert len(applied) == 1 and applied[0].endswith("applied: estop"), applied

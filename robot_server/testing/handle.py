@@ -123,6 +123,18 @@ class _LoopThread:
                 raise ControllerError(f"the controller's thread did not end within {JOIN_TIMEOUT:g} s")
 
 
+def _fault_command(command: object) -> str:
+    """``command`` if it is a fault command's text, else :class:`TypeError` naming what was given
+    (a wrong type is the test's mistake, not a command the controller refuses: not a
+    :class:`~robot_server.emulator.FaultError`)."""
+    if not isinstance(command, str):
+        raise TypeError(
+            f'fault: a fault command is text, as robot-server reads it on stdin ("estop", "alarm 1001 TEXT"), not '
+            f"{command!r} ({type(command).__name__})"
+        )
+    return command
+
+
 class _Handle:
     """What every controller handle has (see the module doc)."""
 
@@ -284,8 +296,9 @@ class RobotController(_Handle):
     def fault(self, command: str) -> str:
         """Apply a fault command as ``robot-server`` reads them on stdin (``estop``, ``drives off``,
         ``drives on``, ``alarm CODE [TEXT]``, ``reset``, ``stop``, ``mode auto|manual``); returns what
-        was done, raises :class:`~robot_server.emulator.FaultError` for a command it refuses."""
-        return self._thread.run(self._core.fault(command))
+        was done, raises :class:`~robot_server.emulator.FaultError` for a command it refuses and
+        :class:`TypeError` for one that is not a ``str``."""
+        return self._thread.run(self._core.fault(_fault_command(command)))
 
     def advance(self, seconds: float) -> float:
         """Let ``seconds`` of controller time pass (a stepped clock is moved; a real-time one waited
@@ -368,6 +381,7 @@ class AsyncRobotController(_Handle):
 
     async def fault(self, command: str) -> str:
         """As :meth:`RobotController.fault`."""
+        command = _fault_command(command)
         await self._started()
         return await self._core.fault(command)
 

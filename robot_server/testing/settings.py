@@ -10,6 +10,7 @@ back as the command's options (:func:`command_line`).
 
 from __future__ import annotations
 
+import ipaddress
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -64,6 +65,26 @@ def _speedup(value: object, process: bool) -> Speedup:
     return float(value)
 
 
+def _check_host(name: str, host: str) -> None:
+    """The fixture's controllers are reached on loopback: ``host`` is a loopback address (127.0.0.0/8,
+    ``::1``), ``localhost``, or a wildcard (``""``, ``0.0.0.0``, ``::``: every interface, loopback
+    among them); else :class:`SettingsError`, naming the key and the value. Other names are not
+    looked up: a typo would surface as the resolver's error deep in the start, and a name of
+    another interface would have the controller listen where the test cannot be sure to reach it."""
+    if host == "" or host.lower() == "localhost":
+        return
+    known = '127.0.0.1 (or another of 127.0.0.0/8), ::1 or localhost; 0.0.0.0, :: or "" to listen on every interface'
+    try:
+        address = ipaddress.ip_address(host)
+    except ValueError:
+        raise SettingsError(
+            f"robot_controller({name}): host: {host!r} is not an IP address (a name other than localhost is not "
+            f"looked up): give {known}"
+        ) from None
+    if not (address.is_loopback or address.is_unspecified):
+        raise SettingsError(f"robot_controller({name}): host: {host!r} is not a loopback address: give {known}")
+
+
 def _plain(value: object) -> object:
     """A Python value as TOML would give it to the fleet reader (lists, not tuples; paths as text)."""
     if isinstance(value, Path):
@@ -116,6 +137,7 @@ def read_settings(
     except FleetError as exc:
         text = str(exc).replace(f"{_SOURCE}: controller {name}: ", f"robot_controller({name}): ", 1)
         raise SettingsError(text) from None
+    _check_host(name, spec.config.host)
     if process:
         for key in _NO_OPTION[1:]:
             if key in values:
