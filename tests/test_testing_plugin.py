@@ -525,3 +525,49 @@ def test_a_robot_server_process_s_fault_command_that_is_not_text_is_a_type_error
     assert ctrl.log_path is not None
     applied = [line for line in ctrl.log_path.read_text().splitlines() if "applied:" in line]
     assert len(applied) == 1 and applied[0].endswith("applied: estop"), applied
+
+
+# -- the pytest and pluggy the plugin needs --------------------------------------------------------------
+
+pytest_plugins = ["pytester"]  # (for the test below: a pytest run of its own)
+
+
+def test_the_plugin_says_which_pytest_and_pluggy_it_needs() -> None:
+    from robot_server.testing import plugin
+
+    assert plugin.UNSUPPORTED is None  # this run's
+    assert plugin.unsupported("8.0.0", "1.3.0") is None
+    assert plugin.unsupported("9.1.0.dev12+g0123abc", "1.6.0") is None
+    assert plugin.unsupported("7.4.4", "1.5.0") == (
+        "robot_server's pytest plugin (the robot_controller fixture) needs pytest >= 8.0 (with pluggy >= 1.1); "
+        "this is pytest 7.4.4 with pluggy 1.5.0: pip install 'pytest>=8.0' 'pluggy>=1.1', or turn the plugin off "
+        "with -p no:robot_server"
+    )
+    assert plugin.unsupported("8.0.0", "1.0.0") is not None  # (a pluggy installed apart, older than pytest's own)
+    assert plugin.unsupported("8.0.0rc1", "1.1.0.dev1") is None
+
+
+@pytest.mark.slow
+def test_with_a_pluggy_too_old_the_fixture_says_so_and_the_run_goes_on(
+    pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # a plugin given with -p is imported before the entry points': it makes pluggy look like 1.0
+    pytester.makepyfile(old_pluggy="import pluggy\n\npluggy.__version__ = '1.0.0'\n")
+    pytester.makeini("[pytest]\nasyncio_default_fixture_loop_scope = function\n")
+    pytester.makepyfile(
+        test_old="""
+        def test_asks_for_a_controller(robot_controller):
+            robot_controller()
+
+        def test_does_not():
+            pass
+        """
+    )
+    monkeypatch.setenv("PYTHONPATH", str(pytester.path))
+    options = ("-p", "old_pluggy", "-p", "no:randomly", "-p", "no:cacheprovider", "--robot-captures", "none")
+    result = pytester.runpytest_subprocess(*options, timeout=120)
+    result.assert_outcomes(passed=1, errors=1)
+    out = result.stdout.str()
+    needs = "needs pytest >= 8.0 (with pluggy >= 1.1); this is pytest {} with pluggy 1.0.0: pip install"
+    assert needs.format(pytest.__version__) in out, out
+    assert "def robot_controller" not in out  # the message alone, no traceback of the plugin

@@ -16,28 +16,81 @@ turns it off.
 * An async test's controllers run in the test's event loop, which pytest-asyncio closes before
   the fixture's teardown: they are stopped by a finalizer of pytest-asyncio's runner, just before
   it closes the loop.
+
+It needs pytest 8.0 or later (:data:`MIN_PYTEST`), whose pluggy knows the hook wrappers it uses
+(``wrapper=True``, pluggy 1.1). pytest itself is no dependency of the package, so an older one is
+met here, in every run: the plugin then installs no hook, and the fixture fails the test that asks
+for it saying which versions it found (:func:`unsupported`). The run and its other tests go on.
 """
 
 from __future__ import annotations
 
+import re
 import sys
-from collections.abc import Generator, Iterator
+from collections.abc import Callable, Generator, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
+import pluggy
 import pytest
 
 if TYPE_CHECKING:
     from .handle import ControllerFactory
 
-__all__ = ["robot_controller"]
+__all__ = ["MIN_PLUGGY", "MIN_PYTEST", "robot_controller", "unsupported"]
 
-#: the factories of a test (on its item)
-_FACTORIES = pytest.StashKey[list["ControllerFactory"]]()
-#: the test failed in its setup or call (on its item): its controllers' files are kept
-_FAILED = pytest.StashKey[bool]()
-#: every factory not closed yet (on the config)
-_LIVE = pytest.StashKey[list["ControllerFactory"]]()
+F = TypeVar("F", bound=Callable[..., Any])
+
+#: the oldest pytest the plugin runs in, and the pluggy its hook wrappers need (``wrapper=True``)
+MIN_PYTEST = (8, 0)
+MIN_PLUGGY = (1, 1)
+
+
+def _release(version: str) -> tuple[int, ...]:
+    """The leading numbers of a version (``8.1.0.dev3`` -> (8, 1, 0))."""
+    numbers = []
+    for part in version.split("."):
+        digits = re.match(r"\d+", part)
+        if digits is None:
+            break
+        numbers.append(int(digits.group()))
+        if digits.group() != part:
+            break
+    return tuple(numbers)
+
+
+def unsupported(pytest_version: str, pluggy_version: str) -> str | None:
+    """Why the plugin cannot run in this pytest and pluggy, or None: it can."""
+    if _release(pytest_version) >= MIN_PYTEST and _release(pluggy_version) >= MIN_PLUGGY:
+        return None
+    need, pluggy_need = ".".join(map(str, MIN_PYTEST)), ".".join(map(str, MIN_PLUGGY))
+    return (
+        f"robot_server's pytest plugin (the robot_controller fixture) needs pytest >= {need} (with pluggy >= "
+        f"{pluggy_need}); this is pytest {pytest_version} with pluggy {pluggy_version}: "
+        f"pip install 'pytest>={need}' 'pluggy>={pluggy_need}', or turn the plugin off with "
+        "-p no:robot_server"
+    )
+
+
+#: why the plugin does nothing in this run but fail the fixture (None: it runs)
+UNSUPPORTED = unsupported(pytest.__version__, getattr(pluggy, "__version__", "0"))
+
+
+def _wrapper(*, tryfirst: bool = False) -> Callable[[F], F]:
+    """``pytest.hookimpl(wrapper=True)``; with a pluggy too old to know it, the function as it is
+    (the module's end takes it off: no hook)."""
+    if UNSUPPORTED is not None:
+        return lambda function: function
+    return pytest.hookimpl(wrapper=True, tryfirst=tryfirst)
+
+
+if UNSUPPORTED is None:  # (pytest.StashKey came with pytest 7)
+    #: the factories of a test (on its item)
+    _FACTORIES = pytest.StashKey[list["ControllerFactory"]]()
+    #: the test failed in its setup or call (on its item): its controllers' files are kept
+    _FAILED = pytest.StashKey[bool]()
+    #: every factory not closed yet (on the config)
+    _LIVE = pytest.StashKey[list["ControllerFactory"]]()
 CAPTURE_CHOICES = ("failed", "all", "none")
 
 
@@ -65,6 +118,8 @@ def robot_controller(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator
     capture_path, wait_idle(timeout), fault("estop"), advance(seconds) (speedup="step": the test
     moves the clock) and stop(). Every controller is stopped at teardown; a failed test's report
     names its pcapng capture and last state. See docs/testing.md."""
+    if UNSUPPORTED is not None:
+        pytest.fail(UNSUPPORTED, pytrace=False)
     from .core import ControllerError
     from .handle import ControllerFactory
 
@@ -89,7 +144,7 @@ def robot_controller(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator
         )
 
 
-@pytest.hookimpl(wrapper=True)
+@_wrapper()
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Generator[None, Any, Any]:
     report = yield
     factories = item.stash.get(_FACTORIES, None)
@@ -102,7 +157,7 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
     return report
 
 
-@pytest.hookimpl(wrapper=True, tryfirst=True)
+@_wrapper(tryfirst=True)
 def pytest_fixture_setup(
     fixturedef: pytest.FixtureDef[Any], request: pytest.FixtureRequest
 ) -> Generator[None, Any, Any]:
@@ -126,3 +181,9 @@ def _stop_async(config: pytest.Config, runner: Any) -> None:
         return
     for factory in list(factories):
         factory.errors += runner.run(factory.aclose_in(loop))
+
+
+if UNSUPPORTED is not None:
+    # hooks this pytest cannot run: the fixture alone is left, to say why (pytest_addoption stays, so
+    # that a --robot-captures in a project's addopts is still an option)
+    del pytest_configure, pytest_runtest_makereport, pytest_fixture_setup
