@@ -571,3 +571,73 @@ def test_with_a_pluggy_too_old_the_fixture_says_so_and_the_run_goes_on(
     needs = "needs pytest >= 8.0 (with pluggy >= 1.1); this is pytest {} with pluggy 1.0.0: pip install"
     assert needs.format(pytest.__version__) in out, out
     assert "def robot_controller" not in out  # the message alone, no traceback of the plugin
+
+
+# -- a wait cancelled from outside (asyncio.timeout around it) ----------------------------------------------
+
+
+@contextlib.asynccontextmanager
+async def expiring_at(ctrl, at: float):
+    """An ``asyncio.timeout`` around a wait of the async handle ``ctrl`` that expires once the
+    controller's time reaches ``at``: its clock, not the wall's, so the wait is cancelled at the same
+    point on any machine. Raises TimeoutError as any expired timeout; yields the timeout."""
+    cell = ctrl.emulator.cell
+    loop = asyncio.get_running_loop()
+    async with asyncio.timeout(None) as timeout:
+
+        async def expire() -> None:
+            await cell.until(lambda: cell.time >= at)
+            timeout.reschedule(loop.time())
+
+        trigger = asyncio.create_task(expire(), name="expire the timeout")
+        try:
+            yield timeout
+        finally:
+            trigger.cancel()
+            await asyncio.gather(trigger, return_exceptions=True)
+
+
+def advancing_tasks() -> list[str]:
+    """The tasks of this loop moving a stepped clock (each wait of a stepped controller makes one)."""
+    return [t.get_name() for t in asyncio.all_tasks() if t.get_coro().__qualname__.startswith("SteppedClock.")]
+
+
+@pytest.mark.parametrize("speedup", ["step", 10.0], ids=["stepped", "sped-up"])
+async def test_an_async_wait_cancelled_by_a_timeout_leaves_no_task_and_the_controller_goes_on(
+    robot_controller, speedup: object
+) -> None:
+    ctrl = await robot_controller(speedup=speedup)
+    period = ctrl.emulator.cell.config.interpolation_period
+    begin = ctrl.time
+    async with Client.tcp(ctrl.host, ctrl.motion_port) as client:
+        for sequence, point, duration in ((0, ctrl.joints, 0.0), (1, TARGET, 20.0)):
+            reply = await client.request(JointTrajPt(sequence, point, 0.5, duration, comm_type=REQUEST))
+            assert reply.reply_code == ReplyCode.SUCCESS
+        # wait_idle cancelled 5 s into the 20 s move
+        with pytest.raises(TimeoutError) as raised:
+            async with expiring_at(ctrl, begin + 5.0) as timeout:
+                await ctrl.wait_idle(60.0)
+        assert timeout.expired() and not isinstance(raised.value, ControllerTimeout)
+        assert advancing_tasks() == []
+        stopped_at = ctrl.time
+        assert ctrl.in_motion and begin + 5.0 <= stopped_at < begin + 20.0
+        # the controller goes on: time passes as asked (a stepped clock stood where the wait left it)
+        after = await ctrl.advance(0.5)
+        assert after >= stopped_at + 0.5 - 1e-6
+        if ctrl.stepped:
+            assert after <= stopped_at + 0.5 + period + 1e-6
+        done = await ctrl.wait_idle(60.0)
+        assert done >= begin + 20.0 and not ctrl.in_motion
+        assert_reached(ctrl, TARGET, tol=1e-4, settled=True)
+        # nothing sent: at rest already, the wait returns at once
+        assert await ctrl.wait_idle(5.0) >= done
+        # advance_until cancelled the same way (period by period, and in steps of dt), then used again
+        for dt in (None, 0.5):
+            with pytest.raises(TimeoutError):
+                async with expiring_at(ctrl, ctrl.time + 1.0) as timeout:
+                    await ctrl.advance_until(lambda: False, 3600.0, dt=dt, what="never")
+            assert timeout.expired() and advancing_tasks() == []
+            before = ctrl.time
+            assert await ctrl.advance(0.2) >= before + 0.2 - 1e-6
+            assert await ctrl.wait_idle(5.0) >= before + 0.2 - 1e-6
+    assert_reached(ctrl, TARGET, tol=1e-4, settled=True)
