@@ -640,4 +640,12 @@ async def test_an_async_wait_cancelled_by_a_timeout_leaves_no_task_and_the_contr
             before = ctrl.time
             assert await ctrl.advance(0.2) >= before + 0.2 - 1e-6
             assert await ctrl.wait_idle(5.0) >= before + 0.2 - 1e-6
+        # a plain advance the same way: a stepped one runs period by period too, so it ends where it was cut
+        before = ctrl.time
+        with pytest.raises(TimeoutError):
+            async with expiring_at(ctrl, before + 1.0) as timeout:
+                await ctrl.advance(3600.0)
+        assert timeout.expired() and advancing_tasks() == []
+        assert before + 1.0 <= ctrl.time < before + 10.0
+        assert await ctrl.advance(0.2) >= before + 1.2 - 1e-6
     assert_reached(ctrl, TARGET, tol=1e-4, settled=True)

@@ -308,10 +308,12 @@ class RobotController(_Handle):
     def advance_until(
         self, predicate: Callable[[], bool], limit: float = DEFAULT_LIMIT, *, dt: float | None = None, what: str = ""
     ) -> float:
-        """Advance (or wait) until ``predicate()`` holds, checked after every step of ``dt`` (a
-        stepped clock; default: one interpolation period) or every control period; at most ``limit``
-        s of controller time, else :class:`ControllerTimeout` (``what`` names the condition in its
-        message). In process, ``predicate`` runs on the controller's thread: it may read this handle."""
+        """Advance (or wait) until ``predicate()`` holds, checked before every interpolation period
+        (a stepped clock: in one run of the control loop, the controller's sockets served between
+        periods; with ``dt``, after every advance of ``dt``) or every control period; at most
+        ``limit`` s of controller time, else :class:`ControllerTimeout` (``what`` names the
+        condition in its message). What ``predicate`` raises is raised here; the controller runs
+        on. In process, ``predicate`` runs on the controller's thread: it may read this handle."""
         limit = bounded("limit", limit)
         dt = None if dt is None else bounded("dt", dt, positive=True)
         return self._thread.run(self._core.advance_until(predicate, limit, dt, what or "the condition"))

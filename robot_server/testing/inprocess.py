@@ -38,6 +38,11 @@ GRACE = 10.0
 SETTLE_LIMIT = 30.0
 
 
+def _never() -> bool:
+    """The condition of a plain advance: it runs to its end, period by period."""
+    return False
+
+
 class InProcess:
     """One :class:`Emulator` on the current event loop (see the module doc)."""
 
@@ -150,12 +155,14 @@ class InProcess:
                 advancing.cancel()
                 with contextlib.suppress(asyncio.CancelledError):
                     await advancing
+            elif not advancing.cancelled():
+                advancing.exception()  # read (raised above, or lost to a cancellation in the same turn)
 
     async def advance(self, seconds: float) -> float:
         if not seconds >= 0.0:
             raise ValueError(f"time only moves forward, not by {seconds}")
         if self.clock is not None:
-            await self._step(seconds)
+            await self._step(seconds, _never)  # period by period: the sockets served between periods
         else:
             cell = self.emulator.cell
             end = cell.time + seconds
