@@ -17,7 +17,8 @@ from client.trajectory import Trajectory
 from robot_server import cli
 from robot_server.control import Controller, ControllerConfig, Point, Recorder
 from robot_server.control.controller import Tick
-from robot_server.control.recorder import CSV_DECIMALS, QUANTITIES, format_rows, format_value, record_format
+from robot_server.control.csvnumbers import CSV_DECIMALS, format_rows, format_value
+from robot_server.control.recorder import QUANTITIES, record_format
 from robot_server.loader import load_model
 
 MODEL = load_model("jibot_zxs")
