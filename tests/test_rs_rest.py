@@ -10,7 +10,6 @@ mode, a supervision swapped.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 import pytest
@@ -134,41 +133,36 @@ def test_a_period_stepped_at_once_ends_as_its_ticks_one_by_one() -> None:
     assert whole.points_accepted == 3 and whole._rest.periods > 0
 
 
-def test_a_recorded_period_is_its_ticks_one_by_one() -> None:
+@pytest.mark.parametrize(
+    ("decimation", "computed_when_read"), [(1, True), (1, False), (3, False)], ids=["tcp-when-read", "tcp", "decimated"]
+)
+def test_a_recorded_period_is_its_ticks_one_by_one(decimation: int, computed_when_read: bool) -> None:
     """Controller.step_period(recorder) (what a control loop with a recorder runs: a rest replayed
     tick by tick, a moving tick's numbers handed over with its two setpoints, the command computed
-    by the recorder a block at a time) records exactly the ticks step() gives, the TCP of each
-    included, through motion, a verb between two instants, a following-error alarm in mid-period,
-    a stop, drives off and on, and rests; decimated too."""
+    by the recorder a block at a time, the TCP of an instant computed by the recorder when read if
+    it takes it) records exactly the ticks step() gives, the TCP of each included, through motion,
+    a verb between two instants, a following-error alarm in mid-period, a stop, drives off and on,
+    and rests; decimated too (the TCP then computed by the controller)."""
     robot = load_model("jibot_zxs")
     whole, ticks = Controller(robot, ControllerConfig()), Controller(robot, ControllerConfig())
     sub = whole.servo_ticks_per_interpolation
-    by_period, one_by_one = Recorder(6, capacity=100_000), Recorder(6, capacity=100_000)
-    every_third, third = Recorder(6, capacity=3000, decimation=3), Recorder(6, capacity=3000, decimation=3)
-
-    class Both(Recorder):  # what step_period hands one recorder, to two
-        def add(self, tick: Tick) -> None:
-            by_period.add(tick)
-            every_third.add(tick)
-
-        def add_between(self, *args: Any, **kwargs: Any) -> None:
-            by_period.add_between(*args, **kwargs)
-            every_third.add_between(*args, **kwargs)
-
-    both = Both(6)
+    meter = whole.tool_meter if computed_when_read else None
+    by_period = Recorder(6, capacity=5000, decimation=decimation, tool_meter=meter)  # the ring wraps
+    one_by_one = Recorder(6, capacity=5000, decimation=decimation)
+    assert by_period.takes_instants(whole.tool_meter) == computed_when_read
 
     def one_tick(c: Controller) -> None:  # one tick into a period: the next step_period ends it
         c.step()
 
     def periods(count: int) -> None:
         for _ in range(count):
-            before = len(one_by_one)
-            last = whole.step_period(both)
-            for _ in range(len(by_period) - before):
+            before = whole.time
+            last = whole.step_period(by_period)
+            while ticks.time < whole.time - 1e-9:
                 tick = ticks.step()
                 one_by_one.add(tick)
-                third.add(tick)
-            assert last == tick and round(last.time / whole.config.servo_period) % sub == 0, "to an instant"
+            assert last.time == tick.time > before and round(last.time / whole.config.servo_period) % sub == 0
+            assert last._replace(tool=None) == tick._replace(tool=None)
             assert whole.servo.position == ticks.servo.position and whole.servo.integral == ticks.servo.integral
 
     script: list[tuple[int, Verb]] = [
@@ -184,24 +178,31 @@ def test_a_recorded_period_is_its_ticks_one_by_one() -> None:
         (1, lambda c: c.power_off()),
         (20, lambda c: c.power_on()),
         (10, lambda c: c.add_move(np.full(6, 0.2), speed=0.5)),
-        (1500, lambda c: None),
+        (200, lambda c: c.tool),  # the controller's TCP read in mid-move: the recorder's the same
+        (1300, lambda c: None),
     ]
     alarms: list[int] = []
+    reads = 0
     for count, verb in script:
         periods(count)
         _both(whole, ticks, verb)
         if verb is one_tick:
             one_by_one.add(ticks.command)  # the tick the verb made, in both records
-            third.add(ticks.command)
             by_period.add(whole.command)
-            every_third.add(whole.command)
+        if count == 300 and reads < 2:  # read in the middle: the TCPs computed so far, the rest later
+            reads += 1
+            assert np.array_equal(by_period.tool(), one_by_one.tool(), equal_nan=True)
     assert alarms == [4101, 4101], "the following-error alarm tripped in both"
     assert whole.points_accepted == 4 and whole._rest.periods > 0
-    assert len(by_period) == len(one_by_one) > 9000
-    for a, b in ((by_period, one_by_one), (every_third, third)):
+    assert len(by_period) == len(one_by_one) > 3000 and by_period.dropped == one_by_one.dropped
+    assert (by_period.dropped > 0) == (decimation == 1), "undecimated, the ring wrapped"
+    copy = by_period.copy()  # taken before the TCPs are computed: they are computed when the copy's are read
+    assert np.array_equal(copy.tool_time(), one_by_one.tool()[:, -1], equal_nan=True)
+    assert np.array_equal(by_period.tool_time(), one_by_one.tool()[:, -1], equal_nan=True)
+    for a, b in ((by_period, one_by_one), (copy, one_by_one)):
         assert np.array_equal(a.time(), b.time())
         for quantity in QUANTITIES:
             assert np.array_equal(a.get(quantity), b.get(quantity)), quantity
         assert np.array_equal(a.points(), b.points())
         assert np.array_equal(a.tool(), b.tool(), equal_nan=True)
-    assert not np.isnan(by_period.tool()[-1]).any()
+    assert not np.isnan(by_period.tool()).any(), "every tick had a TCP"

@@ -585,7 +585,9 @@ class Controller:
         would be the same ticks, their times aside, and no one sees them. With ``recorder``, every
         tick of the period is recorded, as :meth:`step` makes them one by one: at rest replayed,
         moving the drives' numbers of each tick handed over with the two setpoints it lies between
-        (:meth:`Recorder.add_between`: no tick made), the period's last tick made whole."""
+        (:meth:`Recorder.add_between`: no tick made), the period's last tick made whole; its TCP
+        left to a recorder that takes it (:meth:`Recorder.takes_instants`: computed when read, the
+        same numbers), computed here for one that does not."""
         sub = self._sub
         i = self._tick % sub
         if i or not self._powered:
@@ -611,8 +613,14 @@ class Controller:
                 tick = self._servo_tick(i)
                 if recorder is not None:
                     recorder.add(tick)
-        tick = self._servo_tick(sub - 1, seen=recorder is not None)
-        if recorder is not None:
+        if recorder is None:
+            return self._servo_tick(sub - 1, seen=False)
+        if recorder.takes_instants(self.tool_meter):  # the TCP computed by the recorder when read, if ever
+            tick = self._servo_tick(sub - 1, seen=False)
+            config = self.config
+            recorder.add(tick, instant_until=tick.time + config.interpolation_period - 0.5 * config.servo_period)
+        else:
+            tick = self._servo_tick(sub - 1)
             recorder.add(tick)
         return tick
 

@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .csvnumbers import CSV_DECIMALS, format_rows
-from .tool import TOOL_FIELDS, ToolState
+from .tool import TOOL_FIELDS, ToolMeter, ToolState
 
 if TYPE_CHECKING:
     from .controller import Tick
@@ -90,18 +90,32 @@ _TOOL = [f"tool.{name}" for name in TOOL_FIELDS] + ["tool.time"]
 class Recorder:
     """Keeps the last ``capacity`` ticks (every ``decimation``-th tick) of a ``dof``-joint controller."""
 
-    def __init__(self, dof: int, capacity: int = 60_000, decimation: int = 1) -> None:
+    def __init__(
+        self, dof: int, capacity: int = 60_000, decimation: int = 1, tool_meter: ToolMeter | None = None
+    ) -> None:
         if capacity < 1 or decimation < 1 or dof < 1:
             raise ValueError("capacity, decimation and dof must be >= 1")
         self.dof = dof
         self.capacity = capacity
         self.decimation = decimation
+        #: computes, when it is read, the TCP of an interpolation instant the controller left
+        #: uncomputed (``add(tick, instant_until=...)``): the controller's own ToolMeter
+        self.tool_meter = tool_meter
         self._time = np.zeros(capacity)
         self._data = np.zeros((capacity, len(QUANTITIES), dof))
         self._points = np.zeros(capacity, dtype=np.int64)
         self._tool = np.full((capacity, len(_TOOL)), np.nan)
         self._count = 0  # ticks stored so far (including overwritten ones)
         self._seen = 0
+        # per row of the ring: the instant whose TCP the row holds but which is not computed yet
+        # (its serial), -1: _tool holds the row's TCP; the instants' numbers (time, command position
+        # and velocity, actual position and velocity) by serial, in a ring one longer than the
+        # ticks' (every instant a row refers to is in it); the last instant: serial, and the time
+        # before which a tick without a TCP is one of its period
+        self._lazy = np.full(capacity, -1, dtype=np.int64)
+        self._instants = np.zeros((capacity + 1, 1 + 4 * dof))
+        self._instant_count = 0
+        self._instant: tuple[int, float] | None = None
         # the ticks added but not yet in the arrays (:meth:`_flush`, before anything reads them):
         # their numbers (time, then the quantities) one after another, their points, their TCPs
         # (each ToolState once) and which TCP each has (-1: none); the ticks of add_between, their
@@ -115,14 +129,30 @@ class Recorder:
         self._between: list[tuple[int, float, int]] = []
         self._ends: list[float] = []
         self._last_ends: tuple[Setpoint, Setpoint] | None = None
-        self._holes = [0.0] * (3 * dof)  # the command of a tick of add_between, until the flush,
-        self._hole = [0.0] * dof  # and its following error
+        self._flat_between: list[float] = []  # a tick of add_between's: time, actual position, velocity, acceleration
+        self._pending_instants: list[tuple[int, int]] = []  # (pending row, serial)
 
-    def add(self, tick: Tick) -> None:
+    def takes_instants(self, meter: ToolMeter) -> bool:
+        """Whether a controller measuring with ``meter`` may leave this recorder the TCPs of its
+        interpolation instants (:meth:`add` with ``instant_until``): it records every tick (the
+        instant's own among them) and computes with that meter."""
+        return self.tool_meter is meter and self.decimation == 1
+
+    def add(self, tick: Tick, *, instant_until: float | None = None) -> None:
+        """Record a tick. ``instant_until``: the tick is an interpolation instant's whose TCP the
+        controller left uncomputed (its ``tool`` None; :meth:`takes_instants`): this recorder
+        computes it from the tick's numbers when it is read (the same numbers as the controller's
+        ToolMeter gives), for this tick and for the ticks without a TCP until controller time
+        ``instant_until`` (its period's)."""
         seen = self._seen
         self._seen = seen + 1
         if seen % self.decimation:
             return
+        if instant_until is not None:
+            serial = self._instant_count
+            self._instant_count = serial + 1
+            self._instant = (serial, instant_until)
+            self._pending_instants.append((len(self._pending_points), serial))
         # the numbers go to one flat list (no object per tick outlives the call: a list of ticks
         # kept until the flush costs more in the garbage collector than the flush itself)
         flat = self._flat
@@ -135,7 +165,7 @@ class Recorder:
         extend(tick[5])
         extend(tick[6])
         extend(tick[7])
-        self._tool_row(tick[9])
+        self._tool_row(tick[9], tick[0])
         points = self._pending_points
         points.append(tick[8])
         if len(points) >= _BLOCK:
@@ -170,22 +200,23 @@ class Recorder:
                     self._ends.extend(values)
         pending = self._pending_points
         self._between.append((len(pending), share, len(self._ends)))
-        flat = self._flat
+        flat = self._flat_between
         flat.append(time)
         extend = flat.extend
-        extend(self._holes)
         extend(drives.position)
         extend(drives.velocity)
         extend(drives.acceleration)
-        extend(self._hole)
-        self._tool_row(tool)
+        self._tool_row(tool, time)
         pending.append(points)
         if len(pending) >= _BLOCK:
             self._flush()
 
-    def _tool_row(self, tool: ToolState | None) -> None:
+    def _tool_row(self, tool: ToolState | None, time: float) -> None:
+        """Which TCP a tick has: one of the block's ToolStates (>= 0), none (-1), or that of an
+        instant computed when read (-2 - its serial)."""
         if tool is None:
-            self._tool_rows.append(-1)
+            instant = self._instant
+            self._tool_rows.append(-2 - instant[0] if instant is not None and time < instant[1] else -1)
         else:
             if tool is not self._last_tool:  # a period's ticks share their ToolState
                 self._last_tool = tool
@@ -199,28 +230,43 @@ class Recorder:
         if not count:
             return
         dof = self.dof
-        flat = np.fromiter(self._flat, dtype=np.float64, count=len(self._flat))
+        between = len(self._between)
         width = 1 + len(QUANTITIES) * dof
-        if flat.size != count * width:
+        flat = np.fromiter(self._flat, dtype=np.float64, count=len(self._flat))
+        flat_between = np.fromiter(self._flat_between, dtype=np.float64, count=len(self._flat_between))
+        if flat.size != (count - between) * width or flat_between.size != between * (1 + 3 * dof):
             self._forget_pending()
             raise ValueError(f"a recorded tick does not hold {len(QUANTITIES)} quantities of {dof} joints")
-        table = flat.reshape(count, len(QUANTITIES) * dof + 1)
-        if self._between:
-            # (1 - f) x previous + f x next, per value: what the controller computes one tick at a time
+        if not between:
+            table = flat.reshape(count, width)
+        else:
             rows, shares, ends = (np.array(column) for column in zip(*self._between, strict=True))
+            table = np.empty((count, width))
+            made = np.ones(count, dtype=bool)
+            made[rows] = False
+            table[made] = flat.reshape(-1, width)
+            drives = flat_between.reshape(between, 1 + 3 * dof)
+            table[rows, 0] = drives[:, 0]
+            table[rows, 1 + 3 * dof : 1 + 6 * dof] = drives[:, 1:]  # actual position, velocity, acceleration
+            # (1 - f) x previous + f x next, per value: what the controller computes one tick at a time
             setpoints = np.array(self._ends).reshape(-1, 2, 3, dof)[ends // (6 * dof) - 1]
             f = shares[:, None, None]
             command = (1.0 - f) * setpoints[:, 0] + f * setpoints[:, 1]  # (ticks, 3, dof)
             table[rows, 1 : 1 + 3 * dof] = command.reshape(-1, 3 * dof)  # the three command quantities
             table[rows, 1 + 6 * dof :] = command[:, 0] - table[rows, 1 + 3 * dof : 1 + 4 * dof]  # error: - actual
+        if self._pending_instants:  # the numbers an instant's TCP is computed from, when read
+            rows, serials = (np.array(column) for column in zip(*self._pending_instants, strict=True))
+            self._instants[serials % len(self._instants)] = table[rows][:, self._instant_columns]
         points = self._pending_points
         tools = np.vstack([np.array(self._tools).reshape(-1, len(_TOOL)), np.full((1, len(_TOOL)), np.nan)])
-        tool_rows = self._tool_rows
+        codes = np.array(self._tool_rows, dtype=np.int64)
         self._forget_pending()
         kept = min(count, self.capacity)  # a block longer than the ring: its newest ticks
         first = (self._count + count - kept) % self.capacity
         table = table[-kept:]
-        tool = tools[tool_rows[-kept:]]  # -1: the NaN row
+        codes = codes[-kept:]
+        tool = tools[np.where(codes >= 0, codes, -1)]  # -1: the NaN row (no TCP, or one computed when read)
+        lazy = np.where(codes <= -2, -2 - codes, -1)
         kept_points = points[-kept:]
         at = 0
         while at < kept:  # one slice of the ring, or two where it wraps
@@ -230,6 +276,7 @@ class Recorder:
             self._data[row : row + n] = table[at : at + n, 1:].reshape(n, len(QUANTITIES), dof)
             self._points[row : row + n] = kept_points[at : at + n]
             self._tool[row : row + n] = tool[at : at + n]
+            self._lazy[row : row + n] = lazy[at : at + n]
             at += n
         self._count += count
 
@@ -242,6 +289,36 @@ class Recorder:
         self._between = []
         self._ends = []
         self._last_ends = None
+        self._flat_between = []
+        self._pending_instants = []
+
+    @property
+    def _instant_columns(self) -> NDArray[np.intp]:
+        """The columns of a flat row an instant's TCP is computed from: time, command position and
+        velocity, actual position and velocity."""
+        dof = self.dof
+        return np.concatenate([[0], np.arange(1, 1 + 2 * dof), np.arange(1 + 3 * dof, 1 + 5 * dof)]).astype(np.intp)
+
+    def _resolve(self) -> None:
+        """Compute the TCPs the rows hold but the controller left uncomputed, each instant once."""
+        self._flush()
+        rows = np.flatnonzero(self._lazy >= 0)
+        if not rows.size:
+            return
+        meter = self.tool_meter
+        assert meter is not None, "only a recorder with a tool meter takes instants"
+        serials, which = np.unique(self._lazy[rows], return_inverse=True)
+        dof = self.dof
+        computed = np.empty((serials.size, len(_TOOL)))
+        for k, serial in enumerate(serials.tolist()):
+            x = self._instants[serial % len(self._instants)].tolist()  # the tick's own floats
+            state = meter.measure(
+                x[0], x[1 : 1 + dof], x[1 + dof : 1 + 2 * dof], x[1 + 2 * dof : 1 + 3 * dof], x[1 + 3 * dof :]
+            )
+            computed[k, :-1] = state.values()
+            computed[k, -1] = state.time
+        self._tool[rows] = computed[which]
+        self._lazy[rows] = -1
 
     def __len__(self) -> int:
         return min(self._count + len(self._pending_points), self.capacity)
@@ -255,6 +332,8 @@ class Recorder:
         self._count = 0
         self._seen = 0
         self._forget_pending()
+        self._lazy[:] = -1
+        self._instant = None
 
     @classmethod
     def from_columns(
@@ -277,11 +356,22 @@ class Recorder:
         return made
 
     def copy(self) -> Recorder:
-        """A copy that no longer grows: the same ticks, the same ``dropped``."""
-        columns: dict[str, NDArray[np.generic]] = {"time": self.time(), "points": self.points(), "tool": self.tool()}
+        """A copy that no longer grows: the same ticks, the same ``dropped``; the TCPs not computed
+        yet are computed when the copy's are read."""
+        columns: dict[str, NDArray[np.generic]] = {
+            "time": self.time(),
+            "points": self.points(),
+            "tool": self._ordered(self._tool),
+        }
         for quantity in QUANTITIES:
             columns[quantity] = self.get(quantity)
-        return Recorder.from_columns(self.dof, columns, decimation=self.decimation, dropped=self.dropped)
+        made = Recorder.from_columns(self.dof, columns, decimation=self.decimation, dropped=self.dropped)
+        lazy = self._ordered(self._lazy)
+        if lazy.size and (lazy >= 0).any():
+            made.tool_meter = self.tool_meter
+            made._lazy[:] = np.roll(lazy, self.dropped % lazy.size)  # where from_columns put the rows
+            made._instants = self._instants.copy()
+        return made
 
     @classmethod
     def from_npz(cls, path: str | Path, joint_names: Sequence[str]) -> Recorder:
@@ -310,7 +400,17 @@ class Recorder:
     def tool(self) -> NDArray[np.float64]:
         """``(ticks, 17)``: the TCP as of each recorded tick (:data:`~.tool.TOOL_FIELDS`, then the
         controller time of the interpolation instant it was computed at); NaN without one."""
+        self._resolve()
         return self._ordered(self._tool)
+
+    def tool_time(self) -> NDArray[np.float64]:
+        """``tool()``'s last column alone (the controller time of the instant each tick's TCP is of;
+        NaN without one), without computing the TCPs not computed yet."""
+        self._flush()
+        times = self._tool[:, -1].copy()
+        lazy = self._lazy >= 0
+        times[lazy] = self._instants[self._lazy[lazy] % len(self._instants), 0]
+        return self._ordered(times)
 
     def get(self, quantity: str) -> NDArray[np.float64]:
         """``(ticks, dof)`` array of one of :data:`QUANTITIES`, oldest first."""
@@ -382,7 +482,7 @@ class Recorder:
         text = io.StringIO()
         csv.writer(text, lineterminator="\n").writerow(self.header(joint_names))
         write(text.getvalue().encode("utf-8"))
-        self._flush()
+        self._resolve()
         n = len(self)
         if not n:
             return

@@ -573,7 +573,9 @@ class Emulator:
         if not seconds > 0.0:
             raise ValueError(f"the record length must be > 0 s, not {seconds}")
         period = self.cell.config.servo_period
-        recorders = [Recorder(g.dof, capacity=max(1, round(seconds / period))) for g in self.cell.groups]
+        recorders = [
+            Recorder(g.dof, capacity=max(1, round(seconds / period)), tool_meter=g.tool_meter) for g in self.cell.groups
+        ]
         self.control.recorder = recorders[0]
         self.control.other_recorders = list(recorders[1:])
         return recorders

@@ -806,7 +806,7 @@ def _instant_rows(record: Recorder) -> NDArray[np.bool_]:
     """The rows at interpolation instants: where the tool was computed at the tick's own time."""
     times = record.time()
     with np.errstate(invalid="ignore"):
-        return np.asarray(np.abs(record.tool()[:, _TOOL_TIME] - times) <= _TIME_EPS)
+        return np.asarray(np.abs(record.tool_time() - times) <= _TIME_EPS)
 
 
 def _instants_of_tool(name: str, record: Recorder, start: float | None, end: float | None) -> tuple[Array, Array]:
