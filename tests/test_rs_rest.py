@@ -147,7 +147,8 @@ def test_a_recorded_period_is_its_ticks_one_by_one(decimation: int, computed_whe
     whole, ticks = Controller(robot, ControllerConfig()), Controller(robot, ControllerConfig())
     sub = whole.servo_ticks_per_interpolation
     meter = whole.tool_meter if computed_when_read else None
-    by_period = Recorder(6, capacity=5000, decimation=decimation, tool_meter=meter)  # the ring wraps
+    # the ring wraps; the instants' ring as short as the emulator makes it (one instant per period)
+    by_period = Recorder(6, capacity=5000, decimation=decimation, tool_meter=meter, instants=5000 // sub + 2)
     one_by_one = Recorder(6, capacity=5000, decimation=decimation)
     assert by_period.takes_instants(whole.tool_meter) == computed_when_read
 
@@ -179,6 +180,7 @@ def test_a_recorded_period_is_its_ticks_one_by_one(decimation: int, computed_whe
         (20, lambda c: c.power_on()),
         (10, lambda c: c.add_move(np.full(6, 0.2), speed=0.5)),
         (200, lambda c: c.tool),  # the controller's TCP read in mid-move: the recorder's the same
+        (600, lambda c: c.add_move(np.full(6, -0.5), speed=0.01)),  # slow: still moving at the end
         (1300, lambda c: None),
     ]
     alarms: list[int] = []
@@ -193,7 +195,7 @@ def test_a_recorded_period_is_its_ticks_one_by_one(decimation: int, computed_whe
             reads += 1
             assert np.array_equal(by_period.tool(), one_by_one.tool(), equal_nan=True)
     assert alarms == [4101, 4101], "the following-error alarm tripped in both"
-    assert whole.points_accepted == 4 and whole._rest.periods > 0
+    assert whole.points_accepted == 5 and whole._rest.periods > 0 and whole.moving, "the ring's last periods moving"
     assert len(by_period) == len(one_by_one) > 3000 and by_period.dropped == one_by_one.dropped
     assert (by_period.dropped > 0) == (decimation == 1), "undecimated, the ring wrapped"
     copy = by_period.copy()  # taken before the TCPs are computed: they are computed when the copy's are read

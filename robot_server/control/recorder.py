@@ -13,7 +13,8 @@ arrived), then the tool centre point as of the last interpolation instant (the c
 it once per interpolation period, so it holds between them): ``tool.command_x``, ``_y``, ``_z`` (m,
 cell frame), ``tool.command_qw``, ``_qx``, ``_qy``, ``_qz`` (orientation quaternion),
 ``tool.command_speed`` (m/s), the same for ``tool.actual_...``, and ``tool.time`` (the controller
-time of that instant).
+time of that instant). A recorder given the controller's ToolMeter may be left the instants' TCPs
+to compute itself, from the instant's own numbers, when they are first read (the same values).
 
 :meth:`Recorder.save` picks the format by the file's name: ``.csv`` (any other name too) the CSV,
 every value to :data:`CSV_DECIMALS` decimals of its SI unit (1 nrad, 1 nm, 1 ns) without trailing
@@ -91,7 +92,12 @@ class Recorder:
     """Keeps the last ``capacity`` ticks (every ``decimation``-th tick) of a ``dof``-joint controller."""
 
     def __init__(
-        self, dof: int, capacity: int = 60_000, decimation: int = 1, tool_meter: ToolMeter | None = None
+        self,
+        dof: int,
+        capacity: int = 60_000,
+        decimation: int = 1,
+        tool_meter: ToolMeter | None = None,
+        instants: int | None = None,
     ) -> None:
         if capacity < 1 or decimation < 1 or dof < 1:
             raise ValueError("capacity, decimation and dof must be >= 1")
@@ -99,8 +105,12 @@ class Recorder:
         self.capacity = capacity
         self.decimation = decimation
         #: computes, when it is read, the TCP of an interpolation instant the controller left
-        #: uncomputed (``add(tick, instant_until=...)``): the controller's own ToolMeter
+        #: uncomputed (``add(tick, instant_until=...)``): the controller's own ToolMeter; ``instants``:
+        #: how many instants the ring's ticks can refer to at most (default one per tick; a
+        #: controller leaves one per interpolation period: ``capacity // ticks_per_period + 2``)
         self.tool_meter = tool_meter
+        if instants is not None and instants < 2:
+            raise ValueError("a recorder keeps at least 2 instants")
         self._time = np.zeros(capacity)
         self._data = np.zeros((capacity, len(QUANTITIES), dof))
         self._points = np.zeros(capacity, dtype=np.int64)
@@ -109,11 +119,11 @@ class Recorder:
         self._seen = 0
         # per row of the ring: the instant whose TCP the row holds but which is not computed yet
         # (its serial), -1: _tool holds the row's TCP; the instants' numbers (time, command position
-        # and velocity, actual position and velocity) by serial, in a ring one longer than the
-        # ticks' (every instant a row refers to is in it); the last instant: serial, and the time
+        # and velocity, actual position and velocity) by serial, in a ring long enough for every
+        # instant a row refers to (``instants``); the last instant: serial, and the time
         # before which a tick without a TCP is one of its period
         self._lazy = np.full(capacity, -1, dtype=np.int64)
-        self._instants = np.zeros((capacity + 1, 1 + 4 * dof))
+        self._instants = np.zeros((0 if tool_meter is None else instants or capacity + 1, 1 + 4 * dof))
         self._instant_count = 0
         self._instant: tuple[int, float] | None = None
         # the ticks added but not yet in the arrays (:meth:`_flush`, before anything reads them):

@@ -573,9 +573,9 @@ class Emulator:
         if not seconds > 0.0:
             raise ValueError(f"the record length must be > 0 s, not {seconds}")
         period = self.cell.config.servo_period
-        recorders = [
-            Recorder(g.dof, capacity=max(1, round(seconds / period)), tool_meter=g.tool_meter) for g in self.cell.groups
-        ]
+        capacity = max(1, round(seconds / period))
+        instants = capacity // self.cell.groups[0].servo_ticks_per_interpolation + 2  # (one per period)
+        recorders = [Recorder(g.dof, capacity, tool_meter=g.tool_meter, instants=instants) for g in self.cell.groups]
         self.control.recorder = recorders[0]
         self.control.other_recorders = list(recorders[1:])
         return recorders
