@@ -282,3 +282,33 @@ def test_a_recorder_holds_exactly_the_last_ticks_it_was_given(
     assert copy.dropped == recorder.dropped
     recorder.clear()
     assert len(recorder) == 0 and recorder.time().size == 0
+
+
+def test_a_malformed_tick_is_refused_whole_and_the_block_keeps_the_others(ticks: list[Tick]) -> None:
+    recorder = Recorder(N, capacity=100)
+    for tick in ticks[:10]:
+        recorder.add(tick)
+    with pytest.raises(ValueError, match=f"a recorded tick holds 7 sequences of {N} numbers"):
+        recorder.add(ticks[10]._replace(actual_position=[0.0] * (N - 1)))
+    with pytest.raises(ValueError, match=f"a recorded tick holds 7 sequences of {N} numbers"):
+        recorder.add(ticks[10]._replace(command_velocity=None))  # type: ignore[arg-type]
+    for tick in ticks[10:20]:
+        recorder.add(tick)
+    assert len(recorder) == 20 and np.array_equal(recorder.time(), [t.time for t in ticks[:20]])
+
+    class Drives:
+        position = [0.0] * N
+        velocity = [0.0] * (N + 1)
+        acceleration = [0.0] * N
+
+    ends = (ticks[0][1:4], ticks[1][1:4])
+    with pytest.raises(ValueError, match=f"the drives' state holds 3 sequences of {N} numbers"):
+        recorder.add_between(1.0, 0.5, ends, Drives(), points=0, tool=None)
+    Drives.velocity = [0.0] * N
+    with pytest.raises(ValueError, match=f"a setpoint holds position, velocity and acceleration of {N} joints"):
+        recorder.add_between(1.0, 0.5, (ends[0], ends[1][:2]), Drives(), points=0, tool=None)  # type: ignore[arg-type]
+    recorder.add_between(1.0, 0.5, ends, Drives(), points=0, tool=None)
+    assert len(recorder) == 21 and recorder.time()[-1] == 1.0
+    expected = 0.5 * np.array(ticks[0].command_position) + 0.5 * np.array(ticks[1].command_position)
+    assert np.array_equal(recorder.get("command_position")[-1], expected)
+    assert np.array_equal(recorder.get("following_error")[-1], expected)  # the actual position is 0

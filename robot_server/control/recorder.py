@@ -28,6 +28,7 @@ from __future__ import annotations
 import csv
 import gzip
 import io
+import math
 import zipfile
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
@@ -155,26 +156,35 @@ class Recorder:
         ToolMeter gives), for this tick and for the ticks without a TCP until controller time
         ``instant_until`` (its period's)."""
         seen = self._seen
-        self._seen = seen + 1
         if seen % self.decimation:
+            self._seen = seen + 1
             return
+        # the numbers go to one flat list (no object per tick outlives the call: a list of ticks
+        # kept until the flush costs more in the garbage collector than the flush itself)
+        flat = self._flat
+        before = len(flat)
+        try:
+            flat.append(tick[0])
+            extend = flat.extend  # (not +=: a numpy array on the right would add, not extend)
+            extend(tick[1])
+            extend(tick[2])
+            extend(tick[3])
+            extend(tick[4])
+            extend(tick[5])
+            extend(tick[6])
+            extend(tick[7])
+        except TypeError:
+            del flat[before:]
+            raise ValueError(f"a recorded tick holds {len(QUANTITIES)} sequences of {self.dof} numbers") from None
+        if len(flat) - before != 1 + len(QUANTITIES) * self.dof:  # refused whole: the block keeps the others
+            del flat[before:]
+            raise ValueError(f"a recorded tick holds {len(QUANTITIES)} sequences of {self.dof} numbers")
+        self._seen = seen + 1
         if instant_until is not None:
             serial = self._instant_count
             self._instant_count = serial + 1
             self._instant = (serial, instant_until)
             self._pending_instants.append((len(self._pending_points), serial))
-        # the numbers go to one flat list (no object per tick outlives the call: a list of ticks
-        # kept until the flush costs more in the garbage collector than the flush itself)
-        flat = self._flat
-        flat.append(tick[0])
-        extend = flat.extend  # (not +=: a numpy array on the right would add, not extend)
-        extend(tick[1])
-        extend(tick[2])
-        extend(tick[3])
-        extend(tick[4])
-        extend(tick[5])
-        extend(tick[6])
-        extend(tick[7])
         self._tool_row(tick[9], tick[0])
         points = self._pending_points
         points.append(tick[8])
@@ -199,23 +209,42 @@ class Recorder:
         tick, computed for a block of ticks at once when they are written: what a moving
         controller's recorded period costs, without making its ticks."""
         seen = self._seen
-        self._seen = seen + 1
         if seen % self.decimation:
+            self._seen = seen + 1
             return
+        flat = self._flat_between
+        before = len(flat)
+        try:
+            flat.append(time)
+            extend = flat.extend
+            extend(drives.position)
+            extend(drives.velocity)
+            extend(drives.acceleration)
+        except TypeError:
+            del flat[before:]
+            raise ValueError(f"the drives' state holds 3 sequences of {self.dof} numbers") from None
+        if len(flat) - before != 1 + 3 * self.dof:
+            del flat[before:]
+            raise ValueError(f"the drives' state holds 3 sequences of {self.dof} numbers")
+        self._seen = seen + 1
         last = self._last_ends
         if last is None or last[0] is not ends[0] or last[1] is not ends[1]:  # once per period
+            held = self._ends
+            start = len(held)
+            try:
+                for setpoint in ends:
+                    for values in setpoint:
+                        held.extend(values)
+            except TypeError:
+                held.append(math.nan)  # (the length check below refuses it)
+            if len(held) - start != 6 * self.dof:
+                del held[start:]
+                del flat[before:]
+                self._seen = seen
+                raise ValueError(f"a setpoint holds position, velocity and acceleration of {self.dof} joints")
             self._last_ends = ends
-            for setpoint in ends:
-                for values in setpoint:
-                    self._ends.extend(values)
         pending = self._pending_points
         self._between.append((len(pending), share, len(self._ends)))
-        flat = self._flat_between
-        flat.append(time)
-        extend = flat.extend
-        extend(drives.position)
-        extend(drives.velocity)
-        extend(drives.acceleration)
         self._tool_row(tool, time)
         pending.append(points)
         if len(pending) >= _BLOCK:
