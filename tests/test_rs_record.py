@@ -312,3 +312,15 @@ def test_a_malformed_tick_is_refused_whole_and_the_block_keeps_the_others(ticks:
     expected = 0.5 * np.array(ticks[0].command_position) + 0.5 * np.array(ticks[1].command_position)
     assert np.array_equal(recorder.get("command_position")[-1], expected)
     assert np.array_equal(recorder.get("following_error")[-1], expected)  # the actual position is 0
+
+
+def test_an_instants_ring_too_short_for_the_record_is_an_error_not_a_wrong_tcp() -> None:
+    ctl = Controller(MODEL, ControllerConfig(servo_period=SERVO))
+    ctl.add_move(0.3 * MODEL.upper, speed=0.05)
+    short = Recorder(N, 400, tool_meter=ctl.tool_meter, instants=3)
+    for _ in range(300):
+        ctl.step_period(short)
+    with pytest.raises(ValueError, match="ring of 3 instants is too short for its 400 ticks"):
+        short.tool()
+    with pytest.raises(ValueError, match="too short"):
+        short.tool_time()

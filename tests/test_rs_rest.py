@@ -208,3 +208,36 @@ def test_a_recorded_period_is_its_ticks_one_by_one(decimation: int, computed_whe
         assert np.array_equal(a.points(), b.points())
         assert np.array_equal(a.tool(), b.tool(), equal_nan=True)
     assert not np.isnan(by_period.tool()).any(), "every tick had a TCP"
+
+
+def test_a_recorder_swapped_or_cleared_in_mid_move_has_every_tick_s_tcp() -> None:
+    """The TCP an instant's recorder was left is computed by the controller for another recorder
+    (a second Emulator.record while moving) or for the same one cleared since: no tick without it."""
+    robot = load_model("jibot_zxs")
+    whole, ticks = Controller(robot, ControllerConfig()), Controller(robot, ControllerConfig())
+    for c in (whole, ticks):
+        c.add_move(np.full(6, 0.4), speed=0.05)
+    sub = whole.servo_ticks_per_interpolation
+
+    def taking() -> Recorder:
+        return Recorder(6, 4000, tool_meter=whole.tool_meter, instants=4000 // sub + 2)
+
+    def run(recorder: Recorder, reference: Recorder, periods: int) -> None:
+        for _ in range(periods):
+            whole.step_period(recorder)
+            for _ in range(sub):
+                reference.add(ticks.step())
+
+    first, first_reference = taking(), Recorder(6, 4000)
+    run(first, first_reference, 50)
+    second, second_reference = taking(), Recorder(6, 4000)
+    run(second, second_reference, 50)  # swapped in mid-move: its first ticks hold the instant first was left
+    first.clear()
+    first_reference.clear()
+    run(first, first_reference, 50)  # cleared in mid-move, then recording on
+    whole.run_for(0.1, second)  # and ticks by step() after a period left to another recorder
+    ticks.run_for(0.1, second_reference)
+    assert whole.moving
+    for recorder, reference in ((first, first_reference), (second, second_reference)):
+        assert np.array_equal(recorder.tool(), reference.tool(), equal_nan=True)
+        assert not np.isnan(recorder.tool()).any()

@@ -649,3 +649,45 @@ async def test_an_async_wait_cancelled_by_a_timeout_leaves_no_task_and_the_contr
         assert before + 1.0 <= ctrl.time < before + 10.0
         assert await ctrl.advance(0.2) >= before + 1.2 - 1e-6
     assert_reached(ctrl, TARGET, tol=1e-4, settled=True)
+
+
+def test_a_stepped_clock_keeps_what_is_left_of_a_period(robot_controller) -> None:
+    """Advances shorter than an interpolation period add up: the loop runs a period once the clock
+    has reached it."""
+    ctrl = robot_controller(speedup="step")
+    begin = ctrl.time
+    for _ in range(100):
+        ctrl.advance(0.001)
+    assert ctrl.time == pytest.approx(begin + 0.1, abs=0.0041)
+    for _ in range(10):
+        ctrl.advance(0.006)
+    assert ctrl.time == pytest.approx(begin + 0.16, abs=0.0041)
+
+
+def test_pytest_fail_in_a_predicate_fails_the_test_and_the_controller_runs_on(robot_controller) -> None:
+    ctrl = robot_controller(speedup="step")
+    calls = 0
+
+    def failing() -> bool:
+        nonlocal calls
+        calls += 1
+        if calls == 4:
+            pytest.fail("the predicate's own verdict")
+        return False
+
+    with pytest.raises(pytest.fail.Exception, match="the predicate's own verdict"):
+        ctrl.advance_until(failing, 5.0)
+    stood = ctrl.time
+    assert ctrl.advance(0.1) == pytest.approx(stood + 0.1, abs=1e-6)
+
+
+async def test_two_waits_at_once_on_one_stepped_controller_take_turns(robot_controller) -> None:
+    ctrl = await robot_controller(speedup="step")
+    begin = ctrl.time
+    async with Client.tcp(ctrl.host, ctrl.motion_port) as client:
+        for sequence, point, duration in ((0, ctrl.joints, 0.0), (1, TARGET, 2.0)):
+            reply = await client.request(JointTrajPt(sequence, point, 0.5, duration, comm_type=REQUEST))
+            assert reply.reply_code == ReplyCode.SUCCESS
+        idle, later = await asyncio.gather(ctrl.wait_idle(60.0), ctrl.advance(0.1))
+    assert begin + 2.0 <= idle < begin + 3.0, "the wait for rest ended at rest, not at its limit"
+    assert later == pytest.approx(idle + 0.1, abs=0.0041), "the advance ran after it"

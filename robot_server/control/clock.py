@@ -97,12 +97,16 @@ class SteppedClock(Clock):
         self._now = max(self._now, deadline)
 
     def _holds(self, until: Callable[[], bool]) -> bool:
-        """``until()``; what it raises ends the advance (and is raised there), not the loop."""
+        """``until()``; what it raises (a test's ``pytest.fail`` too) ends the advance and is
+        raised there, not in the loop. Where it ends, the clock stays: no period after it runs."""
         try:
-            return bool(until())
-        except Exception as exc:
+            held = bool(until())
+        except BaseException as exc:  # (handed to the advance, which raises it)
             self._raised = exc
-            return True
+            held = True
+        if held:
+            self._limit = self._now
+        return held
 
     async def advance(self, seconds: float, until: Callable[[], bool] | None = None) -> None:
         """Let the loop run ``seconds`` further; returns once it waits for a later deadline. Bound
@@ -122,10 +126,13 @@ class SteppedClock(Clock):
         self._wake.set()
         try:
             await self._idle.wait()
+        except asyncio.CancelledError:
+            if until is not None:  # cut short: the clock stays where the loop stands
+                self._limit = min(self._limit, self._now)
+            raise
         finally:
             if until is not None:
                 self._until = None
-                self._limit = min(self._limit, self._now)
         raised, self._raised = self._raised, None
         if raised is not None:
             raise raised

@@ -161,8 +161,9 @@ class Tick(NamedTuple):
     actual_acceleration: list[float]
     following_error: list[float]
     points: int = 0
-    #: the TCP at the last interpolation instant (commanded and actual pose and speed); None in the
-    #: tick :meth:`Controller.step_period` returns, which no recorder sees: read :attr:`Controller.tool`
+    #: the TCP at the last interpolation instant (commanded and actual pose and speed); None where
+    #: :meth:`Controller.step_period` left it uncomputed (read :attr:`Controller.tool`; a recorder
+    #: it was left to computes it when read)
     tool: ToolState | None = None
 
 
@@ -590,6 +591,8 @@ class Controller:
         same numbers), computed here for one that does not."""
         sub = self._sub
         i = self._tick % sub
+        if recorder is not None:
+            self._tool_for(recorder)
         if i or not self._powered:
             for _ in range(sub - i):
                 tick = self.step()
@@ -623,6 +626,12 @@ class Controller:
             tick = self._servo_tick(sub - 1)
             recorder.add(tick)
         return tick
+
+    def _tool_for(self, recorder: Recorder) -> None:
+        """Before ``recorder`` records ticks that hold the last instant's TCP: computed now unless
+        this recorder was left it (another recorder was, or this one was cleared since)."""
+        if self._tool is None and not recorder.holds_instant(self._tool_inputs[0]):
+            self._tool = self.tool_meter.measure(*self._tool_inputs)
 
     def _unseen_tick(self, i: int, recorder: Recorder | None = None) -> None:
         """Servo tick ``i`` of the period (not its last) when no one sees its :class:`Tick`: the
@@ -672,7 +681,7 @@ class Controller:
 
     def _servo_tick(self, i: int, *, seen: bool = True) -> Tick:
         """Servo tick ``i`` of the interpolation period (0-based). Unless ``seen`` (the last tick
-        of :meth:`step_period`, which only the emulator's state reads), the TCP is computed when
+        of :meth:`step_period`, which the emulator's state or a recorder reads), the TCP is computed when
         :attr:`tool` is read, not at the instant, and the tick's ``tool`` is None; the supervision
         still checks it at the instant."""
         replaying = self._replaying
@@ -797,6 +806,8 @@ class Controller:
 
     def run_for(self, seconds: float, recorder: Recorder | None = None) -> None:
         """Step for ``seconds`` of controller time at once (simulated time, no clock)."""
+        if recorder is not None:
+            self._tool_for(recorder)
         for _ in range(round(seconds / self.config.servo_period)):
             tick = self.step()
             if recorder is not None:

@@ -108,7 +108,8 @@ class Recorder:
         #: computes, when it is read, the TCP of an interpolation instant the controller left
         #: uncomputed (``add(tick, instant_until=...)``): the controller's own ToolMeter; ``instants``:
         #: how many instants the ring's ticks can refer to at most (default one per tick; a
-        #: controller leaves one per interpolation period: ``capacity // ticks_per_period + 2``)
+        #: controller leaves one per interpolation period: ``capacity // ticks_per_period + 2``;
+        #: default ``capacity + 1``)
         self.tool_meter = tool_meter
         if instants is not None and instants < 2:
             raise ValueError("a recorder keeps at least 2 instants")
@@ -125,8 +126,9 @@ class Recorder:
         # before which a tick without a TCP is one of its period
         self._lazy = np.full(capacity, -1, dtype=np.int64)
         self._instants = np.zeros((0 if tool_meter is None else instants or capacity + 1, 1 + 4 * dof))
+        self._instant_serials = np.full(len(self._instants), -1, dtype=np.int64)  # whose numbers each slot holds
         self._instant_count = 0
-        self._instant: tuple[int, float] | None = None
+        self._instant: tuple[int, float, float] | None = None  # (serial, until, the instant's time)
         # the ticks added but not yet in the arrays (:meth:`_flush`, before anything reads them):
         # their numbers (time, then the quantities) one after another, their points, their TCPs
         # (each ToolState once) and which TCP each has (-1: none); the ticks of add_between, their
@@ -142,6 +144,12 @@ class Recorder:
         self._last_ends: tuple[Setpoint, Setpoint] | None = None
         self._flat_between: list[float] = []  # a tick of add_between's: time, actual position, velocity, acceleration
         self._pending_instants: list[tuple[int, int]] = []  # (pending row, serial)
+
+    def holds_instant(self, time: float) -> bool:
+        """Whether the TCP of the instant at controller time ``time`` is this recorder's to
+        compute (it was left it, and has not been cleared since): a controller that left it to
+        another computes it itself before this one records the ticks that hold it."""
+        return self._instant is not None and self._instant[2] == time
 
     def takes_instants(self, meter: ToolMeter) -> bool:
         """Whether a controller measuring with ``meter`` may leave this recorder the TCPs of its
@@ -183,7 +191,7 @@ class Recorder:
         if instant_until is not None:
             serial = self._instant_count
             self._instant_count = serial + 1
-            self._instant = (serial, instant_until)
+            self._instant = (serial, instant_until, tick[0])
             self._pending_instants.append((len(self._pending_points), serial))
         self._tool_row(tick[9], tick[0])
         points = self._pending_points
@@ -295,7 +303,10 @@ class Recorder:
             table[rows, 1 + 6 * dof :] = command[:, 0] - table[rows, 1 + 3 * dof : 1 + 4 * dof]  # error: - actual
         if self._pending_instants:  # the numbers an instant's TCP is computed from, when read
             rows, serials = (np.array(column) for column in zip(*self._pending_instants, strict=True))
-            self._instants[serials % len(self._instants)] = table[rows][:, self._instant_columns]
+            last = len(self._instants)  # (a ring shorter than the block's instants: its newest, each slot once)
+            rows, serials = rows[-last:], serials[-last:]
+            self._instants[serials % last] = table[rows][:, self._instant_columns]
+            self._instant_serials[serials % last] = serials
         points = self._pending_points
         tools = np.vstack([np.array(self._tools).reshape(-1, len(_TOOL)), np.full((1, len(_TOOL)), np.nan)])
         codes = np.array(self._tool_rows, dtype=np.int64)
@@ -338,6 +349,14 @@ class Recorder:
         dof = self.dof
         return np.concatenate([[0], np.arange(1, 1 + 2 * dof), np.arange(1 + 3 * dof, 1 + 5 * dof)]).astype(np.intp)
 
+    def _check_instants(self, serials: NDArray[np.int64]) -> None:
+        """Every instant ``serials`` names still in the instants' ring (ValueError: too short)."""
+        if serials.size and (self._instant_serials[serials % len(self._instants)] != serials).any():
+            raise ValueError(
+                f"this recorder's ring of {len(self._instants)} instants is too short for its {self.capacity} ticks: "
+                "give instants >= capacity // ticks per interpolation period + 2"
+            )
+
     def _resolve(self) -> None:
         """Compute the TCPs the rows hold but the controller left uncomputed, each instant once."""
         self._flush()
@@ -347,6 +366,7 @@ class Recorder:
         meter = self.tool_meter
         assert meter is not None, "only a recorder with a tool meter takes instants"
         serials, which = np.unique(self._lazy[rows], return_inverse=True)
+        self._check_instants(serials)
         dof = self.dof
         computed = np.empty((serials.size, len(_TOOL)))
         for k, serial in enumerate(serials.tolist()):
@@ -410,6 +430,8 @@ class Recorder:
             made.tool_meter = self.tool_meter
             made._lazy[:] = np.roll(lazy, self.dropped % lazy.size)  # where from_columns put the rows
             made._instants = self._instants.copy()
+            made._instant_serials = self._instant_serials.copy()
+            made._instant_count = self._instant_count  # (recorded into, its instants follow these)
         return made
 
     @classmethod
@@ -448,6 +470,7 @@ class Recorder:
         self._flush()
         times = self._tool[:, -1].copy()
         lazy = self._lazy >= 0
+        self._check_instants(self._lazy[lazy])
         times[lazy] = self._instants[self._lazy[lazy] % len(self._instants), 0]
         return self._ordered(times)
 

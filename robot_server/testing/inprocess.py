@@ -58,6 +58,7 @@ class InProcess:
         capture = spec.config.capture
         self.capture_path: Path | None = None if capture is None else Path(capture)
         self.closed = False
+        self._stepping = asyncio.Lock()
         self._faults: list[asyncio.Task[None]] = []
         self._period = self.emulator.cell.config.interpolation_period
 
@@ -137,6 +138,10 @@ class InProcess:
         fails it (a long advance may take longer than that: it is progress that is bounded)."""
         clock = self.clock
         assert clock is not None
+        async with self._stepping:  # one wait at a time moves the clock: two at once wait in turn
+            await self._advance(clock, seconds, until)
+
+    async def _advance(self, clock: SteppedClock, seconds: float, until: Callable[[], bool] | None) -> None:
         advancing = asyncio.ensure_future(clock.advance(seconds, until))
         try:
             while True:
