@@ -13,6 +13,13 @@ descriptors (sockets, pipes, files) or logging filters, naming what leaked.
 * **Logging filters**: filters added to a logger and not taken off (an emulator's log ceiling left
   behind would swallow the next test's log lines).
 
+A test that binds a fixed port in the kernel's ephemeral range (``ip_local_port_range``: MotoROS's
+50240-50242 are in it) fails at the bind, naming the port: any outgoing connection of the machine
+may hold that port as its local one, and the bind then fails now and then (CI did, on 50242).
+Tests bind port 0, or a fixed port below the range (the generic profile's 11000 and 11002), or a
+port the kernel gave a bind of port 0 earlier; a test that has a reason to bind one says so with
+``@pytest.mark.fixed_ports_allowed("why")``.
+
 The guard only speaks when the test itself passed (a failing test says enough). A test that has a
 reason to leak says so with ``@pytest.mark.leaks_allowed("why")``: its leaks are then a warning.
 """
@@ -54,6 +61,11 @@ def pytest_configure(config: pytest.Config) -> None:
         "markers",
         "leaks_allowed(reason): the leak guard (tests/conftest.py) only warns about this test's leaked "
         "tasks, threads and file descriptors; say why they are acceptable",
+    )
+    config.addinivalue_line(
+        "markers",
+        "fixed_ports_allowed(reason): the test may bind fixed ports in the kernel's ephemeral range "
+        "(tests/conftest.py); say why",
     )
 
 
@@ -248,6 +260,50 @@ def leak_guard(request: pytest.FixtureRequest) -> Iterator[None]:
         warnings.warn(LeakWarning(f"{text}\n(allowed: {reason})"), stacklevel=1)
         return
     pytest.fail(text, pytrace=False)
+
+
+def _ephemeral_ports() -> range:
+    """The ports the kernel hands out as connections' local ports."""
+    try:
+        low, high = Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()
+        return range(int(low), int(high) + 1)
+    except (OSError, ValueError):
+        return range(32768, 61000)  # Linux's default
+
+
+class EphemeralPortBound(RuntimeError):
+    """A test bound a fixed port the kernel may have given an outgoing connection."""
+
+
+#: ports the kernel handed out to a bind of port 0 in this process: binding one again (a server
+#: restarting on its port, a port shown to be taken) is the test's own business
+_HANDED_OUT: set[int] = set()
+_EPHEMERAL = _ephemeral_ports()
+_BIND = socket.socket.bind
+
+
+def _checked_bind(self: socket.socket, address: object) -> None:
+    port = address[1] if isinstance(address, tuple) and len(address) >= 2 else None
+    if isinstance(port, int) and port in _EPHEMERAL and port not in _HANDED_OUT:
+        raise EphemeralPortBound(
+            f"a test binds port {port}, in the kernel's ephemeral range "
+            f"({_EPHEMERAL.start}-{_EPHEMERAL.stop - 1}): an outgoing connection may hold it; bind port 0 "
+            "(or mark the test fixed_ports_allowed, saying why)"
+        )
+    _BIND(self, address)  # type: ignore[arg-type]
+    if port == 0 and self.family in (socket.AF_INET, socket.AF_INET6):
+        _HANDED_OUT.add(self.getsockname()[1])
+
+
+@pytest.fixture(autouse=True)
+def _no_fixed_ephemeral_ports(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Refuses a bind to a fixed port in the ephemeral range (see the module doc)."""
+    if request.node.get_closest_marker("fixed_ports_allowed") is not None:
+        yield
+        return
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(socket.socket, "bind", _checked_bind)
+        yield
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -24,6 +24,8 @@ TARGET = [0.3, -0.2, 0.4, 0.5, -0.3, 0.6]
 async def setup(profile: str, **options: Any) -> AsyncIterator[tuple[Emulator, RobotDriver]]:
     driver_options = options.pop("driver", {})
     options.setdefault("speedup", 4.0)
+    if profile == "motoros":
+        options.setdefault("io_port", 0)
     config = EmulatorConfig(profile=profile, motion_port=0, state_port=0, **options)
     async with Emulator(config) as emu:
         driver = RobotDriver(

@@ -190,6 +190,9 @@ def test_pytest_fixtures_lists_robot_controller(project: pytest.Pytester) -> Non
 
 
 @pytest.mark.slow
+@pytest.mark.fixed_ports_allowed(
+    "probes whether the ports of the controllers, robot-server processes' too, are free again"
+)
 def test_a_user_s_tests_pass_fail_time_out_and_leave_nothing_behind(
     project: pytest.Pytester, monkeypatch: pytest.MonkeyPatch
 ) -> None:
