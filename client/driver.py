@@ -55,7 +55,6 @@ keeps the connections and the requests on the motion connection.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import time
 from collections.abc import AsyncIterator, Sequence
@@ -72,7 +71,6 @@ from simple_message.errors import (
     NotConnected,
     RequestFailed,
     RequestTimeout,
-    SimpleMessageError,
 )
 from simple_message.messages import (
     JointTrajPt,
@@ -91,6 +89,7 @@ from .lines import CartesianLines, LineGoal, LineRefused
 from .monitor import JointState, StateMonitor
 from .reasons import moving_elsewhere
 from .sending import Mode, sender_for
+from .stopping import stop_after_abort
 from .trajectory import Trajectory
 from .waiting import GoalSupervisor
 
@@ -502,5 +501,4 @@ class RobotDriver:
                 await self.motion.wait_for(ConnectionState.CONNECTED, self.reply_timeout)
             await self.stop()
 
-        with contextlib.suppress(DriverError, SimpleMessageError, TimeoutError):
-            await asyncio.shield(stop())
+        await stop_after_abort(stop())

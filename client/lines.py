@@ -12,7 +12,6 @@ last one. A refused line raises :class:`LineRefused`, which names the controller
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import math
 from collections.abc import Sequence
@@ -30,12 +29,12 @@ from simple_message.errors import (
     NotConnected,
     RequestFailed,
     RequestTimeout,
-    SimpleMessageError,
     UnexpectedReply,
 )
 from simple_message.messages import CartesianLine, CartesianLineReply, Message, ToolPose
 
 from .errors import DriverError, ExecutionAborted, _InFlight, _NotSent
+from .stopping import stop_after_abort
 from .waiting import Look, Wait
 
 if TYPE_CHECKING:
@@ -237,8 +236,7 @@ class CartesianLines:
             else:
                 log.info("line stop sent")
 
-        with contextlib.suppress(DriverError, SimpleMessageError, TimeoutError):
-            await asyncio.shield(stop())
+        await stop_after_abort(stop(), "line STOP")
 
     def tcp(self, group: int, state: JointState | None) -> tuple[Array, Array] | None:
         """The actual TCP position and orientation ``(w, x, y, z)``: the latest TOOL_POSE, else
