@@ -22,10 +22,12 @@ rest, each with a raw state client (a separate process) that timestamps every ro
 (FIN and RST) at random for MINUTES; prints the fleet's RSS every minute and of it the private
 anonymous memory (RssAnon: the heap, what a leak grows; the flatness is judged on it, as the kernel
 may drop the shared libraries' pages from RSS at any time), its errors (tracebacks, ERROR lines)
-and its overruns.
+and its overruns. ``--soak-clients N`` sessions run at once (default 6: the fleet stays below a core
+on the 2-core VM; 12 saturate it, its controllers' time then falls behind the wall clock and the
+backlog of waiting clients is what the memory measures).
 
     python bench/fleet.py [--counts 1,10,50,100,200] [--process-counts 1,10,50] [--moving 20,40] [--jitter 50]
-                          [--seconds 10] [--skip idle,moving,jitter] [--soak MINUTES]
+                          [--seconds 10] [--skip idle,moving,jitter] [--soak MINUTES [--soak-clients 6]]
 """
 
 from __future__ import annotations
@@ -357,14 +359,20 @@ async def _watch_client(spec: str, seconds: float) -> None:
 
 # -- soak ----------------------------------------------------------------------------------------
 
+#: the soak's first minutes, when the controllers first serve clients (first plans, caches)
+WARM_UP = 5
 
-async def soak(minutes: float, folder: Path) -> None:
-    print(f"\n## Soak: 50 controllers of every profile, clients coming and going at random for {minutes:g} min\n")
+
+async def soak(minutes: float, clients: int, folder: Path) -> None:
+    print(
+        f"\n## Soak: 50 controllers of every profile, {clients} clients at a time coming and going at random "
+        f"for {minutes:g} min\n"
+    )
     async with fleet(50, PROFILES, folder, stdin=True) as running:
         spec = ",".join(f"{c.motion}:{c.state}:{c.profile}" for c in running.controllers)
         operator = asyncio.ensure_future(_operator(running.procs[0]))
         client = await asyncio.create_subprocess_exec(
-            sys.executable, __file__, "_chaos", spec, str(minutes * 60.0), stdout=asyncio.subprocess.PIPE
+            sys.executable, __file__, "_chaos", spec, str(minutes * 60.0), str(clients), stdout=asyncio.subprocess.PIPE
         )
         print("| minute | RSS (MB) | of it private, RssAnon (MB) | CPU over the minute (% of a core) |")
         print("|---:|---:|---:|---:|")
@@ -388,6 +396,12 @@ async def soak(minutes: float, folder: Path) -> None:
     print(f"RssAnon: first {samples[0]:.1f} MB, last {samples[-1]:.1f} MB, range {low:.1f}..{high:.1f} MB")
     drift = max(abs(s - samples[0]) for s in samples)
     print(f"private memory flat within +-5 MB: {'yes' if drift <= 5.0 else 'NO'} (largest change {drift:.1f} MB)")
+    if len(samples) > WARM_UP + 1:
+        warm = samples[WARM_UP:]
+        print(
+            f"after the first {WARM_UP} minutes (every controller has served clients): {min(warm):.1f}..{max(warm):.1f}"
+            f" MB, largest change from minute {WARM_UP} {max(abs(s - warm[0]) for s in warm):.1f} MB"
+        )
     errors = [line for line in log.splitlines() if " ERROR " in line]
     print(f"tracebacks: {log.count('Traceback')}; ERROR lines: {len(errors)} (a played controller's own failures among")
     print("them: ABB's RAPID motion server stopping on garbage, as it does), the first:")
@@ -408,7 +422,7 @@ async def _operator(proc: asyncio.subprocess.Process) -> None:
         await proc.stdin.drain()
 
 
-async def _chaos_client(spec: str, seconds: float) -> None:
+async def _chaos_client(spec: str, seconds: float, workers: int = 6) -> None:
     """(child) Clients connect, stream, stop and vanish (FIN or RST) at random, for ``seconds``."""
     import numpy as np
 
@@ -479,7 +493,7 @@ async def _chaos_client(spec: str, seconds: float) -> None:
                 counts["failed"] += 1
             await asyncio.sleep(rng.uniform(0.0, 0.2))
 
-    await asyncio.gather(*(worker() for _ in range(12)))
+    await asyncio.gather(*(worker() for _ in range(workers)))
     print(", ".join(f"{k} {v}" for k, v in counts.items()))
 
 
@@ -506,7 +520,7 @@ async def main(args: argparse.Namespace) -> None:
     with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
         folder = Path(tmp)
         if args.soak is not None:
-            await soak(args.soak, folder)
+            await soak(args.soak, args.soak_clients, folder)
             return
         skip = set(args.skip.split(",")) if args.skip else set()
         if "idle" not in skip:
@@ -521,7 +535,7 @@ async def main(args: argparse.Namespace) -> None:
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1].startswith("_"):
         child = {"_stream": _stream_client, "_watch": _watch_client, "_chaos": _chaos_client}[sys.argv[1]]
-        asyncio.run(child(sys.argv[2], float(sys.argv[3])))
+        asyncio.run(child(sys.argv[2], float(sys.argv[3]), *map(int, sys.argv[4:])))
         sys.exit(0)
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--counts", default="1,10,50,100,200", help="fleet sizes at rest")
@@ -531,4 +545,5 @@ if __name__ == "__main__":
     parser.add_argument("--seconds", type=float, default=10.0, help="each measurement's window")
     parser.add_argument("--skip", default="", help="idle, moving, jitter: parts to leave out")
     parser.add_argument("--soak", type=float, metavar="MINUTES", help="run the soak instead of the tables")
+    parser.add_argument("--soak-clients", type=int, default=6, metavar="N", help="the soak's sessions at a time")
     asyncio.run(main(parser.parse_args()))
