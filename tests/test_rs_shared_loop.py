@@ -265,3 +265,111 @@ async def test_state_rounds_run_every_slot_due_at_a_late_wake_up_and_each_round_
         task.cancel()
         with pytest.raises(asyncio.CancelledError):
             await task
+
+
+# -- a controller with its loop to itself (a lone robot-server): ControlLoop.catch_up ----------------
+
+
+async def _lone(loop: ControlLoop, woke: asyncio.Event, duration: float | None = None) -> asyncio.Task[object]:
+    task = asyncio.get_running_loop().create_task(loop.run(duration))
+    async with asyncio.timeout(5.0):
+        await woke.wait()  # the first period (deadline 0) runs at once
+    return task
+
+
+async def test_a_lone_loop_catches_up_one_period_per_call_and_its_wake_up_runs_none_twice() -> None:
+    clock = HandClock()
+    (controller,) = _controllers(1)
+    woke = asyncio.Event()
+    loop = ControlLoop(controller, clock, on_wake=woke.set)
+    loop.catch_up()  # not running yet
+    assert loop.stats.wakes == 0
+    task = await _lone(loop, woke)
+    assert controller.time == pytest.approx(PERIOD)
+
+    clock.move_quietly(3.5 * PERIOD)  # deadlines 1, 2 and 3 have passed; the loop has not woken
+    loop.catch_up()
+    assert loop.stats.wakes == 2
+    loop.catch_up()
+    loop.catch_up()
+    loop.catch_up()  # nothing more is due
+    assert loop.stats.wakes == 4
+    assert controller.time == pytest.approx(4 * PERIOD)
+    assert loop.stats.max_lateness == pytest.approx(2.5 * PERIOD), "period 1 ran 2.5 periods late"
+    assert loop.stats.overruns == 2, "periods 1 and 2 were more than a period late, period 3 not"
+
+    woke.clear()
+    clock.set(4.0 * PERIOD)  # the loop wakes for period 4, the one due now, and runs it once
+    async with asyncio.timeout(5.0):
+        await woke.wait()
+    for _ in range(3):
+        await asyncio.sleep(0)
+    assert loop.stats.wakes == 5 and controller.time == pytest.approx(5 * PERIOD)
+    loop.stop()
+    clock.set(clock.now() + PERIOD)
+    async with asyncio.timeout(5.0):
+        stats = await task
+    assert stats.simulated == pytest.approx(stats.wakes * PERIOD), "the periods run are the time simulated"
+
+
+async def test_a_lone_loop_catches_up_neither_inside_a_period_nor_past_its_duration() -> None:
+    clock = HandClock()
+    (controller,) = _controllers(1)
+    calls: list[int] = []
+    woke = asyncio.Event()
+    loop = ControlLoop(controller, clock)
+
+    def on_wake() -> None:  # a callback that would call back into the loop
+        calls.append(loop.stats.wakes)
+        loop.catch_up()
+        woke.set()
+
+    loop.on_wake = on_wake
+    task = await _lone(loop, woke, duration=3 * PERIOD)
+    clock.move_quietly(10.0 * PERIOD)
+    for _ in range(5):
+        loop.catch_up()
+    assert calls == [0, 1, 2], "one call per period, none nested, none beyond the 3 periods asked"
+    assert controller.time == pytest.approx(3 * PERIOD)
+    clock.set(clock.now())  # the sleeping loop wakes, finds its periods run and ends
+    async with asyncio.timeout(5.0):
+        stats = await task
+    assert stats.wakes == 3 and stats.simulated == pytest.approx(3 * PERIOD)
+
+
+async def test_a_lone_loop_leaves_a_stepped_clock_to_its_steps() -> None:
+    clock = SteppedClock()
+    (controller,) = _controllers(1)
+    loop = ControlLoop(controller, clock)
+    task = asyncio.get_running_loop().create_task(loop.run())
+    async with asyncio.timeout(5.0):
+        await clock.advance(PERIOD)
+    before = controller.time
+    loop.catch_up()
+    assert controller.time == before
+    loop.stop()
+    task.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await task
+
+
+async def test_a_lone_emulator_runs_the_period_due_before_a_request_is_handled() -> None:
+    from robot_server.emulator import Emulator, EmulatorConfig
+
+    clock = HandClock()
+    emu = Emulator(EmulatorConfig(motion_port=0, state_port=0), clock=clock)
+    await emu.start()
+    try:
+        await emu.wait_until(lambda: emu.control.stats.wakes == 1, 5.0)  # the first period (deadline 0)
+        start = emu.cell.time
+        clock.move_quietly(clock.now() + 1.5 * PERIOD)  # the event loop was busy: no wake-up
+        motion = await RawPeer.connect(emu.ports["motion"])
+        try:
+            reply = await motion.request(joint_traj_pt(JTP, 0, [0.0] * 6))
+        finally:
+            await motion.close()
+        assert reply.reply_code == 1
+        assert emu.cell.time >= start + PERIOD - 1e-9, "the period due ran before the request"
+    finally:
+        clock.set(clock.now() + PERIOD)
+        await emu.close(settle_timeout=1.0)

@@ -5,7 +5,9 @@ A :class:`ControlLoop` wakes once per interpolation period at absolute deadlines
 them at once and the next deadline is unchanged, so lateness never accumulates (no drift), however
 long the run. On a real-time clock every wake-up's lateness is measured (:class:`LoopStats`).
 A :class:`SharedLoop` gives the control loops of many controllers (a fleet in one process) one
-wake-up per period between them. This module is where the controllers meet the event loop and time;
+wake-up per period between them. Either runs the period due before a request is handled when asked
+(``catch_up``, the emulator's servers call it through ``Server.before_handler``): a burst of requests
+is handled one after another on the event loop, and the wake-up would wait behind all of them. This module is where the controllers meet the event loop and time;
 they know neither.
 """
 
@@ -65,6 +67,11 @@ class ControlLoop:
     #: the context a :class:`SharedLoop` runs this loop's periods in (e.g. the log's controller name)
     context: contextvars.Context | None = None
     _running: bool = field(default=False, init=False)
+    #: the first deadline and the index of the next period to run (``origin + k x period``), while running
+    _origin: float = field(default=0.0, init=False)
+    _k: int = field(default=0, init=False)
+    _periods: int | None = field(default=None, init=False)
+    _in_wake: bool = field(default=False, init=False)
 
     def stop(self) -> None:
         self._running = False
@@ -112,25 +119,51 @@ class ControlLoop:
         ctl, clock = self.controller, self.clock
         period = ctl.config.interpolation_period
         self.check(period, ctl.servo_ticks_per_interpolation)
-        origin = clock.now()
-        periods = None if duration is None else round(duration / period)
+        self._origin = origin = clock.now()
+        self._periods = periods = None if duration is None else round(duration / period)
+        self._k = 0
         stats = self.stats
         self._running = True
         wall0 = time.perf_counter()
-        k = 0
         try:
-            while self._running and (periods is None or k < periods):
+            while self._running and (periods is None or self._k < periods):
+                k = self._k
                 deadline = origin + k * period
                 await clock.sleep_until(deadline)  # returns at once when late: the loop catches up
+                if self._k != k:  # run meanwhile by catch_up
+                    continue
                 if clock.realtime:
                     _late(stats, clock.now() - deadline, period)
-                self.wake()
-                k += 1
+                self._wake_next()
         finally:
             self._running = False
-            stats.simulated += k * period
+            stats.simulated += self._k * period
             stats.wall += time.perf_counter() - wall0
         return stats
+
+    def catch_up(self) -> None:
+        """Run the period now due, if one is, before a request is handled: the same rule as
+        :meth:`SharedLoop.catch_up` (one period at most; nothing on a simulated or stepped clock,
+        nor inside a period, nor before :meth:`run` or after the periods it was given), for a
+        controller that has its loop to itself (a lone ``robot-server``)."""
+        if not (self._running and self.clock.realtime) or self._in_wake:
+            return
+        if self._periods is not None and self._k >= self._periods:
+            return
+        period = self.controller.config.interpolation_period
+        deadline = self._origin + self._k * period
+        now = self.clock.now()
+        if deadline <= now:
+            _late(self.stats, now - deadline, period)
+            self._wake_next()
+
+    def _wake_next(self) -> None:
+        self._in_wake = True
+        try:
+            self.wake()
+        finally:
+            self._in_wake = False
+        self._k += 1
 
 
 def _late(stats: LoopStats, lateness: float, period: float) -> None:

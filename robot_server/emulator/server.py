@@ -430,6 +430,8 @@ class Emulator:
             if cfg.serial is not None:
                 self.motion_server.start_serving(self.motion_server.serve_serial(cfg.serial, data={STATE_LINK: True}))
             return self
+        for server in self.servers.values():  # the period due runs before any request is handled
+            server.before_handler = self.control.catch_up
         # installed once nothing can fail any more (close takes it off again)
         self._log_ceiling = BudgetFilter(
             LogBudget("emulator", rate=PEER_LOG_RATE, burst=PEER_LOG_BURST),
