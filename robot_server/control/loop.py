@@ -7,8 +7,8 @@ long the run. On a real-time clock every wake-up's lateness is measured (:class:
 A :class:`SharedLoop` gives the control loops of many controllers (a fleet in one process) one
 wake-up per period between them. Either runs the period due before a request is handled when asked
 (``catch_up``, the emulator's servers call it through ``Server.before_handler``): a burst of requests
-is handled one after another on the event loop, and the wake-up would wait behind all of them. This module is where the controllers meet the event loop and time;
-they know neither.
+is handled one after another on the event loop, and the wake-up would wait behind all of them.
+This module is where the controllers meet the event loop and time; they know neither.
 """
 
 from __future__ import annotations
