@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import collections
 import contextlib
 import itertools
 import os
@@ -434,13 +435,16 @@ async def _chaos_client(spec: str, seconds: float, workers: int = 6) -> None:
     items = [(int(m), int(s), profile) for m, s, profile in (item.split(":") for item in spec.split(","))]
     end = time.monotonic() + seconds
     counts = {"sessions": 0, "streamed": 0, "stopped": 0, "rst": 0, "fin": 0, "garbage": 0, "failed": 0}
+    reasons: collections.Counter[str] = collections.Counter()
     rng = random.Random(38)
 
-    def swing(amplitude: float) -> Trajectory:
+    def swing(start: np.ndarray, amplitude: float) -> Trajectory:
+        """From where the robot is (an earlier session may have left it anywhere on its way) to a
+        goal of its own."""
         times = np.linspace(0.0, 1.0, 21)
         shape = (1 - np.cos(np.pi * times)) / 2
         goal = np.array([amplitude, -amplitude / 2, 0.1, 0.0, 0.2, 0.0])
-        return Trajectory(times, np.outer(shape, goal))
+        return Trajectory(times, start + np.outer(shape, goal - start))
 
     async def session(motion: int, state: int, profile: str) -> None:
         counts["sessions"] += 1
@@ -456,10 +460,11 @@ async def _chaos_client(spec: str, seconds: float, workers: int = 6) -> None:
         robot = RobotDriver("127.0.0.1", motion, state, profile=profile, model=model, goal_timeout=20.0)
         try:
             await robot.connect()
+            start = (await robot.wait_state(5.0)).positions[:6]
         except BaseException:  # refused (another client moves that robot...): what it opened is closed
             await robot.close()
             raise
-        task = asyncio.ensure_future(robot.execute(swing(rng.uniform(0.05, 0.4))))
+        task = asyncio.ensure_future(robot.execute(swing(start, rng.uniform(0.05, 0.4))))
         try:
             await asyncio.sleep(rng.uniform(0.1, 2.0))
             if task.done():
@@ -476,7 +481,8 @@ async def _chaos_client(spec: str, seconds: float, workers: int = 6) -> None:
             if connection is not None and rng.random() < 0.3:  # the client vanishes: RST, nothing said
                 sock = connection.transport.get_extra_info("socket")
                 if sock is not None:
-                    sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+                    with contextlib.suppress(OSError):  # the controller closed it first: no RST to send
+                        sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
                 connection.transport.abort()
                 counts["rst"] += 1
             else:
@@ -489,18 +495,27 @@ async def _chaos_client(spec: str, seconds: float, workers: int = 6) -> None:
             try:
                 async with asyncio.timeout(30.0):
                     await session(motion, state, profile)
-            except Exception:  # a refusal, a busy controller, a reset connection: the chaos itself
+            except Exception as exc:  # a refusal, a busy controller, a reset connection: the chaos itself
                 counts["failed"] += 1
+                reasons[_reason(exc)] += 1
             await asyncio.sleep(rng.uniform(0.0, 0.2))
 
     await asyncio.gather(*(worker() for _ in range(workers)))
     print(", ".join(f"{k} {v}" for k, v in counts.items()))
+    print("why sessions failed (the most frequent): " + "; ".join(f"{n} x {why}" for why, n in reasons.most_common(6)))
+
+
+def _reason(exc: BaseException) -> str:
+    """An exception's kind and message, numbers (ports, times, counts) taken out: failures that
+    differ in those only are counted as one."""
+    return f"{type(exc).__name__}: {re.sub(r'[0-9.]+', '#', str(exc))[:90]}"
 
 
 def _vanish(writer: asyncio.StreamWriter, rng: random.Random, counts: dict[str, int]) -> None:
     sock = writer.get_extra_info("socket")
     if sock is not None and rng.random() < 0.5:  # RST: linger 0
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        with contextlib.suppress(OSError):  # the controller closed it first: no RST to send
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
         counts["rst"] += 1
     else:
         counts["fin"] += 1
