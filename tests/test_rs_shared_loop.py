@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import sys
 
 import pytest
 
-from robot_server.control import Clock, ControlLoop, SharedLoop, SteppedClock
+from robot_server.control import Clock, ControlLoop, LoopStats, SharedLoop, SteppedClock
 from robot_server.control.controller import Controller
 from robot_server.fleet import Fleet, parse_fleet
 from robot_server.loader import load_model
@@ -270,7 +271,7 @@ async def test_state_rounds_run_every_slot_due_at_a_late_wake_up_and_each_round_
 # -- a controller with its loop to itself (a lone robot-server): ControlLoop.catch_up ----------------
 
 
-async def _lone(loop: ControlLoop, woke: asyncio.Event, duration: float | None = None) -> asyncio.Task[object]:
+async def _lone(loop: ControlLoop, woke: asyncio.Event, duration: float | None = None) -> asyncio.Task[LoopStats]:
     task = asyncio.get_running_loop().create_task(loop.run(duration))
     async with asyncio.timeout(5.0):
         await woke.wait()  # the first period (deadline 0) runs at once
@@ -297,6 +298,11 @@ async def test_a_lone_loop_catches_up_one_period_per_call_and_its_wake_up_runs_n
     assert controller.time == pytest.approx(4 * PERIOD)
     assert loop.stats.max_lateness == pytest.approx(2.5 * PERIOD), "period 1 ran 2.5 periods late"
     assert loop.stats.overruns == 2, "periods 1 and 2 were more than a period late, period 3 not"
+
+    clock.set(3.6 * PERIOD)  # the sleeping loop wakes (its deadline, period 1's, has passed): nothing is due
+    for _ in range(5):
+        await asyncio.sleep(0)
+    assert loop.stats.wakes == 4, "the wake-up found the periods run and ran none early"
 
     woke.clear()
     clock.set(4.0 * PERIOD)  # the loop wakes for period 4, the one due now, and runs it once
@@ -342,11 +348,19 @@ async def test_a_lone_loop_leaves_a_stepped_clock_to_its_steps() -> None:
     (controller,) = _controllers(1)
     loop = ControlLoop(controller, clock)
     task = asyncio.get_running_loop().create_task(loop.run())
+    caught: list[float] = []
+
+    def in_the_middle() -> bool:  # checked before each period of the advance: the next one is due now
+        if len(caught) < 3:
+            before = controller.time
+            loop.catch_up()
+            caught.append(controller.time - before)
+        return False
+
     async with asyncio.timeout(5.0):
-        await clock.advance(PERIOD)
-    before = controller.time
-    loop.catch_up()
-    assert controller.time == before
+        await clock.advance(3 * PERIOD, until=in_the_middle)
+    assert caught == [0.0, 0.0, 0.0], "the stepped clock's periods are its advances', never a request's"
+    assert controller.time == pytest.approx(4 * PERIOD)
     loop.stop()
     task.cancel()
     with pytest.raises(asyncio.CancelledError):
@@ -373,3 +387,46 @@ async def test_a_lone_emulator_runs_the_period_due_before_a_request_is_handled()
     finally:
         clock.set(clock.now() + PERIOD)
         await emu.close(settle_timeout=1.0)
+
+
+async def test_a_lone_period_failing_in_catch_up_ends_the_loop_and_is_told_once() -> None:
+    clock = HandClock()
+    (controller,) = _controllers(1)
+    woke = asyncio.Event()
+    told: list[str] = []
+
+    def on_wake() -> None:
+        woke.set()
+        if loop.stats.wakes == 1:  # the second period (counted once its on_wake returns)
+            raise RuntimeError("a defect in the period")
+
+    def on_failure() -> None:  # in the except block, as the emulator's e-stop logs the traceback
+        told.append(repr(sys.exc_info()[1]))
+
+    loop = ControlLoop(controller, clock, on_wake=on_wake, on_failure=on_failure)
+    task = await _lone(loop, woke)
+    clock.move_quietly(1.5 * PERIOD)
+    loop.catch_up()
+    assert told == ["RuntimeError('a defect in the period')"]
+    failed_at = controller.time
+    clock.set(5.0 * PERIOD)  # the sleeping loop wakes: it has ended, no period runs again
+    async with asyncio.timeout(5.0):
+        await task
+    loop.catch_up()
+    assert controller.time == failed_at and told == ["RuntimeError('a defect in the period')"]
+
+
+async def test_before_handler_runs_once_for_a_request_with_an_arrival_hook() -> None:
+    server = Server()
+    seen: list[str] = []
+    server.handle(
+        Ping.MSG_TYPE, lambda msg, session: seen.append("handler"), on_arrival=lambda msg, s: seen.append("arrival")
+    )
+    server.before_handler = lambda: seen.append("before")
+    port = await server.serve_tcp()
+    try:
+        async with Client.tcp("127.0.0.1", port) as client:
+            await client.request(Ping(), 5.0)
+            assert seen == ["before", "arrival", "handler"]
+    finally:
+        await server.close()

@@ -62,7 +62,9 @@ class ControlLoop:
     other_recorders: list[Recorder | None] = field(default_factory=list)
     #: called after every wake-up's ticks (e.g. to hand points over or to wake waiting replies)
     on_wake: Callable[[], None] | None = None
-    #: called when a period failed in a :class:`SharedLoop`, which has dropped the loop (a defect)
+    #: called (in the ``except`` block) when a period failed where no :meth:`run` raises it: in a
+    #: :class:`SharedLoop`, which has dropped the loop, or in :meth:`catch_up`, after which the loop
+    #: runs no more periods (a defect)
     on_failure: Callable[[], None] | None = None
     #: the context a :class:`SharedLoop` runs this loop's periods in (e.g. the log's controller name)
     context: contextvars.Context | None = None
@@ -143,9 +145,11 @@ class ControlLoop:
 
     def catch_up(self) -> None:
         """Run the period now due, if one is, before a request is handled: the same rule as
-        :meth:`SharedLoop.catch_up` (one period at most; nothing on a simulated or stepped clock,
+        :meth:`SharedLoop.catch_up` (one period per call; nothing on a simulated or stepped clock,
         nor inside a period, nor before :meth:`run` or after the periods it was given), for a
-        controller that has its loop to itself (a lone ``robot-server``)."""
+        controller that has its loop to itself (a lone ``robot-server``). A period that fails here
+        ends the loop and calls :attr:`on_failure` (the emulator's e-stop), as one failing in
+        :meth:`run` ends it."""
         if not (self._running and self.clock.realtime) or self._in_wake:
             return
         if self._periods is not None and self._k >= self._periods:
@@ -155,7 +159,12 @@ class ControlLoop:
         now = self.clock.now()
         if deadline <= now:
             _late(self.stats, now - deadline, period)
-            self._wake_next()
+            try:
+                self._wake_next()
+            except Exception:  # a defect in the period: as in run, the loop ends and the failure is told
+                self._running = False
+                self._k += 1  # that period is over: run, when it wakes, finds it run and ends
+                self.failed()
 
     def _wake_next(self) -> None:
         self._in_wake = True

@@ -195,8 +195,10 @@ class Server:
         self._unread_scan: tuple[float, dict[Session, int]] = (-_UNREAD_SCAN_AGE, {})
         #: PING is answered by the server itself (no handler, no arrival hook): the fast path
         self._ping_auto = True
-        #: called before every handler and arrival hook runs (e.g. an application's periodic work
-        #: that must not wait behind a burst of requests handled one after another)
+        #: called once before a message's arrival hook and handler run (before the hook, or before the
+        #: handler of a message without one, or of one queued behind others: again when it is
+        #: handled), e.g. an application's periodic work that must not wait behind a burst of
+        #: requests handled one after another
         self.before_handler: Callable[[], None] | None = None
 
     # -- configuration -----------------------------------------------------------------------------
@@ -516,12 +518,14 @@ class Server:
             if connection.transport.get_write_buffer_size() <= self.max_write_buffer:
                 connection.send_frame_nowait(session.ping_reply())
                 return None
+        caught_up = False  # before_handler ran for this message (its arrival hook's)
         if isinstance(msg, Message) and msg.comm_type == _SERVICE_REQUEST:
             hook = self._arrival.get(msg.msg_type)
             if hook is not None and (
                 not self.validate_headers or _header_error(msg.msg_type, msg.comm_type, msg.reply_code) is None
             ):
                 self._before_handler()
+                caught_up = True
                 try:
                     hook(msg, session)
                 except Exception:
@@ -530,7 +534,7 @@ class Server:
         if not session.busy and session.queue.empty():
             # Nothing is ahead of this message: handle it now, without a hop through the worker.
             # Order holds, and a synchronous handler's reply goes out in this very loop iteration.
-            out = self._dispatch_now(session, msg)
+            out = self._dispatch_now(session, msg, caught_up=caught_up)
             if out is None:
                 return None
             if out is _Marker.CLOSE:
@@ -589,9 +593,11 @@ class Server:
         return self._finish(out.msg, result)
 
     def _dispatch_now(
-        self, session: Session, msg: Message | MalformedMessage
+        self, session: Session, msg: Message | MalformedMessage, *, caught_up: bool = False
     ) -> Message | _Later | Literal[_Marker.CLOSE] | None:
-        """Everything up to the handler's result: the reply, nothing, or an awaitable to finish."""
+        """Everything up to the handler's result: the reply, nothing, or an awaitable to finish
+        (``caught_up``: :attr:`before_handler` ran for this message a moment ago, before its arrival
+        hook, and is not called again)."""
         is_request = msg.comm_type == _SERVICE_REQUEST
         if isinstance(msg, MalformedMessage):
             session.log(log, logging.WARNING, "malformed message: %s", msg)
@@ -619,7 +625,8 @@ class Server:
                 session.log(log, logging.INFO, "no handler for request type %s; FAILURE", msg.msg_type)
                 return HeaderOnly(msg.msg_type, reply_code=ReplyCode.FAILURE)
             handler = self.unknown_request
-        self._before_handler()
+        if not caught_up:
+            self._before_handler()
         try:
             result = handler(msg, session)
         except CloseConnection:
