@@ -221,7 +221,8 @@ class CartesianLines:
             raise _LineInFlight(f"line {k}: {exc}", confirmed, what="line") from None
 
     async def _stop_quietly(self, group: int) -> None:
-        """A CARTESIAN_LINE STOP after an abort (the plain STOP if that fails); bounded, never raises."""
+        """A CARTESIAN_LINE STOP after an abort (the plain STOP if that fails); bounded; one not sent is
+        a warning, not raised (:func:`.stopping.stop_after_abort`)."""
         d = self.driver
 
         async def stop() -> None:

@@ -2,11 +2,12 @@
 
 An abort is often a cancellation (the caller's timeout, Ctrl-C, a task cancelled): the STOP must
 still go out, so it runs as its own task, shielded from the cancellation, and bounded by the
-driver's own timeouts. :func:`stop_after_abort` waits for it and never raises what a failed stop
-raises (the abort is what the caller hears about); a stop that could not be sent is logged as a
-warning, since the robot may still be moving. When the caller is cancelled while the stop is still
-under way, the stop goes on and its outcome is logged when it ends (never an asyncio "exception was
-never retrieved").
+driver's own timeouts. :func:`stop_after_abort` waits for it; a stop that could not be sent (a lost
+link, no reply in time, a refusal) is logged as a warning, since the robot may still be moving, and
+not raised: the abort is what the caller hears about. (A defect in the stop itself is raised.) When
+the caller is cancelled while the stop is still under way, the stop goes on as long as the event
+loop runs and its outcome is logged when it ends (never an asyncio "exception was never
+retrieved"); a loop that ends first cancels it, which is logged too.
 """
 
 from __future__ import annotations
@@ -28,6 +29,10 @@ log = logging.getLogger("client.driver")
 NOT_SENT = (DriverError, SimpleMessageError, TimeoutError)
 
 
+#: stops whose callers left: held until they end (the event loop keeps only weak references to tasks)
+_RUNNING: set[asyncio.Future[None]] = set()
+
+
 async def stop_after_abort(stop: Coroutine[Any, Any, None], what: str = "STOP") -> None:
     """Run ``stop`` to its end even if the caller is cancelled meanwhile (see the module doc)."""
     task = asyncio.ensure_future(stop)
@@ -37,6 +42,8 @@ async def stop_after_abort(stop: Coroutine[Any, Any, None], what: str = "STOP") 
         if task.done() and not task.cancelled():
             _outcome(task, what)
         else:  # the caller leaves; the stop goes on, its outcome logged when it ends
+            _RUNNING.add(task)
+            task.add_done_callback(_RUNNING.discard)
             task.add_done_callback(lambda t: _outcome(t, what))
         raise
     except NOT_SENT as exc:

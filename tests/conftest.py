@@ -17,8 +17,10 @@ A test that binds a fixed port in the kernel's ephemeral range (``ip_local_port_
 50240-50242 are in it) fails at the bind, naming the port: any outgoing connection of the machine
 may hold that port as its local one, and the bind then fails now and then (CI did, on 50242).
 Tests bind port 0, or a fixed port below the range (the generic profile's 11000 and 11002), or a
-port the kernel gave a bind of port 0 earlier; a test that has a reason to bind one says so with
-``@pytest.mark.fixed_ports_allowed("why")``.
+port the kernel gave a bind of port 0 earlier in the same test; a test that has a reason to bind one
+says so with ``@pytest.mark.fixed_ports_allowed("why")``. (Watched: binds in this process during the
+test and its function-scoped fixtures; not a robot-server process the test starts, nor fixtures of a
+wider scope.)
 
 The guard only speaks when the test itself passed (a failing test says enough). A test that has a
 reason to leak says so with ``@pytest.mark.leaks_allowed("why")``: its leaks are then a warning.
@@ -27,8 +29,10 @@ reason to leak says so with ``@pytest.mark.leaks_allowed("why")``: its leaks are
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import gc
 import logging
+import operator
 import os
 import socket
 import threading
@@ -275,35 +279,45 @@ class EphemeralPortBound(RuntimeError):
     """A test bound a fixed port the kernel may have given an outgoing connection."""
 
 
-#: ports the kernel handed out to a bind of port 0 in this process: binding one again (a server
-#: restarting on its port, a port shown to be taken) is the test's own business
+#: ports the kernel handed out to a bind of port 0 during the running test: binding one again (a
+#: server restarting on its port, a port shown to be taken) is the test's own business; forgotten
+#: when the test ends (a later test binding it would be the flaky case again)
 _HANDED_OUT: set[int] = set()
 _EPHEMERAL = _ephemeral_ports()
 _BIND = socket.socket.bind
+_INET = (socket.AF_INET, socket.AF_INET6)
 
 
 def _checked_bind(self: socket.socket, address: object) -> None:
-    port = address[1] if isinstance(address, tuple) and len(address) >= 2 else None
-    if isinstance(port, int) and port in _EPHEMERAL and port not in _HANDED_OUT:
+    port = None
+    if self.family in _INET and isinstance(address, tuple) and len(address) >= 2:
+        with contextlib.suppress(TypeError):
+            port = operator.index(address[1])  # an int, or a numpy integer
+    if port is not None and port in _EPHEMERAL and port not in _HANDED_OUT:
         raise EphemeralPortBound(
             f"a test binds port {port}, in the kernel's ephemeral range "
             f"({_EPHEMERAL.start}-{_EPHEMERAL.stop - 1}): an outgoing connection may hold it; bind port 0 "
             "(or mark the test fixed_ports_allowed, saying why)"
         )
     _BIND(self, address)  # type: ignore[arg-type]
-    if port == 0 and self.family in (socket.AF_INET, socket.AF_INET6):
+    if port == 0:
         _HANDED_OUT.add(self.getsockname()[1])
 
 
 @pytest.fixture(autouse=True)
 def _no_fixed_ephemeral_ports(request: pytest.FixtureRequest) -> Iterator[None]:
-    """Refuses a bind to a fixed port in the ephemeral range (see the module doc)."""
+    """Refuses a bind to a fixed port in the ephemeral range during the test and its function-scoped
+    fixtures (see the module doc; a robot-server process of the test's, a module- or session-scoped
+    fixture are not watched)."""
     if request.node.get_closest_marker("fixed_ports_allowed") is not None:
         yield
         return
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(socket.socket, "bind", _checked_bind)
-        yield
+        try:
+            yield
+        finally:
+            _HANDED_OUT.clear()
 
 
 @pytest.fixture(scope="session", autouse=True)
