@@ -230,6 +230,12 @@ def tables(seconds: float, capture_mb: float) -> None:
 JTP_POINT = JointTrajPt(7, [0.1, 0.2, 0.3, 0.4, 0.5, 0.6], 0.5, 2.0)  # sm_client decode's point (sm_client.cpp)
 
 
+#: the row of ``feed_messages`` measured with the process's start-up objects frozen out of the
+#: garbage collector's scans (``gc.freeze``), as a robot-server or a fleet runs once it is ready:
+#: a collection then walks what the decoding made, not every module and table of the process
+FROZEN = "`feed_messages`, the start-up objects frozen (`gc.freeze`), as robot-server runs once ready"
+
+
 def compare_with_peer(peer_option: str | None, runs: int, pin: str, seconds: float, *, header: bool) -> None:
     """JOINT_TRAJ_PT cut and decoded here and by the C++ library (``sm_client decode``), alternating."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -267,6 +273,7 @@ def compare_with_peer(peer_option: str | None, runs: int, pin: str, seconds: flo
 
     paths: list[tuple[str, Callable[[], None]]] = [
         ("`feed_messages`: 1000 coalesced frames cut and decoded in one pass (every connection's path)", feed_messages),
+        (FROZEN, feed_messages),
         ("`feed` + `decode` of each frame (the cut+decode column)", feed_and_decode),
         ("`decode(frame)`, one whole frame at a time (what sm_client decode does per frame)", decode_frames),
         ("(for scale: `feed_messages` with the garbage collector off, as the package never runs)", feed_messages_no_gc),
@@ -285,7 +292,13 @@ def compare_with_peer(peer_option: str | None, runs: int, pin: str, seconds: flo
                 print(f"\n(sm_client decode failed: {e})")
                 return
             for name, fn in paths:
-                rates[name].append(once(fn, seconds) * 1000)
+                if name == FROZEN:  # as robot-server runs once ready (robot_server.cli.freeze_startup_objects)
+                    gc.collect()
+                    gc.freeze()
+                try:
+                    rates[name].append(once(fn, seconds) * 1000)
+                finally:
+                    gc.unfreeze()
     finally:
         os.sched_setaffinity(0, before)
     where_run = f"pinned to CPU {cpu}" if pin == "same" else "not pinned"
