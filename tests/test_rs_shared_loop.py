@@ -176,6 +176,18 @@ async def test_the_server_calls_before_handler_before_each_request_and_drops_a_f
         await server.close()
 
 
+async def _request_while_a_period_is_due(clock: HandClock, port: int) -> None:
+    """A JOINT_TRAJ_PT handled at a moment when a control period is due and the loop has not woken
+    (the event loop was busy); it is accepted."""
+    clock.move_quietly(clock.now() + 1.5 * PERIOD)
+    motion = await RawPeer.connect(port)
+    try:
+        reply = await motion.request(joint_traj_pt(JTP, 0, [0.0] * 6))
+    finally:
+        await motion.close()
+    assert reply.reply_code == 1
+
+
 async def test_in_a_fleet_a_request_runs_every_controllers_period_due_before_it_is_handled() -> None:
     """A burst of requests (many clients' points) is handled one after another on the event loop;
     the fleet's control period due meanwhile runs before each one, for every controller."""
@@ -186,13 +198,7 @@ async def test_in_a_fleet_a_request_runs_every_controllers_period_due_before_it_
     try:
         r1, r2 = fleet["r1"], fleet["r2"]
         start = r2.cell.time
-        clock.move_quietly(clock.now() + 1.5 * PERIOD)  # the event loop was busy: no wake-up
-        motion = await RawPeer.connect(r1.ports["motion"])
-        try:
-            reply = await motion.request(joint_traj_pt(JTP, 0, [0.0] * 6))
-        finally:
-            await motion.close()
-        assert reply.reply_code == 1
+        await _request_while_a_period_is_due(clock, r1.ports["motion"])
         assert r2.cell.time >= start + PERIOD - 1e-9, "r2's period due ran before r1's request"
     finally:
         clock.set(clock.now() + PERIOD)
@@ -376,13 +382,7 @@ async def test_a_lone_emulator_runs_the_period_due_before_a_request_is_handled()
     try:
         await emu.wait_until(lambda: emu.control.stats.wakes == 1, 5.0)  # the first period (deadline 0)
         start = emu.cell.time
-        clock.move_quietly(clock.now() + 1.5 * PERIOD)  # the event loop was busy: no wake-up
-        motion = await RawPeer.connect(emu.ports["motion"])
-        try:
-            reply = await motion.request(joint_traj_pt(JTP, 0, [0.0] * 6))
-        finally:
-            await motion.close()
-        assert reply.reply_code == 1
+        await _request_while_a_period_is_due(clock, emu.ports["motion"])
         assert emu.cell.time >= start + PERIOD - 1e-9, "the period due ran before the request"
     finally:
         clock.set(clock.now() + PERIOD)
