@@ -28,9 +28,8 @@ from __future__ import annotations
 import csv
 import gzip
 import io
-import math
 import zipfile
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol, TypeVar
 
@@ -169,24 +168,12 @@ class Recorder:
             return
         # the numbers go to one flat list (no object per tick outlives the call: a list of ticks
         # kept until the flush costs more in the garbage collector than the flush itself)
-        flat = self._flat
-        before = len(flat)
-        try:
-            flat.append(tick[0])
-            extend = flat.extend  # (not +=: a numpy array on the right would add, not extend)
-            extend(tick[1])
-            extend(tick[2])
-            extend(tick[3])
-            extend(tick[4])
-            extend(tick[5])
-            extend(tick[6])
-            extend(tick[7])
-        except TypeError:
-            del flat[before:]
-            raise ValueError(f"a recorded tick holds {len(QUANTITIES)} sequences of {self.dof} numbers") from None
-        if len(flat) - before != 1 + len(QUANTITIES) * self.dof:  # refused whole: the block keeps the others
-            del flat[before:]
-            raise ValueError(f"a recorded tick holds {len(QUANTITIES)} sequences of {self.dof} numbers")
+        _append_whole(
+            self._flat,
+            ((tick[0],), tick[1], tick[2], tick[3], tick[4], tick[5], tick[6], tick[7]),
+            1 + len(QUANTITIES) * self.dof,
+            f"a recorded tick holds {len(QUANTITIES)} sequences of {self.dof} numbers",
+        )
         self._seen = seen + 1
         if instant_until is not None:
             serial = self._instant_count
@@ -222,35 +209,26 @@ class Recorder:
             return
         flat = self._flat_between
         before = len(flat)
-        try:
-            flat.append(time)
-            extend = flat.extend
-            extend(drives.position)
-            extend(drives.velocity)
-            extend(drives.acceleration)
-        except TypeError:
-            del flat[before:]
-            raise ValueError(f"the drives' state holds 3 sequences of {self.dof} numbers") from None
-        if len(flat) - before != 1 + 3 * self.dof:
-            del flat[before:]
-            raise ValueError(f"the drives' state holds 3 sequences of {self.dof} numbers")
-        self._seen = seen + 1
+        _append_whole(
+            flat,
+            ((time,), drives.position, drives.velocity, drives.acceleration),
+            1 + 3 * self.dof,
+            f"the drives' state holds 3 sequences of {self.dof} numbers",
+        )
         last = self._last_ends
         if last is None or last[0] is not ends[0] or last[1] is not ends[1]:  # once per period
-            held = self._ends
-            start = len(held)
             try:
-                for setpoint in ends:
-                    for values in setpoint:
-                        held.extend(values)
-            except TypeError:
-                held.append(math.nan)  # (the length check below refuses it)
-            if len(held) - start != 6 * self.dof:
-                del held[start:]
-                del flat[before:]
-                self._seen = seen
-                raise ValueError(f"a setpoint holds position, velocity and acceleration of {self.dof} joints")
+                _append_whole(
+                    self._ends,
+                    (values for setpoint in ends for values in setpoint),
+                    6 * self.dof,
+                    f"a setpoint holds position, velocity and acceleration of {self.dof} joints",
+                )
+            except ValueError:
+                del flat[before:]  # the tick refused whole
+                raise
             self._last_ends = ends
+        self._seen = seen + 1
         pending = self._pending_points
         self._between.append((len(pending), share, len(self._ends)))
         self._tool_row(tool, time)
@@ -572,6 +550,24 @@ class Recorder:
 
 #: ticks a recorder collects before it writes them into its arrays at once (:meth:`Recorder._flush`)
 _BLOCK = 1024
+
+
+def _append_whole(flat: list[float], parts: Iterable[Iterable[float]], length: int, problem: str) -> None:
+    """The numbers of ``parts`` one after another at the end of ``flat``, all of them or none: a
+    part that is not a sequence of numbers, or ``length`` numbers not there, is a ValueError
+    ``problem`` and ``flat`` is as it was (a malformed tick refused whole, the block's others kept)."""
+    before = len(flat)
+    extend = flat.extend  # (not +=: a numpy array on the right would add, not extend)
+    try:
+        for part in parts:
+            extend(part)
+    except TypeError:
+        del flat[before:]
+        raise ValueError(problem) from None
+    if len(flat) - before != length:
+        del flat[before:]
+        raise ValueError(problem)
+
 
 #: rows formatted at once: the work space (200 kB) stays in the processor's cache; blocks of 512 rows
 #: took a fifth longer, of 32 rows longer still (numpy's overhead per call)
