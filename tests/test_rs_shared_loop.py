@@ -12,42 +12,17 @@ import sys
 
 import pytest
 
-from robot_server.control import Clock, ControlLoop, LoopStats, SharedLoop, SteppedClock
+from robot_server.control import ControlLoop, LoopStats, SharedLoop, SteppedClock
 from robot_server.control.controller import Controller
 from robot_server.fleet import Fleet, parse_fleet
 from robot_server.loader import load_model
 from simple_message import Ping
 from simple_message.endpoints import Client, Server
+from tests.handclock import HandClock
 from tests.rawpeer import RawPeer, joint_traj_pt, vectors
 
 PERIOD = 0.004
 JTP = vectors("<")["JOINT_TRAJ_PT_REQUEST_SEQ3"]
-
-
-class HandClock(Clock):
-    """A real-time clock as far as the loop can tell, whose time the test sets."""
-
-    realtime = True
-
-    def __init__(self) -> None:
-        self._now = 0.0
-        self._moved = asyncio.Event()
-
-    def now(self) -> float:
-        return self._now
-
-    def set(self, now: float) -> None:
-        self._now = now
-        self._moved.set()
-
-    def move_quietly(self, now: float) -> None:
-        """Time passes while the event loop is busy: the sleeping loop is not woken."""
-        self._now = now
-
-    async def sleep_until(self, deadline: float) -> None:
-        while self._now < deadline:
-            self._moved.clear()
-            await self._moved.wait()
 
 
 async def _started(shared: SharedLoop, loops: list[ControlLoop], woke: asyncio.Event) -> asyncio.Task[object]:
