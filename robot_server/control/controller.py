@@ -289,6 +289,23 @@ class Controller:
         then FALSE until the next motion: a drive's residual ringing does not flip it back."""
         return self.moving or not self._settled
 
+    @property
+    def resting(self) -> bool:
+        """Standing still with nothing queued, the last interpolation period a resting one replayed
+        (:mod:`.rest`): every following period is the same again, its times aside, until something
+        changes. What lets a fleet's shared loop leave this controller until it is next needed
+        (:meth:`.loop.ControlLoop.park`)."""
+        return self._replaying is not None and self._tick % self._sub == 0 and not self.moving
+
+    def skip_resting(self, periods: int) -> None:
+        """Pass ``periods`` resting periods at once (only while :attr:`resting`): the tick count and
+        the replay count as replaying them one by one leaves them. Their ticks are not made (no one
+        saw them); the next period, stepped, samples the motion at its own instant and makes its
+        ticks, the same numbers as after every period had been stepped."""
+        if periods > 0:
+            self._tick += periods * self._sub
+            self._rest.periods += periods
+
     def _check_settled(self, tick: Tick) -> None:
         cfg = self.config
         if not any(abs(e) > cfg.settle_position for e in tick.following_error) and not any(

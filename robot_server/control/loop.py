@@ -68,12 +68,20 @@ class ControlLoop:
     on_failure: Callable[[], None] | None = None
     #: the context a :class:`SharedLoop` runs this loop's periods in (e.g. the log's controller name)
     context: contextvars.Context | None = None
+    #: whether everything around the controller is idle too (no task waiting for its wake-ups, no
+    #: periodic task with work to do): asked by a :class:`SharedLoop` before it parks the loop
+    #: (:meth:`park`); None: never parked
+    idle: Callable[[], bool] | None = None
     _running: bool = field(default=False, init=False)
     #: the first deadline and the index of the next period to run (``origin + k x period``), while running
     _origin: float = field(default=0.0, init=False)
     _k: int = field(default=0, init=False)
     _periods: int | None = field(default=None, init=False)
     _in_wake: bool = field(default=False, init=False)
+    #: the shared loop that runs this loop's periods (:meth:`SharedLoop.add`)
+    _shared: SharedLoop | None = field(default=None, init=False, repr=False)
+    #: parked (:meth:`park`): the first of the shared loop's periods not run for this loop
+    _parked_at: int | None = field(default=None, init=False)
 
     def stop(self) -> None:
         self._running = False
@@ -88,6 +96,64 @@ class ControlLoop:
         for ctl in (self.controller, *self.others):
             if ctl.config.interpolation_period != period or ctl.servo_ticks_per_interpolation != sub:
                 raise ValueError("every controller of one loop must have the same interpolation and servo periods")
+
+    @property
+    def parked(self) -> bool:
+        return self._parked_at is not None
+
+    def may_park(self) -> bool:
+        """Its shared loop may leave this loop's periods after the one just run (:meth:`park`): the
+        controller rests (:attr:`.Controller.resting`), nothing records it, it has no other motion
+        group, and its owner says everything around it is :attr:`idle`."""
+        idle = self.idle
+        return (
+            idle is not None
+            and self.recorder is None
+            and not self.others
+            and self.controller.resting
+            and self._parked_at is None
+            and idle()
+        )
+
+    def park(self, at: int) -> None:
+        """Leave this loop's periods from the shared loop's period ``at`` on, until :meth:`unpark`.
+
+        A controller at rest with nothing around it waiting replays the same period again and again
+        (:mod:`.rest`): its shared loop need not run it at all. Whoever reads or changes the
+        controller calls :meth:`unpark` first (the emulator does, before a request, a state round, a
+        command, a wait), which passes the periods left out at once and steps the last of them, so
+        that the controller stands where it would have stood, bit for bit, had every period run."""
+        self._parked_at = at
+
+    def unpark(self) -> None:
+        """Bring a parked loop's controller up to its shared loop's last period and run it again
+        at every period (nothing if not parked). Called inside a shared period (not done by the
+        emulator), it is done right after that period."""
+        at, shared = self._parked_at, self._shared
+        if at is None:
+            return
+        if shared is None:  # left its shared loop: the controller stays where it is
+            self._parked_at = None
+            return
+        if shared.in_period:
+            shared.unpark_after_period(self)
+            return
+        self._parked_at = None
+        owed = shared.next_period - at  # the shared periods run meanwhile, not for this loop
+        if owed <= 0:
+            return
+        self.controller.skip_resting(owed - 1)
+        stats = self.stats
+        stats.ticks += (owed - 1) * self.controller.servo_ticks_per_interpolation
+        stats.wakes += owed - 1
+        shared.wake_member(self)  # parked again, if it may be, after its next shared period
+
+    def rest_again(self) -> None:
+        """Park it again at once if it may be (after :meth:`unpark` for a read that changed
+        nothing: a state round): else its next shared period runs it, and parks it then."""
+        shared = self._shared
+        if shared is not None and not shared.in_period and shared.realtime and self.may_park():
+            self.park(shared.next_period)
 
     def wake(self) -> None:
         """One interpolation period of every controller of the loop: its servo ticks, recorded,
@@ -208,15 +274,44 @@ class SharedLoop:
     _origin: float = field(default=0.0, init=False)
     _k: int = field(default=0, init=False)
     _in_period: bool = field(default=False, init=False)
+    #: parked loops whose unpark was asked for during a period (done right after it)
+    _unpark_after: list[ControlLoop] = field(default_factory=list, init=False)
 
     def add(self, loop: ControlLoop) -> None:
         loop.check(self.period, self.sub)
         self._members.append(loop)
+        loop._shared = self
         self.joined += 1
 
     def remove(self, loop: ControlLoop) -> None:
         if loop in self._members:
+            if not self._in_period:  # leaves standing where its periods would have brought it
+                loop.unpark()
             self._members.remove(loop)
+            loop._shared = None
+            loop._parked_at = None
+
+    @property
+    def in_period(self) -> bool:
+        return self._in_period
+
+    @property
+    def realtime(self) -> bool:
+        return self.clock.realtime
+
+    @property
+    def next_period(self) -> int:
+        """The index of the next period to run (``origin + k x period``)."""
+        return self._k
+
+    @property
+    def parked(self) -> int:
+        """Members whose periods are left out now (:meth:`ControlLoop.park`)."""
+        return sum(1 for loop in self._members if loop.parked)
+
+    def unpark_after_period(self, loop: ControlLoop) -> None:
+        if loop not in self._unpark_after:
+            self._unpark_after.append(loop)
 
     @property
     def members(self) -> int:
@@ -248,6 +343,8 @@ class SharedLoop:
             self._running = False
             stats.simulated += self._k * period
             stats.wall += time.perf_counter() - wall0
+            for loop in tuple(self._members):  # the controllers stand where the periods run left them
+                loop.unpark()
         return stats
 
     def catch_up(self) -> None:
@@ -281,25 +378,43 @@ class SharedLoop:
         finally:
             self._in_period = False
         self._k += 1
+        if self._unpark_after:
+            waiting, self._unpark_after = self._unpark_after, []
+            for loop in waiting:
+                loop.unpark()
 
     def _period(self) -> None:
+        # a parked member (at rest, nothing around it waiting: ControlLoop.park) is left out until
+        # it is needed; on a simulated or stepped clock none is, the test reads the controllers
+        park = self.clock.realtime
+        k = self._k
         for loop in tuple(self._members):  # a member may leave during another's period
-            try:
-                if loop.context is None:
-                    loop.wake()
-                else:
-                    loop.context.run(loop.wake)
-            except Exception:  # pragma: no cover - a defect in one controller: that one stops
-                self.remove(loop)
-                try:
-                    if loop.context is None:
-                        loop.failed()
-                    else:
-                        loop.context.run(loop.failed)
-                except Exception:  # its failure handler failed too: the others run on
-                    log.exception("a controller's control loop failed and could not be stopped")
+            if loop._parked_at is not None:
+                continue
+            if self.wake_member(loop) and park and loop.may_park():
+                loop.park(k + 1)
         self.stats.ticks += self.sub
         self.stats.wakes += 1
+
+    def wake_member(self, loop: ControlLoop) -> bool:
+        """One period of ``loop``, in its context; a loop whose period fails leaves (and is told,
+        :meth:`ControlLoop.failed`): False then."""
+        try:
+            if loop.context is None:
+                loop.wake()
+            else:
+                loop.context.run(loop.wake)
+            return True
+        except Exception:  # pragma: no cover - a defect in one controller: that one stops
+            self.remove(loop)
+            try:
+                if loop.context is None:
+                    loop.failed()
+                else:
+                    loop.context.run(loop.failed)
+            except Exception:  # its failure handler failed too: the others run on
+                log.exception("a controller's control loop failed and could not be stopped")
+            return False
 
 
 async def run_simulated(controller: Controller, seconds: float, recorder: Recorder | None = None) -> LoopStats:

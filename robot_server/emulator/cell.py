@@ -86,6 +86,11 @@ class RobotCell:
         self.tick_listeners: list[Callable[[], None]] = []
         #: called after the operator's :meth:`reset` (e.g. a controller program restarted)
         self.reset_listeners: list[Callable[[], None]] = []
+        #: each tick listener's "nothing to do until something else happens" (:meth:`listen`)
+        self._listeners_idle: list[Callable[[], bool]] = []
+        #: brings the controllers up to now before they are read or changed from outside their
+        #: control loop (the emulator's: a parked control loop's periods, :meth:`.ControlLoop.park`)
+        self.sync: Callable[[], None] = _nothing
 
     # -- state -------------------------------------------------------------------------------------
 
@@ -112,6 +117,7 @@ class RobotCell:
     @property
     def time(self) -> float:
         """Controller time (s): the first motion group's clock, which every group shares."""
+        self.sync()
         return self.groups[0].time
 
     @property
@@ -124,6 +130,7 @@ class RobotCell:
     def status(self, *, motion_possible: bool | None = None) -> Status:
         """STATUS as of now (``motion_possible`` may be narrowed by a profile, e.g. MotoROS's
         trajectory mode)."""
+        self.sync()
         possible = self.motion_possible if motion_possible is None else motion_possible
         return Status(
             drives_powered=_tri(self.drives_powered),
@@ -151,6 +158,7 @@ class RobotCell:
     def submit(self, group: int, sequence: int, point: Point) -> None:
         """Hand one point to a group's controller, as its sequence number says
         (:func:`.points.dispatch`); raises :class:`PointRejected`."""
+        self.sync()
         controller = self.group(group)
         if sequence == SpecialSeq.STOP_TRAJECTORY:  # a stop is always obeyed
             self._interrupted()
@@ -165,6 +173,7 @@ class RobotCell:
 
     def submit_together(self, sequence: int, points: Sequence[tuple[int, Point]]) -> None:
         """One streamed point per group, all accepted or none (sequence 0 starts a trajectory)."""
+        self.sync()
         if sequence < 0:
             raise PointRejected(Reason.SEQUENCE, f"sequence {sequence}: only streamed points move together")
         self.check_ready()
@@ -180,6 +189,7 @@ class RobotCell:
         """A whole trajectory for a group's controller at once (its first point the start, within
         the start tolerance of where the queued motion ends): queued whole, or refused whole
         (:class:`PointRejected`, nothing moves then). A controller that downloads this way: ABB."""
+        self.sync()
         if not points:
             raise PointRejected(Reason.SEQUENCE, "a trajectory needs at least one point")
         controller = self.group(group)
@@ -205,6 +215,7 @@ class RobotCell:
         the joints' speed; :meth:`~..control.Controller.add_move`): a controller's own move
         instruction (Fanuc's J, Stäubli's movej). Returns the controller time it begins; raises
         :class:`PointRejected`."""
+        self.sync()
         controller = self.group(group)
         self.check_ready()
         if target.positions is None:
@@ -226,6 +237,7 @@ class RobotCell:
         """A straight line for a group's controller (:meth:`~..control.Controller.add_line`):
         sequence 0 starts a series of lines, each next one is the last + 1, -4 stops. Raises
         :class:`PointRejected`."""
+        self.sync()
         controller = self.group(group)
         if sequence == SpecialSeq.STOP_TRAJECTORY:
             self._interrupted()
@@ -262,10 +274,12 @@ class RobotCell:
 
     def stop(self) -> float:
         """Controlled stop of every group; returns the longest deceleration time."""
+        self.sync()
         self._interrupted()
         return max(g.stop() for g in self.groups)
 
     def estop(self) -> None:
+        self.sync()
         log.info("fault: emergency stop engaged", extra=SAFETY)
         self.e_stopped = True
         for g in self.groups:
@@ -273,12 +287,14 @@ class RobotCell:
         self._interrupted()
 
     def drives_off(self) -> None:
+        self.sync()
         log.info("fault: drives off", extra=SAFETY)
         for g in self.groups:
             g.power_off()
         self._interrupted()
 
     def drives_on(self) -> None:
+        self.sync()
         if self.e_stopped:
             raise FaultError("the drives cannot be powered while the emergency stop is engaged")
         log.info("drives on", extra=SAFETY)
@@ -289,12 +305,14 @@ class RobotCell:
     def alarm(self, code: int, message: str = "") -> None:
         if not 0 < code <= INT32_MAX:
             raise FaultError(f"an alarm code is a number from 1 to {INT32_MAX}, not {code}")
+        self.sync()
         log.info("fault: alarm %d %s", code, message, extra=SAFETY)
         for g in self.groups:
             g.raise_alarm(code, message or f"alarm {code}")
         self._interrupted()
 
     def reset_alarm(self) -> None:
+        self.sync()
         if self.in_error:
             log.info("alarm %d reset", self.error_code, extra=SAFETY)
         for g in self.groups:
@@ -303,6 +321,7 @@ class RobotCell:
 
     def reset(self) -> None:
         """The operator's reset: e-stop released, alarms cleared, drives powered."""
+        self.sync()
         log.info("reset: e-stop released, alarms cleared, drives on", extra=SAFETY)
         self.e_stopped = False
         self.reset_alarm()
@@ -313,6 +332,7 @@ class RobotCell:
     def set_mode(self, mode: RobotMode) -> None:
         if mode not in (RobotMode.AUTO, RobotMode.MANUAL):
             raise FaultError(f"the mode must be AUTO or MANUAL, not {mode}")
+        self.sync()
         log.info("mode %s", mode.name, extra=SAFETY)
         if mode != RobotMode.AUTO:
             for g in self.groups:
@@ -356,6 +376,24 @@ class RobotCell:
         self._was_moving = moving
         self._wakeup.wake()
 
+    def listen(self, tick: Callable[[], None], idle: Callable[[], bool]) -> None:
+        """Call ``tick`` after every control-loop wake-up (:attr:`tick_listeners`); ``idle`` says
+        when it has nothing to do until something else happens (a request, a connection), so that
+        the control loop may be left at rest (:meth:`idle`). A listener added to
+        :attr:`tick_listeners` directly keeps the loop running."""
+        self.tick_listeners.append(tick)
+        self._listeners_idle.append(idle)
+
+    def idle(self) -> bool:
+        """Nothing waits for this cell's control-loop wake-ups: no task in :meth:`changed` or
+        :meth:`until`, every tick listener idle. With its controllers at rest, its control loop
+        may then be left until something reads or changes them (:meth:`.ControlLoop.park`)."""
+        return (
+            not self._wakeup.waiting
+            and len(self._listeners_idle) == len(self.tick_listeners)
+            and all(idle() for idle in self._listeners_idle)
+        )
+
     def tick(self) -> None:
         """After a control-loop wake-up: the :attr:`tick_listeners`, then :meth:`notify`."""
         for listener in self.tick_listeners:
@@ -367,12 +405,14 @@ class RobotCell:
 
     async def changed(self) -> None:
         """Wait for the next control-loop wake-up, stop or fault."""
+        self.sync()  # a parked control loop runs again: something waits for it (:meth:`idle`)
         await self._wakeup.wait()
 
     async def until(self, predicate: Callable[[], bool]) -> None:
         """Wait until ``predicate()`` holds, checked now and after every :meth:`changed` (no
         timeout of its own: a controller task waits as long as its controller would, and is
         cancelled with its connection; bound it with ``asyncio.timeout`` otherwise)."""
+        self.sync()
         while not predicate():
             await self.changed()
 
@@ -383,6 +423,10 @@ class Wakeup:
 
     def __init__(self) -> None:
         self._waiters: list[asyncio.Future[None]] = []
+
+    @property
+    def waiting(self) -> bool:
+        return any(not w.done() for w in self._waiters)
 
     async def wait(self) -> None:
         future: asyncio.Future[None] = asyncio.get_running_loop().create_future()
@@ -396,6 +440,10 @@ class Wakeup:
         for w in waiters:
             if not w.done():  # not cancelled meanwhile
                 w.set_result(None)
+
+
+def _nothing() -> None:
+    pass
 
 
 def _tri(value: bool) -> int:

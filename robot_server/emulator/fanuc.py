@@ -153,7 +153,11 @@ class FanucRelay:
     def install(self, server: Server) -> None:
         self.server = server
         server.unknown_request = self.on_read
-        self.cell.tick_listeners.append(self.tick)
+        self.cell.listen(self.tick, self.idle)
+
+    def idle(self) -> bool:
+        """:meth:`tick` has nothing to watch: no relay connection (or lenient), none noted."""
+        return self.server is None or self.lenient or (not self.server.sessions and not self._short_seen)
 
     def close(self) -> None:
         """The controller is switched off: a hand-over still waiting for the TP program ends."""

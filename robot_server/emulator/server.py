@@ -375,7 +375,11 @@ class Emulator:
             others=self.cell.groups[1:],
             on_wake=self.cell.tick,
             on_failure=self._control_failed,
+            idle=self.cell.idle,
         )
+        # read or changed from outside the loop, the controllers first come up to now (in a fleet,
+        # a controller at rest is left out of its shared loop's periods until then: ControlLoop.park)
+        self.cell.sync = self.control.unpark
         self.state_stats = PeriodStats(1.0 / config.rate)
         self.ports: dict[str, int] = {}
         self._tasks: list[asyncio.Task[None]] = []
@@ -426,7 +430,7 @@ class Emulator:
             self.shared.join(self.control)
             self.shared.state_rounds(self.state_stats.period).add(self._state_round, self._skip_rounds)
             for server in self.servers.values():  # the periods due run before any request is handled
-                server.before_handler = self.shared.catch_up
+                server.before_handler = self._catch_up
             if cfg.serial is not None:
                 self.motion_server.start_serving(self.motion_server.serve_serial(cfg.serial, data={STATE_LINK: True}))
             return self
@@ -492,13 +496,25 @@ class Emulator:
     def _skip_rounds(self, count: int) -> None:
         self.state_stats.skipped += count
 
+    def _catch_up(self) -> None:
+        """(In a fleet) the periods due before a request is handled: every controller's, and this
+        one's left out while it rested."""
+        assert self.shared is not None
+        self.shared.catch_up()
+        self.control.unpark()
+
     def _state_round(self, deadline: float) -> None:
         """One round of state topics, due at ``deadline`` (``time.monotonic()``), then the hooks."""
         self.state_stats.add(max(0.0, time.monotonic() - deadline))
         try:
+            reading = bool(self.after_state or self.state_sessions())
+            if reading:  # someone reads the controllers: up to now first
+                self.control.unpark()
             self.publish_state()
             for hook in self.after_state:
                 hook()
+            if reading:  # read, not changed: a controller at rest is left out again at once
+                self.control.rest_again()
         except Exception:  # pragma: no cover - a bug must not end the topics
             log.exception("publishing state failed")
 
@@ -574,6 +590,7 @@ class Emulator:
         recorder per group (a recording already running ends)."""
         if not seconds > 0.0:
             raise ValueError(f"the record length must be > 0 s, not {seconds}")
+        self.cell.sync()  # the record starts now, not where a controller at rest was left
         period = self.cell.config.servo_period
         capacity = max(1, round(seconds / period))
         instants = capacity // self.cell.groups[0].servo_ticks_per_interpolation + 2  # (one per period)

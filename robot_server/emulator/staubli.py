@@ -167,7 +167,18 @@ class StaubliMotion:
         self.state_server = servers["state"]
         self.motion_server.unknown_request = self.on_read
         self.state_server.on_connect = self._state_connected
-        self.cell.tick_listeners.append(self.tick)
+        self.cell.listen(self.tick, self.idle)
+
+    def idle(self) -> bool:
+        """The motion task has nothing to do at its ticks: no command queued, waiting or moving,
+        no STOP to carry out (its queues are empty whether the connection is whole or not)."""
+        return (
+            not self.queue
+            and not self.moves
+            and self.waiting is None
+            and not self.stop_now
+            and not self.controller.moves.fill
+        )
 
     def _state_connected(self, session: Session) -> None:
         session.data[_SINCE] = self.cell.time

@@ -98,6 +98,7 @@ def describe_model(model: RobotModel, supervision: Supervision) -> dict[str, Any
 def status_of(emulator: Emulator) -> dict[str, Any]:
     """The STATUS the emulator's state port reports (its profile's, e.g. MotoROS's motion possible
     only in trajectory mode), as the page's lights show it."""
+    emulator.cell.sync()
     reported = getattr(emulator.behaviour, "status", None)
     status: Status = reported() if callable(reported) else emulator.cell.status()
     return {
@@ -187,6 +188,7 @@ class Feed:
         """Take one sample now and wake the pages waiting in :meth:`next_sample`."""
         emulator = self.emulator
         cell = emulator.cell
+        cell.sync()
         groups = []
         t = cell.groups[0].command.time
         for controller in cell.groups:

@@ -1,0 +1,394 @@
+"""A controller at rest is left out of its fleet's shared control loop until something needs it
+(ControlLoop.park, robot_server.control.loop), and comes back exactly where running every period
+would have brought it.
+
+The shared loops here run on a clock the test sets but that says it is a real-time one (as a
+fleet's is): the periods due are run one at a time by ``catch_up`` (what a request does), so the
+test knows which periods ran."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from robot_server.control import Controller, ControllerConfig, ControlLoop, Recorder, SharedLoop, SteppedClock
+from robot_server.control.points import Point
+from robot_server.fleet import Fleet, parse_fleet
+from robot_server.loader import load_model
+from simple_message import Ping
+from tests.handclock import HandClock
+from tests.rawpeer import RawPeer, joint_traj_pt, vectors
+from tests.stepped import poll
+
+PERIOD = 0.004
+JTP = vectors("<")["JOINT_TRAJ_PT_REQUEST_SEQ3"]
+
+Verb = Callable[[Controller], object]
+
+
+class Pair:
+    """Two identical controllers in one shared loop: ``parked`` may be parked, ``every`` never is
+    (no idle check) and runs every period."""
+
+    def __init__(self, model: str = "jibot_zxs") -> None:
+        robot = load_model(model)
+        self.clock = HandClock()
+        self.parked = ControlLoop(Controller(robot, ControllerConfig()), self.clock, idle=lambda: True)
+        self._woke = asyncio.Event()
+        self.every = ControlLoop(Controller(robot, ControllerConfig()), self.clock, on_wake=self._woke.set)
+        sub = self.parked.controller.servo_ticks_per_interpolation
+        self.shared = SharedLoop(self.clock, PERIOD, sub)
+        self.shared.add(self.parked)
+        self.shared.add(self.every)
+        self.task: asyncio.Task[object] | None = None
+        self.k = 0
+
+    async def start(self) -> None:
+        self.task = asyncio.get_running_loop().create_task(self.shared.run())
+        async with asyncio.timeout(5.0):
+            await self._woke.wait()  # the first period (deadline 0) runs at once
+        self.every.on_wake = None
+        self.k = 1
+
+    def periods(self, count: int) -> None:
+        """``count`` more periods, each run by a catch_up the moment it is due."""
+        for _ in range(count):
+            self.clock.move_quietly(self.k * PERIOD)
+            self.shared.catch_up()
+            self.k += 1
+        assert self.shared.next_period == self.k
+
+    def same(self) -> None:
+        """Both controllers stand at the same place, bit for bit (the parked one brought up first)."""
+        self.parked.unpark()
+        a, b = self.parked.controller, self.every.controller
+        assert a.time == b.time
+        assert a.command == b.command, f"at t={b.time}"
+        assert a.tool == b.tool
+        assert a.servo.position == b.servo.position and a.servo.integral == b.servo.integral
+        assert a._rest.periods == b._rest.periods
+        assert (self.parked.stats.ticks, self.parked.stats.wakes) == (self.every.stats.ticks, self.every.stats.wakes)
+
+    def both(self, verb: Verb) -> None:
+        self.parked.unpark()  # what the emulator's cell.sync does before a verb
+        results = []
+        for ctl in (self.parked.controller, self.every.controller):
+            try:
+                results.append(verb(ctl))
+            except Exception as exc:  # the same refusal on both
+                results.append(type(exc))
+        assert results[0] == results[1]
+
+    async def stop(self) -> None:
+        self.shared.stop()
+        self.clock.set(self.clock.now() + PERIOD)
+        assert self.task is not None
+        async with asyncio.timeout(5.0):
+            await self.task
+
+
+SCRIPT: list[tuple[int, Verb]] = [
+    (300, lambda c: c.add_move(np.full(6, 0.3), speed=0.5)),
+    (1000, lambda c: c.raise_alarm(4999, "a test alarm at rest")),
+    (700, lambda c: c.reset()),
+    (500, lambda c: c.power_off()),
+    (300, lambda c: c.power_on()),
+    (700, lambda c: c.stop()),  # a stop at rest stops nothing
+    (700, lambda c: setattr(c, "manual", True)),
+    (700, lambda c: setattr(c, "manual", False)),
+    (600, lambda c: c.start(Point(np.array(c.command.command_position), duration=0.0, velocity_ratio=0.5))),
+    (2, lambda c: c.add(Point(np.full(6, 0.1), duration=2.0))),
+    (1500, lambda c: None),
+]
+
+
+async def test_a_parked_controller_comes_back_where_every_period_would_have_brought_it() -> None:
+    pair = Pair()
+    await pair.start()
+    pair.periods(10)
+    assert pair.parked.parked, "a new controller at rest is parked within a few periods"
+    frozen = pair.parked.controller.time
+    pair.periods(500)
+    assert pair.parked.controller.time == frozen, "its periods were left out"
+    assert pair.every.controller.time == pytest.approx(511 * PERIOD)
+    pair.same()
+    parked_periods = 0
+    for count, verb in SCRIPT:
+        for _ in range(count // 50):
+            pair.periods(50)
+            parked_periods += pair.parked.parked
+            pair.same()
+        pair.both(verb)
+    assert pair.parked.controller.points_accepted == 3, "a move and a trajectory of two points ran"
+    assert parked_periods > 40, "it was parked at every rest"
+    assert pair.every.controller._rest.periods > 3000, "the rests were replayed"
+    await pair.stop()
+
+
+async def test_unpark_after_many_periods_is_one_period_of_work() -> None:
+    pair = Pair()
+    await pair.start()
+    pair.periods(20)
+    assert pair.parked.parked
+    calls = 0
+    wake = pair.parked.wake
+
+    def counted() -> None:
+        nonlocal calls
+        calls += 1
+        wake()
+
+    pair.parked.wake = counted  # type: ignore[method-assign]
+    pair.periods(10_000)  # 40 s
+    assert calls == 0
+    pair.same()
+    assert calls == 1, "the periods left out are passed at once, the last one stepped"
+    await pair.stop()
+
+
+async def test_a_loop_is_not_parked_while_something_waits_records_or_has_another_group() -> None:
+    idle = False
+    pair = Pair()
+    pair.parked.idle = lambda: idle
+    await pair.start()
+    pair.periods(20)
+    assert not pair.parked.parked, "its owner says something waits for its wake-ups"
+    idle = True
+    pair.periods(2)
+    assert pair.parked.parked
+    pair.parked.unpark()
+    pair.parked.recorder = Recorder(6, 1000)
+    pair.periods(20)
+    assert not pair.parked.parked, "a recorder sees every tick"
+    assert len(pair.parked.recorder) == 20 * pair.parked.controller.servo_ticks_per_interpolation
+    pair.parked.recorder = None
+    pair.periods(2)
+    assert pair.parked.parked
+    pair.parked.unpark()
+    pair.parked.others = [Controller(load_model("jibot_zxs"), ControllerConfig())]
+    pair.periods(20)
+    assert not pair.parked.parked, "several motion groups are never left out"
+    await pair.stop()
+
+
+async def test_a_loop_is_not_parked_on_a_stepped_clock() -> None:
+    clock = SteppedClock()
+    controller = Controller(load_model("jibot_zxs"), ControllerConfig())
+    loop = ControlLoop(controller, clock, idle=lambda: True)
+    shared = SharedLoop(clock, PERIOD, controller.servo_ticks_per_interpolation)
+    shared.add(loop)
+    task = asyncio.get_running_loop().create_task(shared.run())
+    async with asyncio.timeout(5.0):
+        await clock.advance(1.0)
+    assert not loop.parked, "a test stepping the clock reads the controllers directly"
+    assert controller.time == pytest.approx(1.0, abs=2 * PERIOD)
+    shared.stop()
+    task.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await task
+
+
+async def test_unpark_asked_inside_a_period_is_done_right_after_it() -> None:
+    pair = Pair()
+    await pair.start()
+    pair.periods(20)
+    assert pair.parked.parked
+    asked: list[int] = []
+
+    def on_wake() -> None:  # another member's task, run in the period, reads the parked controller
+        if not asked:
+            asked.append(pair.shared.next_period)
+            pair.parked.unpark()
+            assert pair.parked.parked, "not in the middle of the period"
+
+    pair.every.on_wake = on_wake
+    pair.periods(1)
+    assert asked
+    pair.every.on_wake = None
+    assert not pair.parked.parked or pair.parked.controller.time == pair.every.controller.time
+    pair.same()
+    pair.periods(30)
+    pair.same()
+    await pair.stop()
+
+
+async def test_leaving_the_shared_loop_brings_a_parked_controller_up_to_its_last_period() -> None:
+    pair = Pair()
+    await pair.start()
+    pair.periods(300)
+    assert pair.parked.parked
+    pair.shared.remove(pair.parked)
+    assert not pair.parked.parked
+    assert pair.parked.controller.time == pair.every.controller.time
+    assert pair.parked.controller.command == pair.every.controller.command
+    await pair.stop()
+
+
+# -- in a fleet ----------------------------------------------------------------------------------
+
+
+class Due:
+    """What each controller's time is when it has run every shared period so far (the controllers
+    joined the shared loop one after another as they started: each at a later period)."""
+
+    def __init__(self, fleet: Fleet, shared: SharedLoop) -> None:
+        self.shared = shared
+        self.offset = {name: shared.next_period * PERIOD - fleet[name].cell.time for name in fleet}
+
+    def __call__(self, name: str) -> float:
+        return self.shared.next_period * PERIOD - self.offset[name]
+
+
+async def _fleet_at_rest(names: dict[str, str]) -> tuple[Fleet, Due, Callable[[int], None]]:
+    clock = HandClock()
+    data = {
+        "controller": [
+            {"name": n, "profile": p, "motion_port": 0, "state_port": 0, **({"io_port": 0} if p == "motoros" else {})}
+            for n, p in names.items()
+        ]
+    }
+    fleet = Fleet(parse_fleet(data), clock=clock)
+    await fleet.start()
+    (shared,) = fleet.shared.loops.values()
+    k = 1
+
+    def periods(count: int) -> None:
+        nonlocal k
+        for _ in range(count):
+            clock.move_quietly(k * PERIOD)
+            shared.catch_up()
+            k += 1
+
+    periods(1)
+    return fleet, Due(fleet, shared), periods
+
+
+async def test_in_a_fleet_controllers_at_rest_are_parked_and_a_request_brings_back_that_one_only() -> None:
+    fleet, due, periods = await _fleet_at_rest({"r1": "generic", "r2": "fanuc", "r3": "staubli", "r4": "motoros"})
+    try:
+        (shared,) = fleet.shared.loops.values()
+        periods(50)
+        assert shared.parked == 4, "every controller at rest, nothing waiting: all parked"
+        loops = {name: fleet[name].control for name in fleet}
+        assert all(loops[name].controller.time < due(name) - PERIOD for name in loops)
+        motion = await RawPeer.connect(fleet["r1"].ports["motion"])
+        try:
+            # (a PING is answered without reading the controller: it is left parked)
+            assert (await motion.request(Ping().encode())).reply_code == 1
+            assert loops["r1"].parked
+            reply = await motion.request(joint_traj_pt(JTP, 0, [0.0] * 6))
+        finally:
+            await motion.close()
+        assert reply.reply_code == 1, "the point, handled once r1 stands where its periods brought it"
+        assert loops["r1"].controller.time == pytest.approx(due("r1"))
+        assert not loops["r1"].parked
+        assert loops["r2"].parked and loops["r3"].parked, "a request to r1 brings r1 up, not the others"
+        # any read through the cell brings its controller up to now first
+        assert fleet["r3"].cell.time == pytest.approx(due("r3"))
+        assert not loops["r3"].parked
+        periods(5)
+        assert loops["r3"].parked, "parked again after a period: still at rest"
+    finally:
+        await fleet.close()
+
+
+async def test_in_a_fleet_a_fault_or_a_wait_on_a_parked_controller_happens_at_its_period() -> None:
+    fleet, due, periods = await _fleet_at_rest({"r1": "generic", "r2": "generic"})
+    try:
+        periods(50)
+        r1, r2 = fleet["r1"], fleet["r2"]
+        assert r1.control.parked and r2.control.parked
+        r1.cell.estop()  # the Python API, as the fleet's docs show it: r1 first comes up to now
+        assert r1.cell.groups[0].time == pytest.approx(due("r1"))
+        assert not r1.cell.drives_powered and r1.cell.e_stopped
+        periods(20)
+        assert not r1.control.parked, "drives off: stepped every period"
+        assert r2.control.parked, "the other one rests on"
+        target = r2.cell.time + 10 * PERIOD
+        waiting = asyncio.get_running_loop().create_task(r2.wait_until(lambda: r2.cell.time >= target - 1e-9, 5.0))
+        for _ in range(3):
+            await asyncio.sleep(0)
+        assert not waiting.done()
+        assert not r2.control.parked, "a task waits for its wake-ups"
+        for _ in range(10):
+            periods(1)
+            for _ in range(3):  # the waiting task sees the wake-up
+                await asyncio.sleep(0)
+        async with asyncio.timeout(5.0):
+            await waiting
+        assert r2.cell.time == pytest.approx(target)
+    finally:
+        await fleet.close()
+
+
+async def test_in_a_fleet_a_controller_with_work_around_it_is_not_parked() -> None:
+    fleet, _, periods = await _fleet_at_rest({"f": "fanuc", "s": "staubli"})
+    try:
+        periods(50)
+        f, s = fleet["f"], fleet["s"]
+        assert f.control.parked and s.control.parked
+        relay = await RawPeer.connect(f.ports["motion"])  # a relay connection: its stall watch runs
+        try:
+            await poll(lambda: bool(f.motion_server.sessions))
+            f.cell.sync()
+            periods(20)
+            assert not f.control.parked
+        finally:
+            await relay.close()
+        await poll(lambda: not f.motion_server.sessions)
+        periods(3)
+        assert f.control.parked, "the relay gone: nothing to watch"
+        motion_task = s.behaviour.motion  # type: ignore[attr-defined]
+        assert motion_task.idle()
+        motion_task.queue.append(object())  # a command queued for the VAL3 motion task
+        assert not motion_task.idle() and not s.cell.idle()
+        motion_task.queue.clear()
+        motion_task.stop_now = True
+        assert not motion_task.idle()
+        motion_task.stop_now = False
+    finally:
+        await fleet.close()
+
+
+async def test_a_state_round_with_a_client_brings_its_controller_up_to_now() -> None:
+    fleet, due, periods = await _fleet_at_rest({"r1": "motoros", "r2": "motoros"})
+    try:
+        periods(50)
+        r1, r2 = fleet["r1"], fleet["r2"]
+        assert r1.control.parked and r2.control.parked
+        state = await RawPeer.connect(r1.ports["state"])
+        try:
+            await poll(lambda: bool(r1.state_server.sessions))
+            fleet.run_as("r1", lambda: r1._state_round(time.monotonic()))
+            fleet.run_as("r2", lambda: r2._state_round(time.monotonic()))
+        finally:
+            await state.close()
+        assert r1.cell.groups[0].time == pytest.approx(due("r1")), "r1's client reads it"
+        assert r1.control.parked, "read, not changed: left out again at once"
+        r1.cell.estop()  # a change after the round: made on a controller running again
+        periods(3)
+        assert not r1.control.parked and not r1.cell.groups[0].drives_powered
+        assert r1.cell.groups[0].time == pytest.approx(due("r1"))
+        assert r2.control.parked, "r2 has no state client: nothing to bring up"
+    finally:
+        await fleet.close()
+
+
+async def test_a_cell_is_not_idle_while_a_task_waits_for_its_wake_ups() -> None:
+    fleet, _, periods = await _fleet_at_rest({"r1": "generic"})
+    try:
+        cell = fleet["r1"].cell
+        assert cell.idle()
+        waiting = asyncio.get_running_loop().create_task(cell.changed())
+        await asyncio.sleep(0)
+        assert not cell.idle(), "a task waits in changed()"
+        periods(1)
+        async with asyncio.timeout(5.0):
+            await waiting
+        assert cell.idle()
+    finally:
+        await fleet.close()
