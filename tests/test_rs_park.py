@@ -277,6 +277,8 @@ async def test_in_a_fleet_controllers_at_rest_are_parked_and_a_request_brings_ba
         assert all(loops[name].controller.time < due(name) - PERIOD for name in loops)
         motion = await RawPeer.connect(fleet["r1"].ports["motion"])
         try:
+            await poll(lambda: fleet["r1"].owner.owner is not None)  # (its hook brought r1 up to now)
+            periods(50)
             # (a PING is answered without reading the controller: it is left parked)
             assert (await motion.request(Ping().encode())).reply_code == 1
             assert loops["r1"].parked
@@ -390,5 +392,146 @@ async def test_a_cell_is_not_idle_while_a_task_waits_for_its_wake_ups() -> None:
         async with asyncio.timeout(5.0):
             await waiting
         assert cell.idle()
+    finally:
+        await fleet.close()
+
+
+def _settle_after_move(pair: Pair) -> None:
+    pair.periods(10)
+    pair.both(lambda c: c.add_move(np.full(6, 0.3), speed=0.5))
+    pair.periods(1500)
+    assert pair.parked.parked
+
+
+@pytest.mark.parametrize(
+    "verb",
+    [
+        lambda c: c.raise_alarm(4999, "a test alarm at rest"),
+        lambda c: c.power_off(),
+        lambda c: c.stop(),
+        lambda c: setattr(c, "manual", True),
+    ],
+    ids=["alarm", "drives off", "stop", "manual"],
+)
+async def test_a_controller_just_changed_is_not_parked_before_its_next_period(verb: Verb) -> None:
+    """A state round (rest_again) between a change and the next period: the change is stepped
+    first, by the next period, as running every period does (a review found it parked at once)."""
+    pair = Pair()
+    await pair.start()
+    _settle_after_move(pair)
+    pair.both(verb)
+    pair.parked.rest_again()  # a state round with a client before the next shared period
+    assert not pair.parked.parked
+    pair.periods(200)
+    pair.same()
+    assert pair.parked.controller.in_motion == pair.every.controller.in_motion
+    await pair.stop()
+
+
+async def test_a_change_made_in_the_loops_own_period_is_stepped_before_it_is_parked() -> None:
+    """A controller's own periodic task (a tick listener: Staubli's motion task raising an alarm for
+    a movej it cannot run) changes it in its period: not parked in that same period."""
+    pair = Pair()
+    await pair.start()
+    _settle_after_move(pair)
+    fired: list[int] = []
+
+    def alarm_once() -> None:
+        if not fired:
+            fired.append(1)
+            pair.parked.controller.raise_alarm(9001, "movej with acceleration 0")
+
+    pair.parked.unpark()  # (a controller running again: its task has work)
+    pair.parked.on_wake = alarm_once
+    pair.periods(1)
+    pair.every.controller.raise_alarm(9001, "movej with acceleration 0")
+    pair.parked.on_wake = None
+    assert not pair.parked.parked, "changed in its own period"
+    pair.periods(10)
+    pair.same()
+    assert not pair.parked.controller.in_motion and not pair.every.controller.in_motion
+    await pair.stop()
+
+
+async def test_in_a_fleet_an_alarm_then_a_state_round_leaves_the_robot_settled_and_free() -> None:
+    """A fault command at rest, then a state round with a client before the next period: the
+    controller settles (in_motion FALSE) and a new motion client is not refused as busy."""
+    fleet, _, periods = await _fleet_at_rest({"r1": "generic", "r2": "generic"})
+    try:
+        periods(50)
+        r1, r2 = fleet["r1"], fleet["r2"]
+        assert r1.control.parked
+        state = await RawPeer.connect(r1.ports["state"])
+        try:
+            await poll(lambda: bool(r1.state_sessions()))
+            for name in ("r1", "r2"):
+                fleet.command(f"{name} alarm 42")
+            fleet.run_as("r1", lambda: r1._state_round(time.monotonic()))
+            periods(20)
+            assert not r2.cell.in_motion
+            assert not r1.cell.in_motion and not r1.owner.busy
+        finally:
+            await state.close()
+    finally:
+        await fleet.close()
+
+
+async def test_a_request_brings_its_controller_up_before_any_handler_reads_it() -> None:
+    """The servers' before_handler (not only the cell's own reads): a handler reading the
+    controller directly sees it where its periods brought it."""
+    fleet, due, periods = await _fleet_at_rest({"r1": "generic"})
+    try:
+        periods(50)
+        r1 = fleet["r1"]
+        assert r1.control.parked
+        seen: list[float] = []
+
+        def on_ping(msg: object, session: object) -> None:
+            seen.append(r1.cell.groups[0].time)  # the controller itself, not through the cell
+
+        r1.motion_server.handle(Ping.MSG_TYPE, on_ping)
+        motion = await RawPeer.connect(r1.ports["motion"])
+        try:
+            await poll(lambda: r1.owner.owner is not None)
+            periods(50)
+            assert r1.control.parked
+            await motion.request(Ping().encode())
+        finally:
+            await motion.close()
+        assert seen == [pytest.approx(due("r1"))]
+    finally:
+        await fleet.close()
+
+
+async def test_a_motion_client_leaving_brings_its_controller_up_first() -> None:
+    fleet, due, periods = await _fleet_at_rest({"r1": "generic"})
+    try:
+        periods(50)
+        r1 = fleet["r1"]
+        motion = await RawPeer.connect(r1.ports["motion"])
+        await poll(lambda: r1.owner.owner is not None)
+        periods(50)
+        assert r1.control.parked
+        await motion.close()
+        await poll(lambda: r1.owner.owner is None)
+        assert r1.cell.groups[0].time == pytest.approx(due("r1")), "the owner's hook read it up to date"
+    finally:
+        await fleet.close()
+
+
+async def test_a_record_or_the_web_view_brings_a_parked_controller_up_first() -> None:
+    from robot_server.web.feed import status_of
+
+    fleet, due, periods = await _fleet_at_rest({"r1": "generic", "r2": "generic"})
+    try:
+        periods(50)
+        r1, r2 = fleet["r1"], fleet["r2"]
+        assert r1.control.parked and r2.control.parked
+        r1.record(1.0)
+        assert r1.cell.groups[0].time == pytest.approx(due("r1")), "the record starts now"
+        periods(5)
+        assert not r1.control.parked, "recorded: every tick is stepped"
+        status_of(r2)  # what the web view's lights read
+        assert r2.cell.groups[0].time == pytest.approx(due("r2"))
     finally:
         await fleet.close()

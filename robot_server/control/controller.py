@@ -295,7 +295,12 @@ class Controller:
         (:mod:`.rest`): every following period is the same again, its times aside, until something
         changes. What lets a fleet's shared loop leave this controller until it is next needed
         (:meth:`.loop.ControlLoop.park`)."""
-        return self._replaying is not None and self._tick % self._sub == 0 and not self.moving
+        return (
+            self._replaying is not None
+            and self._tick % self._sub == 0
+            and not self.moving
+            and self._rest_key() == self._replay_key  # no verb since the instant (an alarm, drives off...)
+        )
 
     def skip_resting(self, periods: int) -> None:
         """Pass ``periods`` resting periods at once (only while :attr:`resting`): the tick count and

@@ -82,6 +82,7 @@ class ControlLoop:
     _shared: SharedLoop | None = field(default=None, init=False, repr=False)
     #: parked (:meth:`park`): the first of the shared loop's periods not run for this loop
     _parked_at: int | None = field(default=None, init=False)
+    _warned_unsynced: bool = field(default=False, init=False)
 
     def stop(self) -> None:
         self._running = False
@@ -142,7 +143,13 @@ class ControlLoop:
         owed = shared.next_period - at  # the shared periods run meanwhile, not for this loop
         if owed <= 0:
             return
-        self.controller.skip_resting(owed - 1)
+        controller = self.controller
+        if not controller.resting and not self._warned_unsynced:
+            # changed while parked by something that did not bring it up first (RobotCell.sync):
+            # the change counts from the last period left out, not from when it was made
+            self._warned_unsynced = True
+            log.warning("a controller at rest was changed without being brought up to now first (a defect)")
+        controller.skip_resting(owed - 1)
         stats = self.stats
         stats.ticks += (owed - 1) * self.controller.servo_ticks_per_interpolation
         stats.wakes += owed - 1

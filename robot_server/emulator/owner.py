@@ -79,6 +79,7 @@ class MotionOwner:
         return cell.in_motion or any(g.downloading for g in cell.groups)
 
     def _connected(self, session: Session) -> None:
+        self.cell.sync()  # (a connection's hooks come before any request: the controllers up to now)
         owner = self.owner
         if owner is not None and owner.connection.closed:
             # gone, but its session has not ended yet: what its departure does happens first
@@ -116,6 +117,7 @@ class MotionOwner:
             return  # a refused newcomer, or an owner already replaced
         self.owner = None
         cell = self.cell
+        cell.sync()
         if self.busy:
             if self.on_disconnect is OnDisconnect.STOP:
                 duration = cell.stop()
