@@ -29,7 +29,7 @@ from .entries import (
     log,
     overshoot,
 )
-from .segments import stop_travel
+from .segments import stop_travel, stop_travel_floats
 
 
 def start_next(
@@ -94,15 +94,29 @@ def braking(settings: Settings, entry: Entry, last: Entry, stops: NDArray[np.boo
     assert end is not None
     lim = settings.limits
     ahead = knot_of(last).position - end.position
+    # the same on floats, joint by joint (the same numbers: this runs at every segment start of
+    # every moving controller of a fleet, where numpy's calls on six values cost several times more)
+    velocity, acceleration = end.velocity.tolist(), end.acceleration.tolist()
+    max_acceleration, max_jerk = lim.max_acceleration.tolist(), lim.max_jerk.tolist()
+    ahead_floats, stopping = ahead.tolist(), stops.tolist()
 
     def stop_overshoots(f: float) -> bool:
         # where each joint's fastest stop from the slower state ends (closed form: this runs
         # in the controller's tick): beyond the last point, or back before this one, by more
         # than OVERSHOOT
-        travel = stop_travel(
+        travel = stop_travel_floats(
+            [v / f for v in velocity], [a / (f * f) for a in acceleration], max_acceleration, max_jerk
+        )
+        if travel is not None:
+            worst = 0.0
+            for t, ahead_i, stop in zip(travel, ahead_floats, stopping, strict=True):
+                if stop:
+                    worst = max(worst, t - max(ahead_i, 0.0), min(ahead_i, 0.0) - t)
+            return worst > blend.OVERSHOOT
+        travel_array = stop_travel(
             end.velocity / f, end.acceleration / (f * f), limits=(lim.max_velocity, lim.max_acceleration, lim.max_jerk)
         )
-        beyond = np.maximum(travel - np.maximum(ahead, 0.0), np.minimum(ahead, 0.0) - travel)
+        beyond = np.maximum(travel_array - np.maximum(ahead, 0.0), np.minimum(ahead, 0.0) - travel_array)
         return bool(np.max(np.where(stops, beyond, 0.0)) > blend.OVERSHOOT)
 
     if not stop_overshoots(1.0):

@@ -48,6 +48,7 @@ __all__ = [
     "Chain",
     "run_up",
     "stop_travel",
+    "stop_travel_floats",
     "hold",
     "PlanningError",
 ]
@@ -217,6 +218,57 @@ def stop_travel(
         slow = run_up(v0, a0, zero, zero, limits=limits)
         travel = np.where(valid, travel, slow)
     return np.where((v0 == 0.0) & (a0 == 0.0), 0.0, travel)
+
+
+def stop_travel_floats(
+    velocity: list[float], acceleration: list[float], max_acceleration: list[float], max_jerk: list[float]
+) -> list[float] | None:
+    """:func:`stop_travel` on floats, joint by joint (a segment start runs it for every moving
+    controller of a fleet): the same operations in the same order on the same IEEE doubles, the
+    cubes by numpy's own ``power`` (which is not libm's ``pow`` everywhere), so the same numbers.
+    None when :func:`stop_travel` would leave a joint to ruckig, or for a value that is not finite:
+    call it then."""
+    n = len(velocity)
+    numbers = (*velocity, *acceleration, *max_acceleration, *max_jerk)
+    if not all(map(math.isfinite, numbers)):
+        return None
+    signs, vs, as_, peaks, t1s, t2s, t3s = [], [], [], [], [], [], []
+    for v0, a0, max_a, jerk in zip(velocity, acceleration, max_acceleration, max_jerk, strict=True):
+        sign = _sign(v0) if v0 != 0.0 else _sign(a0)
+        v, a = v0 * sign, a0 * sign
+        q = jerk * v + a * a / 2.0
+        peak = min(math.sqrt(max(q, 0.0)), max_a)
+        if not (a >= -peak and q >= 0.0):
+            return None  # braking harder than the profile starts with: ruckig's (stop_travel)
+        signs.append(sign)
+        vs.append(v)
+        as_.append(a)
+        peaks.append(peak)
+        t1s.append(max((a + peak) / jerk, 0.0))
+        t2s.append(max((v + a * a / (2.0 * jerk) - peak * peak / jerk) / peak, 0.0) if peak > 0.0 else 0.0)
+        t3s.append(peak / jerk)
+    cubes = (np.array(t1s + t3s) ** 3).tolist()  # numpy's power, as stop_travel's t**3
+    travel = []
+    for i in range(n):
+        v0, a0, jerk = velocity[i], acceleration[i], max_jerk[i]
+        if v0 == 0.0 and a0 == 0.0:
+            travel.append(0.0)
+            continue
+        v, a, peak, t1, t2, t3 = vs[i], as_[i], peaks[i], t1s[i], t2s[i], t3s[i]
+        v1 = v + a * t1 - jerk * t1 * t1 / 2.0
+        p1 = v * t1 + a * t1 * t1 / 2.0 - jerk * cubes[i] / 6.0
+        v2 = v1 - peak * t2
+        p2 = v1 * t2 - peak * t2 * t2 / 2.0
+        p3 = v2 * t3 - peak * t3 * t3 / 2.0 + jerk * cubes[n + i] / 6.0
+        travel.append((p1 + p2 + p3) * signs[i])
+    if not all(map(math.isfinite, travel)):
+        return None
+    return travel
+
+
+def _sign(x: float) -> float:
+    """``np.sign`` of a finite float."""
+    return 1.0 if x > 0.0 else -1.0 if x < 0.0 else 0.0
 
 
 def _phase_end(phase: _Phase) -> tuple[float, float, float]:
