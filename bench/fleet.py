@@ -8,7 +8,7 @@ Plain script; prints tables. Targets (issue 38), on the machine it runs on:
   control wake-ups with 0 overruns (a wake-up more than one interpolation period late);
 * the state rounds on time: lateness p99 <= 1 ms for every controller of a 50-controller fleet
   with a state client each (as the fleet measures it when each round goes out, and as the clients
-  see it: the spread of the intervals between rounds around the period).
+  see it: how long after its place on the controller's schedule each round arrived).
 
 Idle: a fleet of N controllers of every profile in turn (generic, motoros, abb, fanuc, staubli),
 measured for ``--seconds`` after two seconds of settling: CPU time of the process (utime + stime)
@@ -16,7 +16,10 @@ per controller, its resident memory per controller. The comparison row: N ``robo
 processes, one controller each, measured in the same run the same way (summed). Moving: N generic
 controllers, each with a client (this project's RobotDriver, in a separate process) streaming a
 two-second swing back and forth for the whole window. Jitter: 50 controllers of every profile at
-rest, each with a raw state client (a separate process) that timestamps every round.
+rest, each with a raw state client (a separate process) that timestamps every round for
+``--jitter-seconds`` (30) once every client has been connected for a second (the fleet's own view
+covers its whole run, the connections' arrival included); beside it, measured just before in the
+same run, a bare timer's lateness alone (the machine's floor: what no process here does better).
 
 ``--soak MINUTES``: a 50-controller fleet with clients connecting, streaming, stopping and vanishing
 (FIN and RST) at random for MINUTES; prints the fleet's RSS every minute and of it the private
@@ -27,7 +30,8 @@ on the 2-core VM; 12 saturate it, its controllers' time then falls behind the wa
 backlog of waiting clients is what the memory measures).
 
     python bench/fleet.py [--counts 1,10,50,100,200] [--process-counts 1,10,50] [--moving 20,40] [--jitter 50]
-                          [--seconds 10] [--skip idle,moving,jitter] [--soak MINUTES [--soak-clients 6]]
+                          [--seconds 10] [--jitter-seconds 30] [--skip idle,moving,jitter]
+                          [--soak MINUTES [--soak-clients 6]]
 """
 
 from __future__ import annotations
@@ -36,7 +40,6 @@ import argparse
 import asyncio
 import collections
 import contextlib
-import itertools
 import logging
 import os
 import platform
@@ -225,12 +228,21 @@ def _idle_row(count: int, how: str, share: float, rss: float) -> str:
 # -- moving --------------------------------------------------------------------------------------
 
 
+#: the interpolation period of the moving fleet (a wake-up later than this is an overrun)
+MOVING_PERIOD = 0.004
+
+
 async def moving(counts: Sequence[int], seconds: float, folder: Path) -> None:
     print("\n## Moving: every controller streaming (a RobotDriver each, in another process)\n")
     print("| controllers | CPU per controller (% of a core) | CPU total (%) | wake-ups | overruns |", end="")
     print(" latest wake-up (ms) | trajectories run | the clients' CPU (%) |")
     print("|---:|---:|---:|---:|---:|---:|---:|---:|")
     for count in counts:
+        floor_wakes, _, floor_latest, floor_over = await floor(MOVING_PERIOD, seconds + 4.0)
+        print(
+            f"| (a bare timer alone every {MOVING_PERIOD * 1e3:g} ms for as long, just before: the machine's floor) "
+            f"| | | {floor_wakes} | {floor_over} | {floor_latest:.3f} | | |"
+        )
         async with fleet(count, ("generic",), folder) as running:
             ports = ",".join(f"{c.motion}:{c.state}" for c in running.controllers)
             client = await asyncio.create_subprocess_exec(
@@ -297,8 +309,15 @@ async def _stream_client(ports: str, seconds: float) -> None:
 # -- jitter --------------------------------------------------------------------------------------
 
 
+#: the clients' first second (all of them connecting at once, the fleet accepting them) is not timed
+WARM_UP_S = 1.0
+#: the bare timer's period (s): a wake-up every 2 ms, as the state rounds' slots
+FLOOR_PERIOD = 0.002
+
+
 async def jitter(count: int, seconds: float, folder: Path) -> None:
-    print(f"\n## State rounds: {count} controllers of every profile at rest, a state client each\n")
+    print(f"\n## State rounds: {count} controllers of every profile at rest, a state client each, {seconds:g} s\n")
+    wakes, p99, latest, _ = await floor(FLOOR_PERIOD, seconds)
     async with fleet(count, PROFILES, folder) as running:
         spec = ",".join(f"{c.state}:{c.profile}" for c in running.controllers)
         client = await asyncio.create_subprocess_exec(
@@ -306,57 +325,106 @@ async def jitter(count: int, seconds: float, folder: Path) -> None:
         )
         out, _ = await asyncio.wait_for(client.communicate(), seconds + 120.0)
         log = (await running.stop())[0]
-    print("| seen by | rounds | interval spread p99, all (ms) | the worst controller's p99 (ms) | max (ms) |")
+    print("| seen by | rounds | lateness p99, all (ms) | the worst controller's p99 (ms) | max (ms) |")
     print("|---|---:|---:|---:|---:|")
     print(out.decode().strip())
     match = STATE_REPORT.search(log)
     if match:
-        print(f"| the fleet (lateness when each round went out) | | {match[1]} | {match[2]} | {match[3]} |")
+        print(
+            f"| the fleet (lateness when each round went out; its whole run, the clients connecting included) "
+            f"| | {match[1]} | {match[2]} | {match[3]} |"
+        )
+    print(
+        f"| a bare timer alone, every {FLOOR_PERIOD * 1e3:g} ms (the machine's floor, just before; lateness) "
+        f"| {wakes} | {p99:.3f} | | {latest:.3f} |"
+    )
     overruns = OVERRUNS.search(log)
     if overruns:
         print(f"\ncontrol wake-ups meanwhile: {overruns[1]}, overruns {overruns[2]}, latest {overruns[3]} ms")
 
 
 async def _watch_client(spec: str, seconds: float) -> None:
-    """(child) Timestamp every state round of every controller; print the intervals' spread."""
+    """(child) Timestamp every state round of every controller for ``seconds`` after the first
+    :data:`WARM_UP_S` (every client connected by then); print their lateness."""
     items = [(int(p), profile) for p, profile in (item.split(":") for item in spec.split(","))]
     rounds: list[list[float]] = [[] for _ in items]
     #: chunks closer than this are one round (a round is a few frames written together)
     gap = 0.004
+    timing = False
 
     class Watch(asyncio.Protocol):
         def __init__(self, index: int) -> None:
             self.index = index
+            self.last = 0.0
 
         def data_received(self, data: bytes) -> None:
             now = time.monotonic()
-            seen = rounds[self.index]
-            if not seen or now - seen[-1] > gap:
-                seen.append(now)
+            if now - self.last > gap and timing:
+                rounds[self.index].append(now)
+            self.last = now
 
     loop = asyncio.get_running_loop()
     transports = []
     for index, (port, _) in enumerate(items):
         transport, _ = await loop.create_connection(lambda i=index: Watch(i), "127.0.0.1", port)  # type: ignore[misc]
         transports.append(transport)
+    await asyncio.sleep(WARM_UP_S)
+    timing = True
     await asyncio.sleep(seconds)
     for transport in transports:
         transport.close()
-    spreads: list[float] = []
+    # Each controller's rounds are due on one grid (origin + k x period, the fleet's clock being the
+    # same CLOCK_MONOTONIC): a round's lateness as the client sees it is how far it came after the
+    # earliest-arriving round's place on that grid (each late round counted once, unlike the
+    # interval between two rounds, which a late round makes long and the next one short).
+    lateness: list[float] = []
     worst = 0.0
-    total = 0
     for (_, profile), seen in zip(items, rounds, strict=True):
-        period = 1.0 / RATES[profile]
-        deviations = sorted(abs((b - a) - period) for a, b in itertools.pairwise(seen[1:]))
-        if not deviations:
+        if len(seen) < 2:
             continue
-        total += len(deviations)
-        spreads += deviations
-        worst = max(worst, deviations[min(len(deviations) - 1, int(0.99 * len(deviations)))])
-    spreads.sort()
-    p99 = spreads[min(len(spreads) - 1, int(0.99 * len(spreads)))] if spreads else float("nan")
-    peak = spreads[-1] if spreads else float("nan")
-    print(f"| the clients (interval - period) | {total} | {p99 * 1e3:.3f} | {worst * 1e3:.3f} | {peak * 1e3:.3f} |")
+        period = 1.0 / RATES[profile]
+        offsets = [t - round((t - seen[0]) / period) * period for t in seen]
+        base = min(offsets)
+        late = sorted(o - base for o in offsets)
+        lateness += late
+        worst = max(worst, late[int(0.99 * (len(late) - 1))])
+    lateness.sort()
+    p99 = lateness[int(0.99 * (len(lateness) - 1))] if lateness else float("nan")
+    peak = lateness[-1] if lateness else float("nan")
+    print(
+        f"| the clients (when each round arrived, after its schedule; from {WARM_UP_S:g} s after all connected) "
+        f"| {len(lateness)} | {p99 * 1e3:.3f} | {worst * 1e3:.3f} | {peak * 1e3:.3f} |"
+    )
+
+
+async def _floor(period_ms: str, seconds: float) -> None:
+    """(child) The machine's own wake-up lateness: a bare timer (the fleet's precise ticker) woken
+    every ``period_ms`` for ``seconds``, nothing else running. Prints the wake-ups, the lateness
+    p99 and maximum (ms), and how many were later than the period, space-separated."""
+    from robot_server.emulator.ticker import Ticker
+
+    period = float(period_ms) / 1e3
+    ticker = Ticker()
+    late: list[float] = []
+    start = time.monotonic()
+    for k in range(1, round(seconds / period) + 1):
+        deadline = start + k * period
+        await ticker.sleep_until(deadline)
+        late.append(time.monotonic() - deadline)
+    ticker.close()
+    late.sort()
+    over = sum(1 for x in late if x > period)
+    print(f"{len(late)} {late[int(0.99 * (len(late) - 1))] * 1e3:.3f} {late[-1] * 1e3:.3f} {over}")
+
+
+async def floor(period: float, seconds: float) -> tuple[int, float, float, int]:
+    """:func:`_floor` in a child process: (wake-ups, lateness p99 ms, latest ms, later than the period)."""
+    child = await asyncio.create_subprocess_exec(
+        sys.executable, __file__, "_floor", str(period * 1e3), str(seconds), stdout=asyncio.subprocess.PIPE
+    )
+    out, _ = await asyncio.wait_for(child.communicate(), seconds + 60.0)
+    wakes, p99, latest, over = out.decode().split()
+    return int(wakes), float(p99), float(latest), int(over)
 
 
 # -- soak ----------------------------------------------------------------------------------------
@@ -555,12 +623,14 @@ async def main(args: argparse.Namespace) -> None:
             await moving(_ints(args.moving), args.seconds, folder)
         if "jitter" not in skip:
             for count in _ints(args.jitter):
-                await jitter(count, args.seconds, folder)
+                await jitter(count, args.jitter_seconds, folder)
 
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1].startswith("_"):
-        child = {"_stream": _stream_client, "_watch": _watch_client, "_chaos": _chaos_client}[sys.argv[1]]
+        child = {"_stream": _stream_client, "_watch": _watch_client, "_chaos": _chaos_client, "_floor": _floor}[
+            sys.argv[1]
+        ]
         asyncio.run(child(sys.argv[2], float(sys.argv[3]), *map(int, sys.argv[4:])))
         sys.exit(0)
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -569,6 +639,12 @@ if __name__ == "__main__":
     parser.add_argument("--moving", default="20,40", help="fleet sizes moving")
     parser.add_argument("--jitter", default="50", help="fleet sizes whose state rounds are timed (a client each)")
     parser.add_argument("--seconds", type=float, default=10.0, help="each measurement's window")
+    parser.add_argument(
+        "--jitter-seconds",
+        type=float,
+        default=30.0,
+        help="the state rounds' window (a p99 per controller needs hundreds of its rounds: 30 s is 750 at 25 Hz)",
+    )
     parser.add_argument("--skip", default="", help="idle, moving, jitter: parts to leave out")
     parser.add_argument("--soak", type=float, metavar="MINUTES", help="run the soak instead of the tables")
     parser.add_argument(
