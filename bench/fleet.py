@@ -374,18 +374,20 @@ async def _watch_client(spec: str, seconds: float) -> None:
     for transport in transports:
         transport.close()
     # Each controller's rounds are due on one grid (origin + k x period, the fleet's clock being the
-    # same CLOCK_MONOTONIC): a round's lateness as the client sees it is how far it came after the
-    # earliest-arriving round's place on that grid (each late round counted once, unlike the
-    # interval between two rounds, which a late round makes long and the next one short).
+    # same CLOCK_MONOTONIC): a round's lateness as the client sees it is how far it came after its
+    # place on that grid, the grid placed where the earliest rounds come (the 1st percentile of the
+    # offsets: a round the fleet's stall cut in two reads as an extra arrival off the grid, which
+    # must not move it). Each late round is counted once, unlike in the interval between two
+    # rounds, which a late round makes long and the next one short.
     lateness: list[float] = []
     worst = 0.0
     for (_, profile), seen in zip(items, rounds, strict=True):
         if len(seen) < 2:
             continue
         period = 1.0 / RATES[profile]
-        offsets = [t - round((t - seen[0]) / period) * period for t in seen]
-        base = min(offsets)
-        late = sorted(o - base for o in offsets)
+        offsets = sorted(t - round((t - seen[0]) / period) * period for t in seen)
+        base = offsets[len(offsets) // 100]
+        late = [max(0.0, o - base) for o in offsets]
         lateness += late
         worst = max(worst, late[int(0.99 * (len(late) - 1))])
     lateness.sort()
