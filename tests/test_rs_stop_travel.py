@@ -83,3 +83,31 @@ def test_a_joint_at_speed_stops_as_far_as_the_closed_form_says(sign: float) -> N
     assert travel is not None
     assert travel[0] * sign > 0.0 and travel[1:] == [0.0] * 5
     _same([sign] + [0.0] * 5, [0.0] * DOF, [8.0] * DOF, [80.0] * DOF)
+
+
+def test_the_braking_checks_answer_on_floats_is_the_arrays() -> None:
+    """braking's check (do the stopping joints' fastest stops end beyond the next point?) on floats
+    and on arrays, for random states, slowing factors and points ahead: the same answer."""
+    from robot_server.control.braking import stop_overshoots_array, stop_overshoots_floats
+    from robot_server.control.points import State
+
+    rng = np.random.default_rng(7)
+    max_v, max_a, jerk = np.full(DOF, 2.0), np.full(DOF, 8.0), np.full(DOF, 80.0)
+    answers = {True: 0, False: 0}
+    for _ in range(2000):
+        end = State(rng.uniform(-1, 1, DOF), rng.uniform(-2, 2, DOF), rng.uniform(-8, 8, DOF) * rng.choice([0.0, 0.2]))
+        ahead = rng.uniform(-0.3, 0.3, DOF)
+        stops = rng.random(DOF) < 0.6
+        f = float(rng.choice([1.0, 1.5, 3.0, 17.0]))
+        on_floats = stop_overshoots_floats(
+            (end.velocity.tolist(), end.acceleration.tolist()),
+            (max_a.tolist(), jerk.tolist()),
+            ahead.tolist(),
+            stops.tolist(),
+            f,
+        )
+        on_arrays = stop_overshoots_array(end, (max_v, max_a, jerk), ahead, stops, f)
+        if on_floats is not None:
+            assert on_floats == on_arrays
+            answers[on_floats] += 1
+    assert answers[True] > 100 and answers[False] > 100, answers

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from ..arrays import Array
 from . import blend
 from .building import MAX_LAG, MAX_LAG_FACTOR, least_slowing, slowed, stretched, to_rest
 from .checks import excess, within_positions
@@ -29,6 +30,7 @@ from .entries import (
     log,
     overshoot,
 )
+from .points import State
 from .segments import stop_travel, stop_travel_floats
 
 
@@ -94,30 +96,15 @@ def braking(settings: Settings, entry: Entry, last: Entry, stops: NDArray[np.boo
     assert end is not None
     lim = settings.limits
     ahead = knot_of(last).position - end.position
-    # the same on floats, joint by joint (the same numbers: this runs at every segment start of
-    # every moving controller of a fleet, where numpy's calls on six values cost several times more)
-    velocity, acceleration = end.velocity.tolist(), end.acceleration.tolist()
-    max_acceleration, max_jerk = lim.max_acceleration.tolist(), lim.max_jerk.tolist()
+    limits = (lim.max_velocity, lim.max_acceleration, lim.max_jerk)
+    # the float path's lists, made once for the bisection's calls
+    state = (end.velocity.tolist(), end.acceleration.tolist())
+    float_limits = (lim.max_acceleration.tolist(), lim.max_jerk.tolist())
     ahead_floats, stopping = ahead.tolist(), stops.tolist()
 
     def stop_overshoots(f: float) -> bool:
-        # where each joint's fastest stop from the slower state ends (closed form: this runs
-        # in the controller's tick): beyond the last point, or back before this one, by more
-        # than OVERSHOOT
-        travel = stop_travel_floats(
-            [v / f for v in velocity], [a / (f * f) for a in acceleration], max_acceleration, max_jerk
-        )
-        if travel is not None:
-            worst = 0.0
-            for t, ahead_i, stop in zip(travel, ahead_floats, stopping, strict=True):
-                if stop:
-                    worst = max(worst, t - max(ahead_i, 0.0), min(ahead_i, 0.0) - t)
-            return worst > blend.OVERSHOOT
-        travel_array = stop_travel(
-            end.velocity / f, end.acceleration / (f * f), limits=(lim.max_velocity, lim.max_acceleration, lim.max_jerk)
-        )
-        beyond = np.maximum(travel_array - np.maximum(ahead, 0.0), np.minimum(ahead, 0.0) - travel_array)
-        return bool(np.max(np.where(stops, beyond, 0.0)) > blend.OVERSHOOT)
+        found = stop_overshoots_floats(state, float_limits, ahead_floats, stopping, f)
+        return found if found is not None else stop_overshoots_array(end, limits, ahead, stops, f)
 
     if not stop_overshoots(1.0):
         return entry
@@ -136,6 +123,39 @@ def braking(settings: Settings, entry: Entry, last: Entry, stops: NDArray[np.boo
         return entry  # it cannot brake that much on the way to its own point: as planned
     log.debug("point %d: slower through it, to be able to stop at point %d", entry.index, last.index)
     return candidate.evolve(unbraked=end)
+
+
+def stop_overshoots_array(
+    end: State, limits: tuple[Array, Array, Array], ahead: Array, stops: NDArray[np.bool_], f: float
+) -> bool:
+    """Whether the joints ``stops``' fastest stops from ``end`` made ``f`` times slower (closed
+    form: this runs in the controller's tick) end beyond the point ``ahead`` of it, or back before
+    this one, by more than :data:`.blend.OVERSHOOT`."""
+    travel = stop_travel(end.velocity / f, end.acceleration / (f * f), limits=limits)
+    beyond = np.maximum(travel - np.maximum(ahead, 0.0), np.minimum(ahead, 0.0) - travel)
+    return bool(np.max(np.where(stops, beyond, 0.0)) > blend.OVERSHOOT)
+
+
+def stop_overshoots_floats(
+    state: tuple[list[float], list[float]],
+    limits: tuple[list[float], list[float]],
+    ahead: list[float],
+    stops: list[bool],
+    f: float,
+) -> bool | None:
+    """:func:`stop_overshoots_array` on floats, joint by joint (``state``: the velocities and
+    accelerations, ``limits``: the acceleration and jerk limits): the same numbers, so the same
+    answer (a segment start of every moving controller of a fleet runs it); None where
+    :func:`.segments.stop_travel_floats` leaves it to the arrays."""
+    velocity, acceleration = state
+    travel = stop_travel_floats([v / f for v in velocity], [a / (f * f) for a in acceleration], *limits)
+    if travel is None:
+        return None
+    worst = 0.0
+    for t, ahead_i, stop in zip(travel, ahead, stops, strict=True):
+        if stop:
+            worst = max(worst, t - max(ahead_i, 0.0), min(ahead_i, 0.0) - t)
+    return worst > blend.OVERSHOOT
 
 
 def unbraked(context: Context, running: Entry, started: float) -> Entry | None:

@@ -5,9 +5,11 @@ A :class:`ControlLoop` wakes once per interpolation period at absolute deadlines
 them at once and the next deadline is unchanged, so lateness never accumulates (no drift), however
 long the run. On a real-time clock every wake-up's lateness is measured (:class:`LoopStats`).
 A :class:`SharedLoop` gives the control loops of many controllers (a fleet in one process) one
-wake-up per period between them. Either runs the period due before a request is handled when asked
-(``catch_up``, the emulator's servers call it through ``Server.before_handler``): a burst of requests
-is handled one after another on the event loop, and the wake-up would wait behind all of them.
+wake-up per period between them, and leaves out the periods of a controller at rest that nothing
+waits on until something reads or changes it (:meth:`ControlLoop.park`). Either runs the period due
+before a request is handled when asked (``catch_up``, the emulator's servers call it through
+``Server.before_handler``): a burst of requests is handled one after another on the event loop,
+and the wake-up would wait behind all of them.
 This module is where the controllers meet the event loop and time; they know neither.
 """
 
@@ -264,8 +266,9 @@ CATCH_UP = 50
 class SharedLoop:
     """Many control loops on one clock with one wake-up per interpolation period for all of them
     (the controllers of a fleet, :mod:`robot_server.fleet`): every member's period is run at each
-    wake-up, in the order they joined. A loop joins (:meth:`add`) and leaves (:meth:`remove`)
-    between wake-ups; its first period is the next wake-up's. The members keep their own counts of
+    wake-up, in the order they joined, but a parked member's (:meth:`ControlLoop.park`). A loop
+    joins (:meth:`add`) and leaves (:meth:`remove`) between wake-ups; its first period is the next
+    wake-up's. The members keep their own counts of
     ticks and wake-ups; lateness and overruns are the shared wake-ups' (:attr:`stats`)."""
 
     clock: Clock
@@ -291,9 +294,9 @@ class SharedLoop:
         self.joined += 1
 
     def remove(self, loop: ControlLoop) -> None:
+        if loop in self._members and not self._in_period:  # leaves standing where its periods brought it
+            loop.unpark()  # (a period failing there removes it already)
         if loop in self._members:
-            if not self._in_period:  # leaves standing where its periods would have brought it
-                loop.unpark()
             self._members.remove(loop)
             loop._shared = None
             loop._parked_at = None
@@ -312,7 +315,7 @@ class SharedLoop:
         return self._k
 
     @property
-    def parked(self) -> int:
+    def parked_members(self) -> int:
         """Members whose periods are left out now (:meth:`ControlLoop.park`)."""
         return sum(1 for loop in self._members if loop.parked)
 
@@ -328,7 +331,8 @@ class SharedLoop:
         self._running = False
 
     async def run(self) -> LoopStats:
-        """Wake every interpolation period until :meth:`stop`, running every member's period."""
+        """Wake every interpolation period until :meth:`stop`, running every member's period (a
+        parked member's left out)."""
         clock, period, stats = self.clock, self.period, self.stats
         self._origin = clock.now()
         self._k = 0

@@ -247,7 +247,9 @@ def stop_travel_floats(
         t1s.append(max((a + peak) / jerk, 0.0))
         t2s.append(max((v + a * a / (2.0 * jerk) - peak * peak / jerk) / peak, 0.0) if peak > 0.0 else 0.0)
         t3s.append(peak / jerk)
-    cubes = (np.array(t1s + t3s) ** 3).tolist()  # numpy's power, as stop_travel's t**3
+    # numpy's power, as stop_travel's t**3, on arrays of the same length (a vector routine may
+    # treat a lane by where it falls in the array)
+    cubes = (np.array(t1s) ** 3).tolist() + (np.array(t3s) ** 3).tolist()
     travel = []
     for i in range(n):
         v0, a0, jerk = velocity[i], acceleration[i], max_jerk[i]

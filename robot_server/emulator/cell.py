@@ -87,7 +87,7 @@ class RobotCell:
         #: called after the operator's :meth:`reset` (e.g. a controller program restarted)
         self.reset_listeners: list[Callable[[], None]] = []
         #: each tick listener's "nothing to do until something else happens" (:meth:`listen`)
-        self._listeners_idle: list[Callable[[], bool]] = []
+        self._idle_of: dict[Callable[[], None], Callable[[], bool]] = {}
         #: brings the controllers up to now before they are read or changed from outside their
         #: control loop (the emulator's: a parked control loop's periods, :meth:`.ControlLoop.park`)
         self.sync: Callable[[], None] = _nothing
@@ -382,17 +382,20 @@ class RobotCell:
         the control loop may be left at rest (:meth:`idle`). A listener added to
         :attr:`tick_listeners` directly keeps the loop running."""
         self.tick_listeners.append(tick)
-        self._listeners_idle.append(idle)
+        self._idle_of[tick] = idle
 
     def idle(self) -> bool:
         """Nothing waits for this cell's control-loop wake-ups: no task in :meth:`changed` or
         :meth:`until`, every tick listener idle. With its controllers at rest, its control loop
         may then be left until something reads or changes them (:meth:`.ControlLoop.park`)."""
-        return (
-            not self._wakeup.waiting
-            and len(self._listeners_idle) == len(self.tick_listeners)
-            and all(idle() for idle in self._listeners_idle)
-        )
+        if self._wakeup.waiting:
+            return False
+        idle_of = self._idle_of
+        for listener in self.tick_listeners:
+            idle = idle_of.get(listener)
+            if idle is None or not idle():
+                return False
+        return True
 
     def tick(self) -> None:
         """After a control-loop wake-up: the :attr:`tick_listeners`, then :meth:`notify`."""

@@ -4,7 +4,8 @@ A fleet (:mod:`robot_server.fleet`) runs many controllers in one process and one
 as its own process would wake its control loop every interpolation period and keep a timer for its
 state topics' deadlines; together they would wake the process hundreds of times per period.
 :class:`Shared` gives them one :class:`~..control.SharedLoop` per interpolation period (one wake-up
-runs every controller's period), one :class:`~.ticker.Ticker` for every state topic, and one
+runs every controller's period, but a controller at rest that nothing waits on is left out until it
+is read or changed: :meth:`~..control.ControlLoop.park`), one :class:`~.ticker.Ticker` for every state topic, and one
 :class:`StateRounds` schedule per state period, whose slots spread the controllers' rounds over
 the period, so that they do not all fall due at the same instant and wait for one another. Each
 round, and each controller's period, runs in that controller's context (its log lines name it).
