@@ -41,6 +41,7 @@ import asyncio
 import collections
 import contextlib
 import logging
+import math
 import os
 import platform
 import random
@@ -63,7 +64,10 @@ SINGLE = re.compile(
     r"^robot-server ready: (?P<profile>\w+) profile, .*?motion [\d.]+:(?P<motion>\d+), state [\d.]+:(?P<state>\d+)"
 )
 OVERRUNS = re.compile(r"control loop \(.*?\): (\d+) wake-ups, (\d+) overruns.*?latest ([\d.]+) ms")
-STATE_REPORT = re.compile(r"lateness p99 ([\d.]+) ms \(the worst controller's p99 ([\d.]+) ms\), latest ([\d.]+) ms")
+STATE_REPORT = re.compile(
+    r"state topics: (\d+) rounds, (\d+) skipped, lateness p99 ([\d.]+) ms \(the worst controller's p99 ([\d.]+) ms\), "
+    r"latest ([\d.]+) ms"
+)
 #: the state rate of each profile (Hz): what a client's intervals are compared with
 RATES = {"generic": 40.0, "motoros": 40.0, "abb": 10.0, "fanuc": 1 / 0.024, "staubli": 50.0}
 
@@ -240,7 +244,8 @@ async def moving(counts: Sequence[int], seconds: float, folder: Path) -> None:
     for count in counts:
         floor_wakes, _, floor_latest, floor_over = await floor(MOVING_PERIOD, seconds + 4.0)
         print(
-            f"| (a bare timer alone every {MOVING_PERIOD * 1e3:g} ms for as long, just before: the machine's floor) "
+            f"| (a bare timer alone every {MOVING_PERIOD * 1e3:g} ms for as long, just before: the machine's floor, "
+            "a lower bound: the control loop waits on the event loop's timer) "
             f"| | | {floor_wakes} | {floor_over} | {floor_latest:.3f} | | |"
         )
         async with fleet(count, ("generic",), folder) as running:
@@ -323,7 +328,11 @@ async def jitter(count: int, seconds: float, folder: Path) -> None:
         client = await asyncio.create_subprocess_exec(
             sys.executable, __file__, "_watch", spec, str(seconds), stdout=asyncio.subprocess.PIPE
         )
+        # the fleet's CPU while the clients are timed: what 50 controllers at rest with a client each cost
+        await asyncio.sleep(WARM_UP_S)
+        cpu0, wall0 = running.cpu(), time.monotonic()
         out, _ = await asyncio.wait_for(client.communicate(), seconds + 120.0)
+        share = (running.cpu() - cpu0) / (time.monotonic() - wall0)
         log = (await running.stop())[0]
     print("| seen by | rounds | lateness p99, all (ms) | the worst controller's p99 (ms) | max (ms) |")
     print("|---|---:|---:|---:|---:|")
@@ -332,7 +341,7 @@ async def jitter(count: int, seconds: float, folder: Path) -> None:
     if match:
         print(
             f"| the fleet (lateness when each round went out; its whole run, the clients connecting included) "
-            f"| | {match[1]} | {match[2]} | {match[3]} |"
+            f"| {match[1]} ({match[2]} skipped) | {match[3]} | {match[4]} | {match[5]} |"
         )
     print(
         f"| a bare timer alone, every {FLOOR_PERIOD * 1e3:g} ms (the machine's floor, just before; lateness) "
@@ -341,6 +350,7 @@ async def jitter(count: int, seconds: float, folder: Path) -> None:
     overruns = OVERRUNS.search(log)
     if overruns:
         print(f"\ncontrol wake-ups meanwhile: {overruns[1]}, overruns {overruns[2]}, latest {overruns[3]} ms")
+    print(f"the fleet's CPU meanwhile: {100 * share:.1f} % of a core ({100 * share / count:.2f} % per controller)")
 
 
 async def _watch_client(spec: str, seconds: float) -> None:
@@ -374,28 +384,38 @@ async def _watch_client(spec: str, seconds: float) -> None:
     for transport in transports:
         transport.close()
     # Each controller's rounds are due on one grid (origin + k x period, the fleet's clock being the
-    # same CLOCK_MONOTONIC): a round's lateness as the client sees it is how far it came after its
-    # place on that grid, the grid placed where the earliest rounds come (the 1st percentile of the
-    # offsets: a round the fleet's stall cut in two reads as an extra arrival off the grid, which
-    # must not move it). Each late round is counted once, unlike in the interval between two
-    # rounds, which a late round makes long and the next one short.
+    # same CLOCK_MONOTONIC). The grid is placed where the controller's earliest rounds arrive (the
+    # 1st percentile of the offsets from the nearest grid point), so a constant delay of the
+    # delivery does not count; the fleet's own row is the lateness from the deadline. Each slot's
+    # first arrival is its round (a round a stall cut in two counts once), up to a tenth of a
+    # period early read as on time and up to 0.9 of a period late as late; a slot with no round is
+    # a round missed (skipped by the fleet, or later than that). Each late round counts once,
+    # unlike the interval between two rounds, which a late round makes long and the next short.
     lateness: list[float] = []
     worst = 0.0
+    missed = 0
     for (_, profile), seen in zip(items, rounds, strict=True):
         if len(seen) < 2:
             continue
         period = 1.0 / RATES[profile]
         offsets = sorted(t - round((t - seen[0]) / period) * period for t in seen)
-        base = offsets[len(offsets) // 100]
-        late = [max(0.0, o - base) for o in offsets]
+        origin = offsets[len(offsets) // 100]
+        slots: dict[int, float] = {}
+        for t in seen:
+            x = (t - origin) / period
+            k = math.floor(x + 0.1)
+            slots.setdefault(k, max(0.0, x - k) * period)
+        missed += max(slots) - min(slots) + 1 - len(slots)
+        late = sorted(slots.values())
         lateness += late
         worst = max(worst, late[int(0.99 * (len(late) - 1))])
     lateness.sort()
     p99 = lateness[int(0.99 * (len(lateness) - 1))] if lateness else float("nan")
     peak = lateness[-1] if lateness else float("nan")
     print(
-        f"| the clients (when each round arrived, after its schedule; from {WARM_UP_S:g} s after all connected) "
-        f"| {len(lateness)} | {p99 * 1e3:.3f} | {worst * 1e3:.3f} | {peak * 1e3:.3f} |"
+        f"| the clients (each round's arrival after the grid of its controller's earliest rounds; "
+        f"from {WARM_UP_S:g} s after all connected) | {len(lateness)} ({missed} missed) | {p99 * 1e3:.3f} "
+        f"| {worst * 1e3:.3f} | {peak * 1e3:.3f} |"
     )
 
 
