@@ -9,6 +9,7 @@ factor^k, so every excess here is the factor by which time must grow.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -104,7 +105,7 @@ def orders(settings: Settings, entry: Entry) -> tuple[float, float, float]:
     return result
 
 
-def within_symmetric(low: list[float], high: list[float], limit: list[float]) -> bool:
+def within_symmetric(low: Sequence[float], high: Sequence[float], limit: Sequence[float]) -> bool:
     """Every joint's ``[low, high]`` within ``[-limit, limit]`` (NaN is not)."""
     return all(-lo <= m and hi <= m for lo, hi, m in zip(low, high, limit, strict=True))
 
@@ -183,7 +184,7 @@ def within_positions(settings: Settings, entry: Entry) -> bool:
     return bool(np.all(lo >= lim.lower - slack) and np.all(hi <= lim.upper + slack))
 
 
-def within_bounds(low: list[float], high: list[float], lower: list[float], upper: list[float]) -> bool:
+def within_bounds(low: Sequence[float], high: Sequence[float], lower: Sequence[float], upper: Sequence[float]) -> bool:
     """Every joint's ``[low, high]`` within ``[lower, upper]`` (NaN is not)."""
     return all(lo >= a and hi <= b for lo, hi, a, b in zip(low, high, lower, upper, strict=True))
 

@@ -25,6 +25,7 @@ import bisect
 import functools
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -111,7 +112,7 @@ class Segment(ABC):
         """Per joint, cheap bounds that contain :meth:`extremes` (by default the exact values)."""
         return self.extremes(order)
 
-    def bound_lists(self, order: int) -> tuple[list[float], list[float]]:
+    def bound_lists(self, order: int) -> tuple[Sequence[float], Sequence[float]]:
         """:meth:`bounds` as lists of floats, for checks made joint by joint on plain floats (the
         planning's: numpy's cost per call on arrays of six is several times the arithmetic). The
         same numbers, but for the sign of a zero: for comparisons only."""
@@ -384,9 +385,11 @@ class PolynomialSegment(Segment):
         # one time, three derivatives, on plain floats joint by joint: the operations of sample's
         # Horner scheme in the same order (the same numbers, bit for bit), without numpy's cost
         # per call on arrays of six (several times slower here), each joint's polynomial unrolled
-        columns: tuple[list[list[float]], ...] | None = self.memo.get("columns")  # type: ignore[assignment]
+        columns: tuple[tuple[tuple[float, ...], ...], ...] | None = self.memo.get("columns")  # type: ignore[assignment]
         if columns is None:
-            columns = self.memo["columns"] = tuple(d.T.tolist() for d in self._derivatives[:3])
+            # tuples: of floats only, the collector stops scanning them after one pass (lists it
+            # scans at every collection while the segment lives: a streaming fleet's many segments)
+            columns = self.memo["columns"] = tuple(tuple(map(tuple, d.T.tolist())) for d in self._derivatives[:3])
         p_columns, v_columns, a_columns = columns
         s = min(max(t / self.duration, 0.0), 1.0)
         p = [((((c5 * s + c4) * s + c3) * s + c2) * s + c1) * s + c0 for c0, c1, c2, c3, c4, c5 in p_columns]
@@ -416,7 +419,7 @@ class PolynomialSegment(Segment):
             points = self.memo["bezier"] = _TO_BERNSTEIN @ self._normalised
         return points  # type: ignore[return-value]
 
-    def bound_lists(self, order: int) -> tuple[list[float], list[float]]:
+    def bound_lists(self, order: int) -> tuple[Sequence[float], Sequence[float]]:
         # orders 0 to 3 at once (the checks ask for all of them), joint by joint on floats:
         # :meth:`bounds`' operations on the same numbers, so the same values, where no difference
         # can overflow (control points within 1e300, no NaN, finite scale factors; else numpy's,
@@ -462,11 +465,11 @@ class PolynomialSegment(Segment):
             x0, x1, x2 = d0 * k3, d1 * k3, d2 * k3
             lo3.append(min(x0, x1, x2))
             hi3.append(max(x0, x1, x2))
-        memo = self.memo
-        memo["bound lists", 0] = (lo0, hi0)
-        memo["bound lists", 1] = (lo1, hi1)
-        memo["bound lists", 2] = (lo2, hi2)
-        memo["bound lists", 3] = (lo3, hi3)
+        memo = self.memo  # kept as tuples: of floats only, the collector stops scanning them after one pass
+        memo["bound lists", 0] = (tuple(lo0), tuple(hi0))
+        memo["bound lists", 1] = (tuple(lo1), tuple(hi1))
+        memo["bound lists", 2] = (tuple(lo2), tuple(hi2))
+        memo["bound lists", 3] = (tuple(lo3), tuple(hi3))
         return True
 
     def extremes(self, order: int) -> tuple[Array, Array]:
@@ -750,7 +753,7 @@ class Chain(Segment):
             found = self.memo[key] = _hull([p.bounds(order) for p in self.parts])
         return found  # type: ignore[return-value]
 
-    def bound_lists(self, order: int) -> tuple[list[float], list[float]]:
+    def bound_lists(self, order: int) -> tuple[Sequence[float], Sequence[float]]:
         # the parts' lists, combined as _hull combines their arrays (np.minimum and np.maximum
         # choose the first of two values when it is NaN)
         key = ("bound lists", order)
