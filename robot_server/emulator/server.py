@@ -507,10 +507,11 @@ class Emulator:
         """One round of state topics, due at ``deadline`` (``time.monotonic()``), then the hooks."""
         self.state_stats.add(max(0.0, time.monotonic() - deadline))
         try:
-            reading = bool(self.after_state or self.state_sessions())
+            sessions = self.state_sessions()
+            reading = bool(sessions or self.after_state)
             if reading:  # someone reads the controllers: up to now first
                 self.control.unpark()
-            self.publish_state()
+            self.publish_state(sessions)
             for hook in self.after_state:
                 hook()
             if reading:  # read, not changed: a controller at rest is left out again at once
@@ -523,9 +524,10 @@ class Emulator:
         extra = [s for s in self.motion_server.sessions if s.data.get(STATE_LINK)]
         return [*self.state_server.sessions, *extra]
 
-    def publish_state(self) -> None:
-        """Send one round of state topics now."""
-        sessions = self.state_sessions()
+    def publish_state(self, sessions: list[Session] | None = None) -> None:
+        """Send one round of state topics now (to ``sessions``, :meth:`state_sessions` when None)."""
+        if sessions is None:
+            sessions = self.state_sessions()
         if not sessions:
             return
         if self.config.byte_order == "auto":
