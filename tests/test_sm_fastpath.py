@@ -1,7 +1,8 @@
 """The fast paths give exactly what the general paths give (issue 38).
 
 * a long run of frames with one header, decoded by ``iter_unpack`` (``_Codec.unpack_run``), against
-  ``feed`` + ``decode`` of each frame, wherever the run ends;
+  ``feed`` + ``decode`` of each frame, wherever the run ends (and its length, ``_run_count``, at
+  every byte of the header);
 * one whole frame taken by the decoder and the link without events (``FrameDecoder.one_message``,
   ``Link.receive_one``), against ``feed_messages`` and ``receive_data`` + ``next_event``;
 * a server's standing PING reply (``Link.take_standing``, ``Connection.standing_for``), against
@@ -44,6 +45,7 @@ from simple_message.endpoints import Server, Session
 from simple_message.errors import LocalProtocolError, MalformedMessage
 from simple_message.link import Link, NeedData, Received, Request
 from simple_message.messages import MESSAGE_CLASSES, register, scoped_registry
+from simple_message.messages.codec import _run_count
 
 from .strategies import messages
 
@@ -118,6 +120,23 @@ def test_a_run_ends_at_any_frame_whose_header_differs(wire: WireFormat, field: s
         stream = b"".join(encode(m, wire) for m in msgs)
         got = FrameDecoder(wire.byte_order).feed_messages(stream, wire)
         assert [key(m, wire) for m in got] == [key(m, wire) for m in plain(stream, wire)]
+
+
+@pytest.mark.parametrize("size", [68, 22], ids=["words", "bytes"])
+def test_a_runs_length_is_where_any_header_byte_first_differs(size: int) -> None:
+    """_run_count, which finds a run's length by comparing its frames' headers in bulk (4-byte
+    words when the frames are whole words, else bytes): every byte of the header changed at every
+    frame of a run of 12 ends the run there, and a run of identical headers is every frame."""
+    head = bytes(range(1, 17))
+    frames = [bytearray(head + bytes(range(100, 100 + size - 16))) for _ in range(12)]
+    assert _run_count(memoryview(b"".join(frames)), head, size) == 12
+    for at in range(1, 12):
+        for byte in range(16):
+            changed = [bytearray(f) for f in frames]
+            changed[at][byte] ^= 0x40
+            stream = b"".join(changed)
+            assert _run_count(memoryview(stream), head, size) == at, (at, byte)
+            assert _run_count(memoryview(stream)[: (at + 1) * size], head, size) == at
 
 
 def test_a_run_gives_enum_members_and_exact_classes() -> None:
