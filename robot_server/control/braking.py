@@ -29,6 +29,7 @@ from .entries import (
     knot_of,
     log,
     overshoot,
+    overshoots,
 )
 from .points import State
 from .segments import stop_travel, stop_travel_floats
@@ -118,7 +119,7 @@ def braking(settings: Settings, entry: Entry, last: Entry, stops: NDArray[np.boo
     if (
         excess(settings, candidate)[0] > 1.0
         or not within_positions(settings, candidate)
-        or overshoot(candidate) > max(blend.OVERSHOOT, overshoot(entry))
+        or overshoots(candidate, max(blend.OVERSHOOT, overshoot(entry)))
     ):
         return entry  # it cannot brake that much on the way to its own point: as planned
     log.debug("point %d: slower through it, to be able to stop at point %d", entry.index, last.index)
@@ -177,7 +178,7 @@ def unbraked(context: Context, running: Entry, started: float) -> Entry | None:
         entry.duration > MAX_LAG_FACTOR * remaining + MAX_LAG  # as late as a jerk replacement may be
         or excess(settings, entry)[0] > 1.0
         or not within_positions(settings, entry)
-        or overshoot(entry) > blend.OVERSHOOT
+        or overshoots(entry, blend.OVERSHOOT)
     ):
         return None
     return entry

@@ -43,6 +43,7 @@ from .entries import (
     moving,
     need,
     overshoot,
+    overshoots,
 )
 from .points import MIN_DURATION, SLACK, Limits, Point, PointRejected, Reason, State, within
 from .segments import PlanningError, RuckigSegment, Segment, hold, launch, linear, run_up
@@ -135,7 +136,7 @@ def determine(settings: Settings, entry: Entry, after: Array, after_duration: fl
             settings, entry.evolve(end=end, segment=connect(entry.start, entry.start_order, end, 2, entry.duration))
         )
     launched_entry = launched(settings, entry, end)
-    if overshoot(launched_entry) <= blend.OVERSHOOT:
+    if not overshoots(launched_entry, blend.OVERSHOOT):
         return launched_entry
     reachable_end = reachable(entry.start.position, end, settings.limits)
     if reachable_end is end:
@@ -220,7 +221,7 @@ def to_rest(settings: Settings, entry: Entry, messages: list[tuple[int, str]]) -
     segment = connect(entry.start, entry.start_order, end, 2, entry.duration)
     candidate = entry.evolve(end=end, segment=segment)
     fits = max(excess(settings, candidate)) <= 1.0 and within_positions(settings, candidate)
-    if not fits or swings(settings, candidate) or overshoot(candidate) > blend.OVERSHOOT:
+    if not fits or swings(settings, candidate) or overshoots(candidate, blend.OVERSHOOT):
         try:
             segment = jerk_limited(settings.limits, entry.start, end, entry.duration)
         except PlanningError as exc:  # a start beyond the limits: the polynomial stands

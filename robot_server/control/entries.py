@@ -272,6 +272,29 @@ def overshoot(entry: Entry) -> float:
     return float(max(np.max(np.minimum(p0, p1) - lo), np.max(hi - np.maximum(p0, p1)), 0.0))
 
 
+def overshoots(entry: Entry, tolerance: float) -> bool:
+    """``overshoot(entry) > tolerance``, the same answer, decided from the segment's cheap position
+    bounds (:meth:`.Segment.bound_lists`, which contain its extremes) when they keep within the
+    tolerance of the two end positions with room to spare (:data:`_HULL_MARGIN`), else from the
+    exact extremes (polynomial roots: the larger part of a segment's checks)."""
+    segment = entry.segment
+    assert segment is not None and entry.end is not None
+    low, high = segment.bound_lists(0)
+    starts, ends = entry.start.position.tolist(), entry.end.position.tolist()
+    for lo, hi, p0, p1 in zip(low, high, starts, ends, strict=True):
+        near, far = (p1, p0) if p1 < p0 else (p0, p1)
+        room = tolerance - _HULL_MARGIN * (1.0 + abs(near) + abs(far))
+        if not (near - lo <= room and hi - far <= room):  # (NaN: not decided here)
+            return overshoot(entry) > tolerance
+    return False
+
+
+#: how far inside the tolerance (relative to the positions' size) a segment's bounds must keep for
+#: :func:`overshoots` to decide from them: far beyond the rounding of the bounds and of the exact
+#: extremes (about 1e-16 of the positions), so either way gives the same answer
+_HULL_MARGIN = 1e-9
+
+
 def knot_of(entry: Entry) -> Knot:
     """The point an entry ends at (it is not a stop)."""
     assert entry.knot is not None
