@@ -70,7 +70,7 @@ def acceleration_ratio(settings: Settings, entry: Entry) -> tuple[float, int]:
     """The segment's largest |acceleration| / limit and its joint (0-based); kept with the segment."""
     segment = entry.segment
     assert segment is not None
-    key = ("acceleration ratio", settings)
+    key = settings.ratio_key
     cached = segment.memo.get(key)
     if cached is None:
         lo, hi = segment.extremes(2)
@@ -165,7 +165,7 @@ def end_need(settings: Settings, entry: Entry) -> float:
     assert end is not None
     if segment is None:
         return state_need(end, settings.limits)
-    key = ("end need", settings)
+    key = settings.end_need_key
     cached = segment.memo.get(key)
     if cached is None:
         cached = segment.memo[key] = state_need(end, settings.limits)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from enum import Enum, Flag
 from typing import Any
 
@@ -235,9 +235,16 @@ class Settings:
     #: given segments (velocities given) beyond the acceleration limit are run as given and reported
     #: once per trajectory, not slowed down for: MotoROS checks the points' speeds only
     follow_given_acceleration: bool = False
+    #: the keys under which the checks keep their findings for these settings in a segment's memo
+    #: (:func:`.checks.end_need`, :func:`.checks.acceleration_ratio`): made once, not one per
+    #: segment, which would stay in the collector's scans while its segment lives
+    end_need_key: tuple[str, Settings] = field(init=False, repr=False)
+    ratio_key: tuple[str, Settings] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.limits.rows  # noqa: B018 - computed now, with the queue, rather than at its first point
+        object.__setattr__(self, "end_need_key", ("end need", self))
+        object.__setattr__(self, "ratio_key", ("acceleration ratio", self))
 
 
 @dataclass(frozen=True, slots=True)

@@ -425,13 +425,18 @@ class PolynomialSegment(Segment):
         # can overflow (control points within 1e300, no NaN, finite scale factors; else numpy's,
         # whose NaN the checks' comparisons then meet as before). Faster than numpy's dozen calls
         # on arrays of six, the more so between servo ticks, where numpy's code is out of cache.
-        key = ("bound lists", order)
-        found = self.memo.get(key)
-        if found is None:
-            if order > 3 or not self._fill_bound_lists():
+        # The low and the high values are kept under keys of their own, not as a pair: a pair of
+        # tuples stays in the collector's scans while its segment lives (its tuples are still
+        # tracked when it is first scanned), and a fleet keeps hundreds of segments queued.
+        if order > 3:
+            return super().bound_lists(order)
+        memo = self.memo
+        low = memo.get(_LOW_KEYS[order])
+        if low is None:
+            if not self._fill_bound_lists():
                 return super().bound_lists(order)
-            found = self.memo[key]
-        return found  # type: ignore[return-value]
+            low = memo[_LOW_KEYS[order]]
+        return low, memo[_HIGH_KEYS[order]]  # type: ignore[return-value]
 
     def _fill_bound_lists(self) -> bool:
         duration = self.duration
@@ -466,10 +471,9 @@ class PolynomialSegment(Segment):
             lo3.append(min(x0, x1, x2))
             hi3.append(max(x0, x1, x2))
         memo = self.memo  # kept as tuples: of floats only, the collector stops scanning them after one pass
-        memo["bound lists", 0] = (tuple(lo0), tuple(hi0))
-        memo["bound lists", 1] = (tuple(lo1), tuple(hi1))
-        memo["bound lists", 2] = (tuple(lo2), tuple(hi2))
-        memo["bound lists", 3] = (tuple(lo3), tuple(hi3))
+        for order, low, high in ((0, lo0, hi0), (1, lo1, hi1), (2, lo2, hi2), (3, lo3, hi3)):
+            memo[_LOW_KEYS[order]] = tuple(low)
+            memo[_HIGH_KEYS[order]] = tuple(high)
         return True
 
     def extremes(self, order: int) -> tuple[Array, Array]:
@@ -517,6 +521,9 @@ _ENDS = np.array([[0.0], [1.0]])
 _POWERS = [np.arange(1, n)[:, None] for n in (6, 5, 4, 3)]
 #: control points within this bound (and not NaN): their differences up to the third cannot overflow
 _SAFE = 1e300
+#: the memo keys of a polynomial segment's bound lists per order (low and high values apart)
+_LOW_KEYS = tuple(("bound lows", order) for order in range(4))
+_HIGH_KEYS = tuple(("bound highs", order) for order in range(4))
 #: the k-th derivative of a degree-5 Bezier curve scales the k-th differences by 5!/(5-k)!
 _FALLING = (1.0, 5.0, 20.0, 60.0, 120.0)
 
