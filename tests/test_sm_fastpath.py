@@ -1,8 +1,7 @@
 """The fast paths give exactly what the general paths give (issue 38).
 
 * a long run of frames with one header, decoded by ``iter_unpack`` (``_Codec.unpack_run``), against
-  ``feed`` + ``decode`` of each frame, wherever the run ends (and its length, ``_run_count``, at
-  every byte of the header);
+  ``feed`` + ``decode`` of each frame, wherever the run ends (frames of whole words and not);
 * one whole frame taken by the decoder and the link without events (``FrameDecoder.one_message``,
   ``Link.receive_one``), against ``feed_messages`` and ``receive_data`` + ``next_event``;
 * a server's standing PING reply (``Link.take_standing``, ``Connection.standing_for``), against
@@ -15,7 +14,8 @@ from __future__ import annotations
 import asyncio
 import logging
 import socket
-from typing import Any
+from collections.abc import Callable
+from typing import Any, ClassVar
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -45,7 +45,6 @@ from simple_message.endpoints import Server, Session
 from simple_message.errors import LocalProtocolError, MalformedMessage
 from simple_message.link import Link, NeedData, Received, Request
 from simple_message.messages import MESSAGE_CLASSES, register, scoped_registry
-from simple_message.messages.codec import _run_count
 
 from .strategies import messages
 
@@ -122,21 +121,39 @@ def test_a_run_ends_at_any_frame_whose_header_differs(wire: WireFormat, field: s
         assert [key(m, wire) for m in got] == [key(m, wire) for m in plain(stream, wire)]
 
 
-@pytest.mark.parametrize("size", [68, 22], ids=["words", "bytes"])
-def test_a_runs_length_is_where_any_header_byte_first_differs(size: int) -> None:
-    """_run_count, which finds a run's length by comparing its frames' headers in bulk (4-byte
-    words when the frames are whole words, else bytes): every byte of the header changed at every
-    frame of a run of 12 ends the run there, and a run of identical headers is every frame."""
-    head = bytes(range(1, 17))
-    frames = [bytearray(head + bytes(range(100, 100 + size - 16))) for _ in range(12)]
-    assert _run_count(memoryview(b"".join(frames)), head, size) == 12
-    for at in range(1, 12):
-        for byte in range(16):
-            changed = [bytearray(f) for f in frames]
-            changed[at][byte] ^= 0x40
-            stream = b"".join(changed)
-            assert _run_count(memoryview(stream), head, size) == at, (at, byte)
-            assert _run_count(memoryview(stream)[: (at + 1) * size], head, size) == at
+def test_long_runs_decode_as_frame_by_frame_wherever_they_end() -> None:
+    """feed_messages on long runs, in every wire format, of a message of whole words (JOINT_TRAJ_PT)
+    and of a registered one whose frames are not (22 bytes), each run ended by a frame differing in
+    its reply_code and followed by more of the run's frames, cut into reads anywhere: what feed +
+    decode of each frame gives."""
+    from dataclasses import dataclass
+
+    @dataclass(frozen=True, slots=True)
+    class Odd(Message):
+        MSG_TYPE: ClassVar[int] = 9001
+        LAYOUT: ClassVar[tuple[tuple[str, str], ...]] = (("a", "i"), ("b", "h"))
+        a: int = 0
+        b: int = 0
+
+    with scoped_registry():
+        register(Odd)
+        for wire in WIRES.values():
+            makers: list[Callable[[int, int], Message]] = [
+                lambda n, reply: JointTrajPt(n, [0.5, -0.25], 0.5, 0.1, reply_code=reply),
+                lambda n, reply: Odd(n, n % 100, reply_code=reply),
+            ]
+            for make in makers:
+                for run in (63, 64, 65, 66, 129, 300):
+                    msgs = [make(n, 0) for n in range(run)] + [make(run, 1)] + [make(n, 0) for n in range(130)]
+                    stream = b"".join(encode(m, wire) for m in msgs)
+                    want = [key(m, wire) for m in plain(stream, wire)]
+                    for read in (len(stream), 4096, 777):
+                        dec = FrameDecoder(wire.byte_order)
+                        got: list[object] = []
+                        for i in range(0, len(stream), read):
+                            got.extend(dec.feed_messages(stream[i : i + read], wire))
+                        assert [key(m, wire) for m in got] == want, (wire, run, read)
+                        assert dec.frames_decoded == len(msgs) and dec.buffered == 0
 
 
 def test_a_run_gives_enum_members_and_exact_classes() -> None:

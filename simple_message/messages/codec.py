@@ -67,11 +67,10 @@ class _Codec:
       :attr:`length`), and every frame after it with the same header, appending each message to the
       list ``out``; it returns the position after the last. Messages of one type mostly come in such
       runs (a trajectory, a feedback topic), so the caller reads one header per run. The first frame
-      is unpacked on its own; once the next one has the same 16 header bytes, the run's length is
-      found by comparing the headers of the complete frames left with the run's in bulk
-      (:func:`_run_count`), and the rest of the run is unpacked by one
-      :meth:`struct.Struct.iter_unpack` per part of the frames (the scalar fields, each array), so
-      no position is computed and no call is made per frame in Python.
+      is unpacked on its own; once the next one has the same 16 header bytes, the rest of the run
+      is unpacked by one :meth:`struct.Struct.iter_unpack` over the complete frames left (header and
+      body, so no position is computed and no call is made per frame in Python), each frame's four
+      header ints compared with the run's, and the run ends at the first that differs.
 
     Neither runs the class's ``__init__``/``__post_init__`` (decoding never has). What
     ``Message.__post_init__`` checks, the layout guarantees: each joint array is a slice of exactly
@@ -157,25 +156,19 @@ class _Codec:
             return f"f{k}"  # a local of the run's loop (an array: its own tuple, straight from its struct)
 
         size = self.struct.size
-        # The rest of a run: how many frames it holds is found from their headers in bulk
-        # (_run_count), then each part is unpacked by one iter_unpack over those frames: the scalar
-        # fields (the header and each array skipped as padding) and each array alone (its values come
-        # out as the field's own tuple).
+        # The rest of a run, one iter_unpack per part: the header and the scalar fields (each array
+        # skipped as padding), and each array alone (its values come out as the field's own tuple).
         scalars, arrays = self.scalars, self.arrays
         env["_view"] = memoryview
         env["_zip"] = zip
-        env["_run_count"] = _run_count
-        iterators = []
-        targets = [f"f{k}" for k, (_, _, stop) in enumerate(self.plan) if stop < 0]
-        if targets:
-            env["_scalars"] = scalars.iter_unpack
-            iterators.append("_scalars(frames)")
-        loop_targets = ["(" + ", ".join(targets) + ",)"] if targets else []
+        iterators = ["_scalars(frames)"]
+        env["_scalars"] = scalars.iter_unpack
+        targets = ["h0", "h1", "h2", "h3"] + [f"f{k}" for k, (_, _, stop) in enumerate(self.plan) if stop < 0]
+        loop_target = "(" + ", ".join(targets) + ")"
         for k, array in arrays:
             env[f"_array{k}"] = array.iter_unpack
             iterators.append(f"_array{k}(frames)")
-            loop_targets.append(f"f{k}")
-        loop_target = ", ".join(loop_targets)
+            loop_target += f", f{k}"
         loop_source = iterators[0] if len(iterators) == 1 else "_zip(" + ", ".join(iterators) + ")"
         source = [
             "def unpack(frame):",
@@ -202,12 +195,14 @@ class _Codec:
             f"            pos += {size}",
             "            if pos > last or not same(head, pos):",
             "                return pos",
-            f"    count = _run_count(_view(buf)[pos:pos + (end - pos) // {size} * {size}], head, {size})",
-            f"    frames = _view(buf)[pos:pos + count * {size}]",
+            "    first = len(out)",
+            f"    frames = _view(buf)[pos:pos + (end - pos) // {size} * {size}]",
             f"    for {loop_target} in {loop_source}:",
+            f"        if h1 != msg_type or h2 != comm or h3 != reply or h0 != {self.length}:",
+            "            break",
             *build("comm_type", "reply_code", named, "        "),
             "        out.append(o)",
-            f"    return pos + count * {size}",
+            f"    return pos + (len(out) - first) * {size}",
         ]
         exec("\n".join(source), env)  # generated from the class's own LAYOUT only
         self.unpack = env["unpack"]
@@ -216,10 +211,11 @@ class _Codec:
     def _run_structs(
         self, cls: type[Message], wire: WireFormat
     ) -> tuple[struct.Struct, list[tuple[int, struct.Struct]]]:
-        """The structs a run is unpacked with, each the size of a whole frame: the scalar fields (the
-        header and the arrays skipped), and, per array field (its plan index), that array alone."""
+        """The structs a run is unpacked with, each the size of a whole frame: the four header ints
+        and the scalar fields (the arrays skipped), and, per array field (its plan index), that
+        array alone."""
         sizes = [wire.struct(_body_format(((name, code),))).size for name, code in cls.LAYOUT]
-        scalar_format = f"{LENGTH_SIZE + HEADER_SIZE}x"
+        scalar_format = _HEADER
         arrays: list[tuple[int, str]] = []
         offset = LENGTH_SIZE + HEADER_SIZE
         for k, ((name, code), nbytes) in enumerate(zip(cls.LAYOUT, sizes, strict=True)):
@@ -245,44 +241,6 @@ class _Codec:
             return self.struct.pack(*values)
         except struct.error as exc:
             raise LocalProtocolError(f"cannot encode {type(msg).__name__}: {exc}") from None
-
-
-#: a run's headers are compared as 4-byte words when its frames are whole words (they always are
-#: in this package's layouts), else byte by byte
-_WORDS = struct.calcsize("I") == 4
-
-
-def _run_count(frames: memoryview, head: bytes, size: int) -> int:
-    """How many of the frames of ``size`` bytes in ``frames`` (whole frames; the first known to
-    start with ``head``), from the first on, start with the 16 bytes ``head``: a run's length.
-
-    Compared in bulk, column by column: the header's first word of every frame against ``head``'s
-    first word repeated, and so on (a strided view of the frames against a contiguous one, in C),
-    then by bisection over the frames if the whole is not one run. About 7 ns a frame for JOINT_TRAJ_PT,
-    where comparing each frame's four header ints in the loop that builds the messages cost 35-45.
-    """
-    width = 4 if _WORDS and size % 4 == 0 else 1
-    stride = size // width
-    count = len(frames) // size
-    words = frames.cast("I") if width == 4 else frames
-    columns = [memoryview(head[i : i + width] * count) for i in range(0, len(head), width)]
-    if width == 4:
-        columns = [column.cast("I") for column in columns]
-
-    def same(n: int) -> bool:
-        stop = n * stride
-        return all(words[k:stop:stride] == column[:n] for k, column in enumerate(columns))
-
-    if same(count):
-        return count
-    good, bad = 1, count  # same(good), not same(bad)
-    while bad - good > 1:
-        mid = (good + bad) // 2
-        if same(mid):
-            good = mid
-        else:
-            bad = mid
-    return good
 
 
 def _builder(cls: type[Message]) -> type[Message] | None:
