@@ -67,3 +67,20 @@ def test_the_bounds_decide_a_segment_well_inside_the_tolerance(monkeypatch: pyte
     monkeypatch.setattr(entries, "overshoot", refused)
     assert overshoots(entry, OVERSHOOT) is False
     assert entry.segment is not None and ("extremes", 0) not in entry.segment.memo
+
+
+def test_a_negative_tolerance_is_always_exceeded() -> None:
+    """overshoot is never below 0, so any segment exceeds a negative tolerance, even one whose bounds
+    lie strictly between its entry's end positions (an entry whose positions are not its segment's)."""
+    start = State(np.zeros(DOF), np.zeros(DOF), np.zeros(DOF))
+    end = State(np.ones(DOF), np.zeros(DOF), np.zeros(DOF))
+    inner = connect(
+        State(np.full(DOF, 0.4), start.velocity, start.acceleration),
+        0,
+        State(np.full(DOF, 0.6), end.velocity, end.acceleration),
+        0,
+        1.0,
+    )
+    entry = Entry(None, start.position, 1.0, start, 1.0, end=end, segment=inner)
+    assert overshoot(entry) == 0.0
+    assert overshoots(entry, -0.1) is True and overshoots(entry, 0.0) is False

@@ -237,7 +237,9 @@ class Settings:
     follow_given_acceleration: bool = False
     #: the keys under which the checks keep their findings for these settings in a segment's memo
     #: (:func:`.checks.end_need`, :func:`.checks.acceleration_ratio`): made once, not one per
-    #: segment, which would stay in the collector's scans while its segment lives
+    #: segment, which would stay in the collector's scans while its segment lives. They name this
+    #: object: a shallow copy (``copy.copy``) would share them, and its segments' findings with them
+    #: (``dataclasses.replace`` and ``deepcopy`` make their own); nothing copies settings
     end_need_key: tuple[str, Settings] = field(init=False, repr=False)
     ratio_key: tuple[str, Settings] = field(init=False, repr=False)
 
@@ -286,6 +288,8 @@ def overshoots(entry: Entry, tolerance: float) -> bool:
     exact extremes (polynomial roots: the larger part of a segment's checks)."""
     segment = entry.segment
     assert segment is not None and entry.end is not None
+    if not tolerance >= 0.0:  # (overshoot is never below 0: a segment within bounds can still exceed it)
+        return overshoot(entry) > tolerance
     low, high = segment.bound_lists(0)
     starts, ends = entry.start.position.tolist(), entry.end.position.tolist()
     for lo, hi, p0, p1 in zip(low, high, starts, ends, strict=True):

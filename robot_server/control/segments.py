@@ -763,16 +763,18 @@ class Chain(Segment):
     def bound_lists(self, order: int) -> tuple[Sequence[float], Sequence[float]]:
         # the parts' lists, combined as _hull combines their arrays (np.minimum and np.maximum
         # choose the first of two values when it is NaN)
-        key = ("bound lists", order)
-        found = self.memo.get(key)
+        # (kept as tuples of floats under keys of their own, as a polynomial segment keeps its own)
+        low_key, high_key = ("bound lows", order), ("bound highs", order)
+        found = self.memo.get(low_key)
         if found is None:
             ranges = [p.bound_lists(order) for p in self.parts]
             lo, hi = ranges[0]
             for low, high in ranges[1:]:
                 lo = [x if x < y or math.isnan(x) else y for x, y in zip(lo, low, strict=True)]
                 hi = [x if x > y or math.isnan(x) else y for x, y in zip(hi, high, strict=True)]
-            found = self.memo[key] = (lo, hi)
-        return found  # type: ignore[return-value]
+            found = self.memo[low_key] = tuple(lo)
+            self.memo[high_key] = tuple(hi)
+        return found, self.memo[high_key]  # type: ignore[return-value]
 
     def __repr__(self) -> str:
         return f"Chain(kind={self.kind!r}, duration={self.duration!r}, parts={list(self.parts)!r})"
