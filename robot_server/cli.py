@@ -53,6 +53,7 @@ from .emulator.server import MAX_STATE_RATE
 from .fleet.config import MAX_CAPTURE_MB, MAX_INTERPOLATION_PERIOD, MAX_RECORD_SECONDS, MAX_SERVO_TICKS
 from .loader import load_model, shipped_cells, shipped_models
 from .model import ModelError
+from .realtime import RealtimeUnavailable, priority_argument, use_realtime
 from .web import MAX_RATE, TOKEN_ENV, WebUnavailable, web_address, web_view
 
 if TYPE_CHECKING:
@@ -273,6 +274,14 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--no-stdin", action="store_true", help="do not read fault commands from stdin")
     p.add_argument(
+        "--realtime-priority",
+        type=priority_argument,
+        metavar="N",
+        help="run the event loop (the control loops, state rounds and requests) at real-time priority N (1-99, "
+        "SCHED_FIFO, as ros2_control's controller manager asks for 50): fewer late control periods on a busy "
+        "machine; needs CAP_SYS_NICE or ulimit -r (refused: a warning, and normal priority)",
+    )
+    p.add_argument(
         "--web",
         type=_web_address,
         metavar="[HOST:]PORT",
@@ -384,7 +393,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("robot-server: not enough memory for the record: a smaller --record-seconds", file=sys.stderr)
         return 2
     try:
-        code = run(_serve(emulator, args.fault, read_stdin=not args.no_stdin, view=view))  # on uvloop when installed
+        code = run(  # on uvloop when installed
+            _serve(emulator, args.fault, read_stdin=not args.no_stdin, view=view, priority=args.realtime_priority)
+        )
     except OSError as exc:  # e.g. the port is taken
         print(f"robot-server: {exc}", file=sys.stderr)
         return 1
@@ -455,7 +466,11 @@ def _check_command(command: str) -> None:
 
 
 async def _serve(
-    emulator: Emulator, faults: list[tuple[float, str]], read_stdin: bool, view: WebView | None = None
+    emulator: Emulator,
+    faults: list[tuple[float, str]],
+    read_stdin: bool,
+    view: WebView | None = None,
+    priority: int | None = None,
 ) -> int:
     loop = asyncio.get_running_loop()
     done = asyncio.Event()
@@ -470,6 +485,7 @@ async def _serve(
             await emulator.close()
             raise
         ready += f", web view {view.token_url if view.token_generated else view.url}"
+    realtime(priority)
     print(ready, flush=True)
     freeze_startup_objects()
     if emulator.capture is not None:
@@ -506,6 +522,19 @@ async def _scheduled(emulator: Emulator, at: float, command: str) -> None:
 def _read_commands(emulator: Emulator, loop: asyncio.AbstractEventLoop) -> None:
     """Fault commands from stdin, applied to ``emulator``."""
     read_stdin_lines(loop, functools.partial(_apply, emulator))
+
+
+def realtime(priority: int | None) -> None:
+    """The event loop's thread at real-time ``priority`` (``--realtime-priority``), said in the
+    log; refused, a warning and normal priority, as ros2_control's controller manager does."""
+    if priority is None:
+        return
+    try:
+        use_realtime(priority)
+    except RealtimeUnavailable as exc:
+        log.warning("--realtime-priority %d: %s; running at normal priority", priority, exc)
+    else:
+        log.info("running at real-time priority %d (SCHED_FIFO)", priority)
 
 
 def freeze_startup_objects() -> None:

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 
 from simple_message.endpoints import run
 
-from ..cli import check_writable, freeze_startup_objects, read_stdin_lines, write_records
+from ..cli import check_writable, freeze_startup_objects, read_stdin_lines, realtime, write_records
 from ..emulator import FaultError
 from ..web import MAX_RATE, WebUnavailable, fleet_view
 from .config import FleetError, load_fleet
@@ -37,7 +37,17 @@ __all__ = ["FLEET_OPTIONS", "fleet_main"]
 log = logging.getLogger("robot_server.fleet")
 
 #: the command line's options that a fleet has as a whole (all others are a controller's, in the file)
-FLEET_OPTIONS = ("fleet", "speedup", "web", "web_rate", "web_token", "log_level", "no_stdin", "imports")
+FLEET_OPTIONS = (
+    "fleet",
+    "speedup",
+    "web",
+    "web_rate",
+    "web_token",
+    "log_level",
+    "no_stdin",
+    "imports",
+    "realtime_priority",
+)
 
 
 def fleet_main(args: argparse.Namespace, given: list[str]) -> int:
@@ -75,7 +85,7 @@ def fleet_main(args: argparse.Namespace, given: list[str]) -> int:
         print("robot-server: not enough memory for the records: a smaller record_seconds", file=sys.stderr)
         return 2
     try:
-        code = run(_serve(fleet, view, read_stdin=not args.no_stdin))
+        code = run(_serve(fleet, view, read_stdin=not args.no_stdin, priority=args.realtime_priority))
     except (FleetError, OSError) as exc:  # a port taken between the check and the start
         print(f"robot-server: {exc}", file=sys.stderr)
         return 1
@@ -91,7 +101,7 @@ def fleet_main(args: argparse.Namespace, given: list[str]) -> int:
     return 1 if failed else code
 
 
-async def _serve(fleet: Fleet, view: FleetView | None, *, read_stdin: bool) -> int:
+async def _serve(fleet: Fleet, view: FleetView | None, *, read_stdin: bool, priority: int | None = None) -> int:
     loop = asyncio.get_running_loop()
     done = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -102,6 +112,7 @@ async def _serve(fleet: Fleet, view: FleetView | None, *, read_stdin: bool) -> i
         if view is not None:
             await view.start()
             lines[-1] += f", web view {view.token_url if view.token_generated else view.url}"
+        realtime(priority)
         for line in lines:
             print(line, flush=True)
         freeze_startup_objects()
