@@ -10,6 +10,7 @@ import asyncio
 import dataclasses
 import io
 import math
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -38,6 +39,8 @@ from robot_server.control import (
     submit_together,
 )
 from robot_server.control import clock as clock_module
+from robot_server.control import loop as loop_module
+from robot_server.control.loop import OVERRUNS_KEPT, LoopStats, overrun_times
 from robot_server.loader import load_model
 from robot_server.model import ModelError, MotorParameters
 
@@ -518,6 +521,9 @@ async def test_real_time_loop_keeps_absolute_deadlines(monkeypatch: pytest.Monke
     figure.)"""
     period = 0.004
     fake = FakeTime(monkeypatch, lateness=(0.0, 0.001, 0.0, 0.0102, 0.0, 0.0, 0.0, 0.0005, 0.0, 0.0))
+    monkeypatch.setattr(
+        loop_module, "time", SimpleNamespace(monotonic=lambda: fake.now, perf_counter=time.perf_counter)
+    )
     ctl = controller()
     clock = RealTimeClock()
     wakes: list[tuple[float, float]] = []
@@ -532,6 +538,11 @@ async def test_real_time_loop_keeps_absolute_deadlines(monkeypatch: pytest.Monke
     assert fake.sleeps == pytest.approx([0.0, 0.004, 0.003, 0.004, 0.0, 0.0, 0.0018, 0.004, 0.0035, 0.004], abs=1e-12)
     assert stats.overruns == 2  # 10.2 and 6.2 ms late: more than one period
     assert stats.max_lateness == pytest.approx(0.0102) and stats.final_lateness == pytest.approx(0.0, abs=1e-12)
+    # each overrun kept with the monotonic time it came (the fake's: origin 100 s) and its lateness
+    assert [value for pair in stats.late_wakes for value in pair] == pytest.approx(
+        [100.0 + 3 * period + 0.0102, 0.0102, 100.0 + 4 * period + 0.0062, 0.0062]
+    )
+    assert overrun_times(stats) == "100.022200 +10.200 ms, 100.022200 +6.200 ms"
 
 
 async def test_loop_stop() -> None:
@@ -584,3 +595,16 @@ def test_config_is_validated() -> None:
         ControllerConfig(interpolation_period=0.0045)
     with pytest.raises(ValueError, match="initial position"):
         controller(initial_position=(9.0, 0, 0, 0, 0, 0))
+
+
+def test_loop_stats_keep_the_latest_overruns_only() -> None:
+    """A long run's overruns do not grow the stats: the last OVERRUNS_KEPT are kept, oldest first."""
+    stats = LoopStats()
+    for k in range(OVERRUNS_KEPT + 10):
+        loop_module._late(stats, 0.005 + k * 1e-6, 0.004)
+    loop_module._late(stats, 0.003, 0.004)  # late, but within a period: not an overrun
+    assert stats.overruns == OVERRUNS_KEPT + 10 and len(stats.late_wakes) == OVERRUNS_KEPT
+    assert [late for _, late in stats.late_wakes] == pytest.approx(
+        [0.005 + k * 1e-6 for k in range(10, OVERRUNS_KEPT + 10)]
+    )
+    assert overrun_times(LoopStats()) == ""

@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextvars
 import logging
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -25,9 +26,12 @@ from .clock import Clock, SimulatedClock
 from .controller import Controller
 from .recorder import Recorder
 
-__all__ = ["ControlLoop", "LoopStats", "SharedLoop", "run_simulated"]
+__all__ = ["OVERRUNS_KEPT", "ControlLoop", "LoopStats", "SharedLoop", "overrun_times", "run_simulated"]
 
 log = logging.getLogger(__name__)
+
+#: how many overruns a :class:`LoopStats` keeps the times of (the latest)
+OVERRUNS_KEPT = 64
 
 
 @dataclass
@@ -38,6 +42,10 @@ class LoopStats:
     ticks: int = 0
     wakes: int = 0
     overruns: int = 0
+    #: the last :data:`OVERRUNS_KEPT` overruns: (``time.monotonic()`` when the late wake-up came,
+    #: its lateness in s), to set beside what else the machine did then (another process's log, a
+    #: timer of its own: ``bench/fleet.py`` runs one)
+    late_wakes: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=OVERRUNS_KEPT))
     max_lateness: float = 0.0
     final_lateness: float = 0.0
     simulated: float = 0.0
@@ -255,6 +263,13 @@ def _late(stats: LoopStats, lateness: float, period: float) -> None:
     stats.max_lateness = max(stats.max_lateness, lateness)
     if lateness > period:
         stats.overruns += 1
+        stats.late_wakes.append((time.monotonic(), lateness))
+
+
+def overrun_times(stats: LoopStats) -> str:
+    """The overruns kept in ``stats`` for a log line: ``time.monotonic()`` of each late wake-up
+    (s, microseconds) and its lateness (ms), oldest first."""
+    return ", ".join(f"{at:.6f} +{late * 1e3:.3f} ms" for at, late in stats.late_wakes)
 
 
 #: the periods a late :class:`SharedLoop` runs at once before it lets the event loop go on (200 ms

@@ -51,6 +51,7 @@ from ..control import (
     SimulatedClock,
     policy,
 )
+from ..control.loop import overrun_times
 from ..loader import load_model, load_supervision
 from ..model import ModelError, RobotModel
 from . import abb, fanuc, motoros, staubli  # noqa: F401 - register the vendors' profiles
@@ -570,6 +571,12 @@ class Emulator:
                 self.state_stats.skipped,
                 self.state_stats.max_lateness * 1e3,
             )
+            if stats.late_wakes:
+                log.info(
+                    "control loop overruns, the last %d (time.monotonic() of the late wake-up, lateness): %s",
+                    len(stats.late_wakes),
+                    overrun_times(stats),
+                )
         for server in {*self.servers.values(), self.state_server}:
             await server.close()
         if self.capture is not None:  # after the connections: their ends are in the file

@@ -27,6 +27,7 @@ from collections.abc import Callable, Iterator
 from typing import TypeVar
 
 from ..control import Clock, RealTimeClock, Recorder
+from ..control.loop import overrun_times
 from ..emulator import Emulator, FaultError
 from ..emulator.server import lateness_quantile
 from ..emulator.shared import Shared
@@ -184,6 +185,14 @@ class Fleet:
                     loop.overruns,
                     loop.max_lateness * 1e3,
                 )
+                if loop.late_wakes:
+                    log.info(
+                        "control loop (%g ms) overruns, the last %d (time.monotonic() of the late wake-up, "
+                        "lateness): %s",
+                        period * 1e3,
+                        len(loop.late_wakes),
+                        overrun_times(loop),
+                    )
         stats = [e.state_stats for e in self.emulators.values()]
         together = [sum(column) for column in zip(*(s.histogram for s in stats), strict=True)]
         worst = max(stats, key=lambda s: s.quantile(0.99))
