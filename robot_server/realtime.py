@@ -26,9 +26,8 @@ MAX_PRIORITY = 99
 
 #: what to give the process for a real-time priority, said when it was refused
 HOW = (
-    "the process needs CAP_SYS_NICE (podman or docker run --cap-add=SYS_NICE; Kubernetes: the "
-    "container's securityContext.capabilities.add: [SYS_NICE]) or a real-time priority limit of at "
-    "least that much (ulimit -r, or rtprio in /etc/security/limits.conf)"
+    "the process needs CAP_SYS_NICE (root's) or a real-time priority limit of at least that much "
+    "(ulimit -r, rtprio in /etc/security/limits.conf; a container: --ulimit rtprio=N, see docs/deploy.md)"
 )
 
 
