@@ -18,11 +18,12 @@ controllers, each with a client (this project's RobotDriver, in a separate proce
 two-second swing back and forth for the whole window; each N at normal priority, then at real-time
 priority (``--realtime-priority 50``, when the system grants it), with a sentinel on every CPU (a
 timer at the highest real-time priority) whose late wake-ups are stalls of that CPU: the fleet's
-overruns that overlap one are counted as the machine's (the fleet logs each overrun's time). Jitter: 50 controllers of every profile at
-rest, each with a raw state client (a separate process) that timestamps every round for
-``--jitter-seconds`` (30) once every client has been connected for a second (the fleet's own view
-covers its whole run, the connections' arrival included); beside it, measured just before in the
-same run, a bare timer's lateness alone (the machine's floor: what no process here does better).
+overruns that overlap one are counted as the machine's (the fleet logs each overrun's time).
+Jitter: 50 controllers of every profile at rest, each with a raw state client (a separate
+process) that timestamps every round for ``--jitter-seconds`` (30) once every client has been
+connected for a second (the fleet's own view covers its whole run, the connections' arrival
+included); beside it, measured just before in the same run, a bare timer's lateness alone (the
+machine's floor: what no process here does better).
 
 ``--soak MINUTES``: a 50-controller fleet with clients connecting, streaming, stopping and vanishing
 (FIN and RST) at random for MINUTES; prints the fleet's RSS every minute and of it the private
