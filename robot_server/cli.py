@@ -53,7 +53,7 @@ from .emulator.server import MAX_STATE_RATE
 from .fleet.config import MAX_CAPTURE_MB, MAX_INTERPOLATION_PERIOD, MAX_RECORD_SECONDS, MAX_SERVO_TICKS
 from .loader import load_model, shipped_cells, shipped_models
 from .model import ModelError
-from .realtime import RealtimeUnavailable, priority_argument, use_realtime
+from .realtime import RealtimeUnavailable, normal_priority, priority_argument, use_realtime
 from .web import MAX_RATE, TOKEN_ENV, WebUnavailable, web_address, web_view
 
 if TYPE_CHECKING:
@@ -277,9 +277,11 @@ def parser() -> argparse.ArgumentParser:
         "--realtime-priority",
         type=priority_argument,
         metavar="N",
-        help="run the event loop (the control loops, state rounds and requests) at real-time priority N (1-99, "
-        "SCHED_FIFO, as ros2_control's controller manager asks for 50): fewer late control periods on a busy "
-        "machine; needs CAP_SYS_NICE or ulimit -r (refused: a warning, and normal priority)",
+        help="run the event loop (the control loops, state rounds, requests, the web view) at real-time priority N "
+        "(1-99, SCHED_FIFO, as ros2_control's controller manager asks for 50 for its loop): fewer late control "
+        "periods on a busy machine, but while busy the loop holds its CPU from every other process (keep a fleet well "
+        "under a core, and mind --speedup and floods); needs CAP_SYS_NICE or ulimit -r (refused: a warning, and "
+        "normal priority)",
     )
     p.add_argument(
         "--web",
@@ -485,7 +487,7 @@ async def _serve(
             await emulator.close()
             raise
         ready += f", web view {view.token_url if view.token_generated else view.url}"
-    realtime(priority)
+    granted = realtime(priority)
     print(ready, flush=True)
     freeze_startup_objects()
     if emulator.capture is not None:
@@ -502,6 +504,8 @@ async def _serve(
         if view is not None:
             await view.close()
         await emulator.close()
+        if granted:
+            normal_priority()  # the records and the exit need no real-time priority
     return 0
 
 
@@ -524,17 +528,19 @@ def _read_commands(emulator: Emulator, loop: asyncio.AbstractEventLoop) -> None:
     read_stdin_lines(loop, functools.partial(_apply, emulator))
 
 
-def realtime(priority: int | None) -> None:
+def realtime(priority: int | None) -> bool:
     """The event loop's thread at real-time ``priority`` (``--realtime-priority``), said in the
-    log; refused, a warning and normal priority, as ros2_control's controller manager does."""
+    log; refused, a warning and normal priority, as ros2_control's controller manager does.
+    Whether it was granted (:func:`~.realtime.normal_priority` then undoes it)."""
     if priority is None:
-        return
+        return False
     try:
         use_realtime(priority)
     except RealtimeUnavailable as exc:
         log.warning("--realtime-priority %d: %s; running at normal priority", priority, exc)
-    else:
-        log.info("running at real-time priority %d (SCHED_FIFO)", priority)
+        return False
+    log.info("running at real-time priority %d (SCHED_FIFO)", priority)
+    return True
 
 
 def freeze_startup_objects() -> None:

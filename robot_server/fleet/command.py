@@ -24,6 +24,7 @@ from simple_message.endpoints import run
 
 from ..cli import check_writable, freeze_startup_objects, read_stdin_lines, realtime, write_records
 from ..emulator import FaultError
+from ..realtime import normal_priority
 from ..web import MAX_RATE, WebUnavailable, fleet_view
 from .config import FleetError, load_fleet
 from .logs import FORMAT, ControllerField
@@ -106,13 +107,14 @@ async def _serve(fleet: Fleet, view: FleetView | None, *, read_stdin: bool, prio
     done = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, done.set)
+    granted = False
     try:
         await fleet.start()
         lines = fleet.ready_lines()
         if view is not None:
             await view.start()
             lines[-1] += f", web view {view.token_url if view.token_generated else view.url}"
-        realtime(priority)
+        granted = realtime(priority)
         for line in lines:
             print(line, flush=True)
         freeze_startup_objects()
@@ -124,6 +126,8 @@ async def _serve(fleet: Fleet, view: FleetView | None, *, read_stdin: bool, prio
         if view is not None:
             await view.close()
         await fleet.close()
+        if granted:
+            normal_priority()  # the records and the exit need no real-time priority
     return 0
 
 
