@@ -17,8 +17,8 @@ processes, one controller each, measured in the same run the same way (summed). 
 controllers, each with a client (this project's RobotDriver, in a separate process) streaming a
 two-second swing back and forth for the whole window; each N at normal priority, then at real-time
 priority (``--realtime-priority 50``, when the system grants it), with a sentinel on every CPU (a
-timer at the highest real-time priority) whose late wake-ups are stalls of that CPU: the fleet's
-overruns that overlap one are counted as the machine's (the fleet logs each overrun's time).
+timer at the highest real-time priority) whose late wake-ups, the stalls of that CPU, are shown
+beside the fleet's overruns.
 Jitter: 50 controllers of every profile at rest, each with a raw state client (a separate
 process) that timestamps every round for ``--jitter-seconds`` (30) once every client has been
 connected for a second (the fleet's own view covers its whole run, the connections' arrival
@@ -244,14 +244,13 @@ MOVING_PERIOD = 0.004
 
 
 #: how late a wake-up of a sentinel (a timer at the highest real-time priority on one CPU) is when
-#: that CPU did not run it: a stall of the CPU, not of the fleet (its usual lateness is tens of
-#: microseconds: it runs before anything else of this machine the moment it is due)
+#: that CPU did not run it: a stall of the CPU (its usual lateness is tens of microseconds: it runs
+#: before anything else of this machine the moment it is due)
 STALL = 0.001
 #: the sentinels' period
 SENTINEL_PERIOD = 0.002
 #: the real-time priority the moving fleet is run at in its second row (ros2_control's default)
 FLEET_PRIORITY = 50
-OVERRUN_TIMES = re.compile(r"control loop \(.*?\) overruns, the last \d+ \(.*?\): (.*)$", re.M)
 
 
 async def moving(counts: Sequence[int], seconds: float, folder: Path) -> None:
@@ -260,131 +259,118 @@ async def moving(counts: Sequence[int], seconds: float, folder: Path) -> None:
         f"Each fleet at normal priority, then at real-time priority {FLEET_PRIORITY} (`--realtime-priority`, "
         f"when the system grants it). Meanwhile a sentinel on every CPU: a timer woken every "
         f"{SENTINEL_PERIOD * 1e3:g} ms at the highest real-time priority (it runs the moment it is due, "
-        f"before anything else of this machine). A sentinel's wake-up {STALL * 1e3:g} ms late or more is a "
-        "stall of its CPU (the hypervisor's or the kernel's: nothing of this machine could run there); an "
-        "overrun of the fleet whose lateness overlaps one is counted as the machine's, the others as the "
-        "fleet's own.\n"
+        f"before anything else of this machine); its wake-ups {STALL * 1e3:g} ms late or more are stalls of its "
+        "CPU (the hypervisor's or the kernel's), shown beside the fleet's overruns, not taken from them.\n"
     )
     print("| controllers | priority | CPU per controller (% of a core) | CPU total (%) | wake-ups | overruns |", end="")
-    print(" of them in a stall of a CPU | latest wake-up (ms) | the CPUs' stalls meanwhile (latest, ms) |", end="")
-    print(" trajectories run | the clients' CPU (%) |")
-    print("|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-    own: list[tuple[int, str, int]] = []
+    print(" latest wake-up (ms) | the CPUs' stalls meanwhile (latest, ms) | trajectories run | the clients' CPU (%) |")
+    print("|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    verdicts: list[tuple[int, str, str]] = []
     for count in counts:
         floor_wakes, _, floor_latest, floor_over = await floor(MOVING_PERIOD, seconds + 4.0)
         print(
             f"| (a bare timer alone every {MOVING_PERIOD * 1e3:g} ms for as long, just before: the machine's floor, "
             "a lower bound: the control loop waits on the event loop's timer) "
-            f"| normal | | | {floor_wakes} | {floor_over} | | {floor_latest:.3f} | | | |"
+            f"| normal | | | {floor_wakes} | {floor_over} | {floor_latest:.3f} | | | |"
         )
         for priority in (None, FLEET_PRIORITY):
-            row = await _moving_row(count, seconds, folder, priority)
-            if row is not None:
-                own.append((count, "normal" if priority is None else f"real-time {priority}", row))
-    for count, how, overruns in own:
-        print(f"\n{count} controllers at {how} priority: {overruns} overruns of the fleet's own", end="")
-        print(f" (target, issue 38: 0 at 20 per core): {'met' if count < 20 or overruns == 0 else 'NOT met'}")
+            overruns = await _moving_row(count, seconds, folder, priority)
+            if overruns is not None:
+                verdicts.append((count, "normal" if priority is None else f"real-time {priority}", overruns))
+    print()
+    for count, how, overruns in verdicts:
+        if count < 20:
+            verdict = "not judged (the target is for 20 and more)"
+        else:
+            verdict = "met" if overruns == "0" else "NOT met"
+        target = "0 at 20 per core"
+        print(f"{count} controllers at {how} priority: {overruns} overruns (target, issue 38: {target}): {verdict}")
 
 
-async def _moving_row(count: int, seconds: float, folder: Path, priority: int | None) -> int | None:
-    """One row of the moving table; the fleet's own overruns (None when the row could not be run:
-    the real-time priority refused, said in the table)."""
+async def _moving_row(count: int, seconds: float, folder: Path, priority: int | None) -> str | None:
+    """One row of the moving table; the fleet's overruns (None when the row could not be run: the
+    real-time priority refused, said in the table)."""
     extra = [] if priority is None else ["--realtime-priority", str(priority)]
     how = "normal" if priority is None else f"real-time {priority}"
-    cpus = sorted(os.sched_getaffinity(0))
-    async with fleet(count, ("generic",), folder, extra=extra) as running:
-        started = running.logs[0].read_text()
-        if priority is not None and "running at real-time priority" not in started:
-            refused = re.search(r"--realtime-priority \d+: (.*)", started)
-            print(f"| {count} | {how}: {refused[1] if refused else 'refused'} | | | | | | | | | |", flush=True)
-            return None
-        sentinels = [
-            await asyncio.create_subprocess_exec(
-                sys.executable, __file__, "_sentinel", str(SENTINEL_PERIOD * 1e3), str(seconds + 4.0), str(cpu),
+    children: list[asyncio.subprocess.Process] = []
+    try:
+        for cpu in sorted(os.sched_getaffinity(0)):  # before the fleet: their start costs it nothing
+            sentinel = await asyncio.create_subprocess_exec(
+                sys.executable, __file__, "_sentinel", str(SENTINEL_PERIOD * 1e3), str(seconds + 12.0), str(cpu),
                 stdout=asyncio.subprocess.PIPE,
+            )  # fmt: skip
+            children.append(sentinel)
+            assert sentinel.stdout is not None
+            async with asyncio.timeout(30.0):
+                if (await sentinel.stdout.readline()).strip() != b"ready":
+                    raise RuntimeError("a sentinel did not start")
+        async with fleet(count, ("generic",), folder, extra=extra) as running:
+            started = running.logs[0].read_text()
+            if priority is not None and "running at real-time priority" not in started:
+                refused = re.search(r"--realtime-priority \d+: (.*)", started)
+                print(f"| {count} | {how}: {refused[1] if refused else 'refused'} | | | | | | | | |", flush=True)
+                return None
+            ports = ",".join(f"{c.motion}:{c.state}" for c in running.controllers)
+            client = await asyncio.create_subprocess_exec(
+                sys.executable, __file__, "_stream", ports, str(seconds + 4.0), stdout=asyncio.subprocess.PIPE
             )
-            for cpu in cpus
-        ]  # fmt: skip
-        ports = ",".join(f"{c.motion}:{c.state}" for c in running.controllers)
-        client = await asyncio.create_subprocess_exec(
-            sys.executable, __file__, "_stream", ports, str(seconds + 4.0), stdout=asyncio.subprocess.PIPE
-        )
-        share, _, client_share = await measure(running, seconds, Running([client], []))
-        out, _ = await asyncio.wait_for(client.communicate(), 120.0)
-        watched = [(await asyncio.wait_for(s.communicate(), 120.0))[0].decode() for s in sentinels]
-        log = (await running.stop())[0]
+            children.append(client)
+            share, _, client_share = await measure(running, seconds, Running([client], []))
+            out, _ = await asyncio.wait_for(client.communicate(), 120.0)
+            log = (await running.stop())[0]
+        watched = [(await asyncio.wait_for(s.communicate(), 120.0))[0].decode() for s in children[:-1]]
+    finally:
+        for child in children:
+            if child.returncode is None:
+                child.kill()
+                await asyncio.wait_for(child.wait(), 30.0)
     runs = out.decode().strip()
     match = OVERRUNS.search(log)
     wakes, overruns, latest = (match[1], match[2], match[3]) if match else ("?", "?", "?")
-    times = OVERRUN_TIMES.search(log)
-    late_wakes = _overruns(times[1]) if times else []
-    stalls: list[tuple[float, float]] = []
-    stall_count, stall_latest, policies = 0, 0.0, set()
+    stalls, stall_latest, policies = 0, 0.0, set()
     for text in watched:
-        summary, *lines = text.splitlines()
-        _, stalled, latest_ms, policy = summary.split()
-        stall_count += int(stalled)
+        _, stalled, latest_ms, policy = text.split()
+        stalls += int(stalled)
         stall_latest = max(stall_latest, float(latest_ms))
         policies.add(policy)
-        stalls += [(float(at), float(late)) for at, late in (line.split() for line in lines)]
-    machine = sum(1 for at, late in late_wakes if _overlaps(at, late, stalls))
-    kept = "" if not match or len(late_wakes) >= int(overruns) else f" (of the last {len(late_wakes)})"
-    sentinel = f"{stall_count} ({stall_latest:.3f})" + ("" if policies == {"real-time"} else " (normal priority)")
+    watch = f"{stalls} ({stall_latest:.3f})" + ("" if policies == {"real-time"} else " (sentinels at normal priority)")
     errors = log.count("Traceback")
     print(
-        f"| {count} | {how} | {100 * share / count:.2f} | {100 * share:.0f} | {wakes} | {overruns} | {machine}{kept} "
-        f"| {latest} | {sentinel} | {runs}"
-        + (f" ({errors} tracebacks)" if errors else "")
-        + f" | {100 * client_share:.0f} |",
+        f"| {count} | {how} | {100 * share / count:.2f} | {100 * share:.0f} | {wakes} | {overruns} | {latest} "
+        f"| {watch} | {runs}" + (f" ({errors} tracebacks)" if errors else "") + f" | {100 * client_share:.0f} |",
         flush=True,
     )
-    return int(overruns) - machine if match else None
+    return overruns
 
 
-def _overruns(text: str) -> list[tuple[float, float]]:
-    """The fleet's logged overrun times: (``time.monotonic()`` of the wake-up, lateness s)."""
-    found = re.findall(r"([\d.]+) \+([\d.]+) ms", text)
-    return [(float(at), float(late) / 1e3) for at, late in found]
-
-
-def _overlaps(at: float, late: float, stalls: Sequence[tuple[float, float]]) -> bool:
-    """Whether the wake-up at ``at``, ``late`` s after its deadline, waited through a stall (a
-    sentinel's (wake-up, lateness) pair): the two late spans overlap."""
-    return any(s_at - s_late < at and at - late < s_at for s_at, s_late in stalls)
-
-
-async def _sentinel(period_ms: str, seconds: float, cpu: int) -> None:
+def _sentinel(period_ms: str, seconds: float, cpu: int) -> None:
     """(child) On CPU ``cpu`` at the highest real-time priority (SCHED_FIFO, when allowed), a bare
-    timer woken every ``period_ms`` for ``seconds``. Prints its wake-ups, how many were
-    :data:`STALL` late or more, the latest (ms) and its scheduling (``real-time`` or ``normal``);
-    then each such wake-up's ``time.monotonic()`` and lateness (s), a line each (the first 10,000)."""
-    from robot_server.emulator.ticker import Ticker
-
+    timer (the OS's own sleep: nothing imported, no event loop) woken every ``period_ms`` for
+    ``seconds``. Prints ``ready`` once started, then its wake-ups, how many were :data:`STALL` late
+    or more, the latest (ms) and its scheduling (``real-time`` or ``normal``)."""
     os.sched_setaffinity(0, {cpu})
     policy = "real-time"
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(os.sched_get_priority_max(os.SCHED_FIFO)))
     except (PermissionError, AttributeError):
         policy = "normal"
+    print("ready", flush=True)
     period = float(period_ms) / 1e3
-    ticker = Ticker()
-    stalls: list[tuple[float, float]] = []
+    stalls = 0
     latest = 0.0
     wakes = 0
     start = time.monotonic()
     for k in range(1, round(seconds / period) + 1):
         deadline = start + k * period
-        await ticker.sleep_until(deadline)
         now = time.monotonic()
+        if deadline > now:
+            time.sleep(deadline - now)
+            now = time.monotonic()
         wakes += 1
         late = now - deadline
         latest = max(latest, late)
-        if late >= STALL:
-            stalls.append((now, late))
-    ticker.close()
-    print(f"{wakes} {len(stalls)} {latest * 1e3:.3f} {policy}")
-    for at, late in stalls[:10_000]:
-        print(f"{at:.6f} {late:.6f}")
+        stalls += late >= STALL
+    print(f"{wakes} {stalls} {latest * 1e3:.3f} {policy}")
 
 
 async def _stream_client(ports: str, seconds: float) -> None:
@@ -774,8 +760,10 @@ if __name__ == "__main__":
             "_watch": _watch_client,
             "_chaos": _chaos_client,
             "_floor": _floor,
-            "_sentinel": _sentinel,
         }
+        if sys.argv[1] == "_sentinel":
+            _sentinel(sys.argv[2], float(sys.argv[3]), int(sys.argv[4]))
+            sys.exit(0)
         child = children[sys.argv[1]]
         asyncio.run(child(sys.argv[2], float(sys.argv[3]), *map(int, sys.argv[4:])))
         sys.exit(0)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import contextvars
+import importlib.util
 import logging
 import os
 import re
@@ -23,6 +24,7 @@ from typing import Any
 import pytest
 
 from robot_server.control import SteppedClock
+from robot_server.control import loop as loop_module
 from robot_server.emulator import FaultError
 from robot_server.fleet import Fleet, FleetError, load_fleet, parse_fleet
 from robot_server.fleet.logs import CONTROLLER, ControllerField
@@ -459,3 +461,40 @@ async def test_each_state_round_runs_as_its_controller() -> None:
     finally:
         task.cancel()
     assert all(name == who for name, who in seen), seen
+
+
+async def test_the_exit_report_gives_the_overruns_and_their_times_as_the_bench_reads_them(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The lines bench/fleet.py parses (its OVERRUNS pattern), and the overruns' times after them.
+    The overruns are put in the shared loop's stats as late wake-ups would (no wall clock waited for)."""
+    bench = _bench_module()
+    fleet = Fleet(parse_fleet(_fleet({"name": "r1"}, {"name": "r2"})))
+    caplog.set_level(logging.INFO, logger="robot_server.fleet.runner")
+    async with fleet:
+        [shared] = fleet.shared.loops.values()
+        shared.stats.wakes = max(shared.stats.wakes, 10)
+        loop_module._late(shared.stats, 0.0061, 0.004)
+        loop_module._late(shared.stats, 0.0042, 0.004)
+    report = "\n".join(r.getMessage() for r in caplog.records if r.name == "robot_server.fleet.runner")
+    match = bench.OVERRUNS.search(report)
+    assert match is not None, report
+    assert match[2] == "2" and float(match[3]) == pytest.approx(6.1, abs=1e-3)
+    times = re.search(r"control loop \(4 ms\) overruns, the last 2 \(.*?\): (.*)$", report, re.M)
+    assert times is not None, report
+    found = re.findall(r"([\d.]+) \+([\d.]+) ms", times[1])
+    assert [late for _, late in found] == ["6.100", "4.200"]
+    assert [float(at) for at, _ in found] == [pytest.approx(at, abs=1e-5) for at, _ in shared.stats.late_wakes]
+
+
+def _bench_module() -> Any:
+    """bench/fleet.py as a module (a script, not a package's)."""
+    path = Path(__file__).resolve().parent.parent / "bench" / "fleet.py"
+    spec = importlib.util.spec_from_file_location("bench_fleet", path)
+    assert spec is not None and spec.loader is not None
+    module = sys.modules.get(spec.name)
+    if module is None:
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module  # its dataclasses look their module up there
+        spec.loader.exec_module(module)
+    return module

@@ -64,6 +64,7 @@ async def test_catch_up_runs_the_periods_due_and_the_wake_up_then_runs_none_twic
     assert [c.time for c in controllers] == [pytest.approx(4 * PERIOD)] * 2
     assert shared.stats.max_lateness == pytest.approx(2.5 * PERIOD), "period 1 ran 2.5 periods late"
     assert shared.stats.overruns == 2, "periods 1 and 2 were more than a period late, period 3 not"
+    assert [late for _, late in shared.stats.late_wakes] == pytest.approx([2.5 * PERIOD, 1.5 * PERIOD])
 
     shared.catch_up()  # nothing more is due
     assert shared.stats.wakes == 4
