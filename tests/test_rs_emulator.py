@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import math
 import os
+import re
 import struct
 from collections.abc import AsyncIterator
 from typing import Any
@@ -18,7 +20,8 @@ import numpy as np
 import pytest
 
 from robot_server.control import SteppedClock
-from robot_server.emulator import Emulator, FaultError, IoTable, apply_fault_command
+from robot_server.control import loop as loop_module
+from robot_server.emulator import Emulator, EmulatorConfig, FaultError, IoTable, apply_fault_command
 from simple_message.transport import open_fd
 from tests.rawpeer import Frame, RawPeer, joint_position, joint_traj_pt, joint_traj_pt_full, status, vectors
 from tests.refdata import load_segments
@@ -496,3 +499,22 @@ async def test_motoros_io_port() -> None:
         table = IoTable()
         table.set(20010, 1)
         assert table.read_bit(20010) == (1, 0)
+
+
+async def test_a_lone_servers_exit_report_gives_its_overruns_and_their_times(caplog: pytest.LogCaptureFixture) -> None:
+    """On the wall clock, a lone emulator's report at close: the count, then the overruns' times
+    and lateness (put in its loop's stats as late wake-ups would: no wall-clock lateness waited for)."""
+    emu = Emulator(EmulatorConfig(motion_port=0, state_port=0))
+    caplog.set_level(logging.INFO, logger="robot_server.emulator.server")
+    await emu.start()
+    try:
+        stats = emu.control.stats
+        stats.wakes = max(stats.wakes, 10)
+        loop_module._late(stats, 0.0073, 0.004)
+    finally:
+        await emu.close(settle_timeout=1.0)
+    report = "\n".join(r.getMessage() for r in caplog.records if r.name == "robot_server.emulator.server")
+    assert re.search(r"control loop: \d+ wake-ups, 1 overruns .*latest [\d.]+ ms", report), report
+    times = re.search(r"control loop overruns, the last 1 \(.*?\): ([\d.]+) \+7\.300 ms$", report, re.M)
+    assert times is not None, report
+    assert float(times[1]) == pytest.approx(stats.late_wakes[0][0], abs=1e-5)
