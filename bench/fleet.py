@@ -56,10 +56,9 @@ import struct
 import sys
 import tempfile
 import time
-from collections.abc import AsyncIterator, Callable, Coroutine, Sequence
+from collections.abc import AsyncIterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 PROFILES = ("generic", "motoros", "abb", "fanuc", "staubli")
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
@@ -755,16 +754,12 @@ async def main(args: argparse.Namespace) -> None:
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1].startswith("_"):
-        children: dict[str, Callable[..., Coroutine[Any, Any, None]]] = {
-            "_stream": _stream_client,
-            "_watch": _watch_client,
-            "_chaos": _chaos_client,
-            "_floor": _floor,
-        }
-        if sys.argv[1] == "_sentinel":
+        if sys.argv[1] == "_sentinel":  # no event loop: the OS's own sleep
             _sentinel(sys.argv[2], float(sys.argv[3]), int(sys.argv[4]))
             sys.exit(0)
-        child = children[sys.argv[1]]
+        child = {"_stream": _stream_client, "_watch": _watch_client, "_chaos": _chaos_client, "_floor": _floor}[
+            sys.argv[1]
+        ]
         asyncio.run(child(sys.argv[2], float(sys.argv[3]), *map(int, sys.argv[4:])))
         sys.exit(0)
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
